@@ -1,0 +1,68 @@
+"""One exception hierarchy; every message should tell the user what to do."""
+
+
+class PayloadAgentError(Exception):
+    """Base of every error payload-agent raises on purpose."""
+
+    exit_code = 1
+
+
+class ConfigError(PayloadAgentError):
+    """The robot YAML (or a procedure file) is malformed; the message names the key path."""
+
+    exit_code = 2
+
+    def __init__(self, key_path: str, problem: str, source: str | None = None):
+        self.key_path = key_path
+        self.problem = problem
+        self.source = source
+        where = f"{source}: " if source else ""
+        super().__init__(f"{where}{key_path}: {problem}")
+
+
+class PlanError(PayloadAgentError):
+    """The procedure cannot be turned into joint targets for this robot."""
+
+    exit_code = 2
+
+
+class SafetyError(PayloadAgentError):
+    """The safety gate refused the plan or a single motion."""
+
+    exit_code = 2
+
+
+class RobotNotReadyError(PayloadAgentError):
+    """The controller is connected but not in a state that allows motion."""
+
+    exit_code = 3
+
+
+class MotionAbortedError(PayloadAgentError):
+    """A motion ended abnormally (stop, protective stop, e-stop, timeout, Ctrl-C)."""
+
+    exit_code = 4
+
+
+class QualityGateError(PayloadAgentError):
+    """The data or the estimate failed a quality check; nothing is written to the robot."""
+
+    exit_code = 5
+
+
+class CommunicationError(PayloadAgentError):
+    """The controller could not be reached, or answered something that could not be parsed."""
+
+    exit_code = 6
+
+
+class UnsupportedCapability(PayloadAgentError):
+    """The driver cannot do what was asked (for example write the payload setting)."""
+
+    exit_code = 2
+
+
+class DataError(PayloadAgentError):
+    """Recorded data is missing, inconsistent or insufficient for the analysis asked for."""
+
+    exit_code = 5

@@ -1,0 +1,1 @@
+"""Payload solvers: turn baseline-subtracted sweeps into mass and centre of mass."""

@@ -1,0 +1,1 @@
+"""Simulated controllers: one physics core and thin protocol front ends on loopback."""

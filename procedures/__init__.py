@@ -1,0 +1,1 @@
+"""Scripted pose sequences, stored as YAML data beside this file."""
