@@ -43,7 +43,9 @@ def ec66_spec() -> ArmSpec:
     """Elite Robots EC66 (6 kg payload)."""
     dh = getattr(_data, "EC66_DH", _PROVISIONAL_EC66_DH)
     links = getattr(_data, "EC66_LINKS", _PROVISIONAL_EC66_LINKS)
-    speeds = getattr(_data, "EC66_MAX_SPEED_DEG_S", [144.0] * 6)
+    # moveByJoint's speed percentage refers to one joint speed, 144°/s on the EC66 (the paper's
+    # 100 %); the fake uses it for every joint so percent means the same to agent and fake.
+    speeds = [getattr(_data, "EC66_SPEED_100PCT_DEG_S", 144.0)] * 6
     rated = getattr(_data, "EC66_RATED_TORQUE_NM", [150.0, 150.0, 150.0, 28.0, 28.0, 28.0])
     return ArmSpec(
         name="ec66",

@@ -1,0 +1,275 @@
+"""Robot YAML -> typed, validated configuration.
+
+Units in YAML are the ones integrators read on teach pendants (mm, deg, percent);
+everything inside the dataclasses is SI (m, rad, rad/s) unless a name says otherwise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from payload_agent.errors import ConfigError
+from payload_agent.kinematics import DHRow, Kinematics
+from payload_agent.yamlcheck import Node
+
+N_JOINTS = 6
+EFFORT_UNITS = ("percent_rated", "permille_rated", "A", "Nm")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    name: str
+    model: str
+    dh: tuple[DHRow, ...]
+    joint_limits_rad: tuple[tuple[float, float], ...]
+    max_joint_speed_rad_s: float
+    max_joint_accel_rad_s2: float
+
+    @property
+    def kinematics(self) -> Kinematics:
+        return Kinematics(self.dh)
+
+
+@dataclass(frozen=True)
+class EffortConfig:
+    unit: str
+    gains_nm_per_unit: tuple[float, ...]  # multiply the controller's effort by this to get N·m
+
+
+@dataclass(frozen=True)
+class ProcedureConfig:
+    name: str
+    speed_percent: float  # sweep speed, percent of max joint speed
+    travel_speed_percent: float  # moves between sweeps
+    accel_percent: float  # percent of max joint acceleration
+    base_deg: float  # joint-1 angle the whole procedure runs at
+    sweep_from_deg: float
+    sweep_to_deg: float
+    bidirectional: bool
+    solver: str
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    joint_limit_margin_rad: float
+    max_speed_percent: float
+    approach_speed_percent: float
+    floor_z_m: float
+    reach_box_m: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+    motion_timeout_factor: float
+
+
+@dataclass(frozen=True)
+class StorageConfig:
+    runs_dir: Path
+    state_dir: Path
+
+
+@dataclass(frozen=True)
+class SimPayload:
+    mass_kg: float
+    cog_mm: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Only in sim-*.yaml: the agent starts a fake controller in-process with this truth."""
+
+    arm: str
+    payload: SimPayload
+    noise_nm: tuple[float, ...]
+    coulomb_nm: tuple[float, ...]
+    viscous_nm_s_rad: tuple[float, ...]
+    load_ratio: tuple[float, ...]
+    friction_drift: float  # friction scale change at the tool change (e.g. 0.1 = +10 %)
+    drive_gain_error: tuple[float, ...]  # multiplicative, per joint (1.0 = exact)
+    time_scale: float
+    seed: int
+    start_deg: tuple[float, ...]  # where the simulated robot stands when the controller starts
+
+
+@dataclass(frozen=True)
+class Config:
+    source: str
+    robot: RobotConfig
+    effort: EffortConfig
+    driver: Mapping[str, Any]
+    procedure: ProcedureConfig
+    safety: SafetyConfig
+    storage: StorageConfig
+    simulation: SimulationConfig | None
+    raw: Mapping[str, Any] = field(repr=False, compare=False, default_factory=dict)
+
+    @property
+    def driver_type(self) -> str:
+        return str(self.driver["type"])
+
+    def fingerprint(self, *sections: str) -> str:
+        """Stable hash of the named raw sections (what a stored baseline depends on)."""
+        data = {s: self.raw.get(s) for s in sections}
+        return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def load_config(path: str | Path) -> Config:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError("<file>", f"cannot read {path}: {exc.strerror or exc}", str(path)) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
+        raise ConfigError("<file>", f"not valid YAML ({where}): {getattr(exc, 'problem', exc)}", str(path)) from None
+    return parse_config(data, source=str(path), base_dir=path.parent)
+
+
+def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = None) -> Config:
+    top = Node(data, "", source)
+    robot = _robot(top.child("robot"))
+    effort = _effort(top.child("effort"))
+    driver = _driver(top.child("driver"))
+    procedure = _procedure(top.child("procedure"))
+    safety = _safety(top.child("safety"), robot)
+    storage = _storage(top.child("storage", required=False), base_dir)
+    sim_node = top.child("simulation", required=False)
+    simulation = _simulation(sim_node) if sim_node is not None else None
+    top.reject_unknown(["robot", "effort", "driver", "procedure", "safety", "storage", "simulation"])
+    if procedure.speed_percent > safety.max_speed_percent:
+        raise ConfigError("procedure.speed_percent",
+                          f"{procedure.speed_percent:g} % exceeds safety.max_speed_percent "
+                          f"({safety.max_speed_percent:g} %)", source)
+    if procedure.travel_speed_percent > safety.max_speed_percent:
+        raise ConfigError("procedure.travel_speed_percent",
+                          f"{procedure.travel_speed_percent:g} % exceeds safety.max_speed_percent "
+                          f"({safety.max_speed_percent:g} %)", source)
+    return Config(source, robot, effort, driver, procedure, safety, storage, simulation, raw=data)
+
+
+def _robot(node: Node) -> RobotConfig:
+    name = node.string("name")
+    model = node.string("model")
+    kin = node.child("kinematics")
+    kin.string("convention", choices=["standard_dh"])
+    rows_raw = kin.raw("dh")
+    if not isinstance(rows_raw, list) or len(rows_raw) != N_JOINTS:
+        raise kin.error("dh", f"expected a list of {N_JOINTS} rows (one per joint), got {rows_raw!r:.60}")
+    rows = []
+    for i, row in enumerate(rows_raw):
+        r = Node(row, kin.key(f"dh[{i}]"), node.source)
+        rows.append(DHRow(
+            a_m=r.number("a_mm", min=-5000, max=5000) / 1000.0,
+            d_m=r.number("d_mm", min=-5000, max=5000) / 1000.0,
+            alpha_rad=math.radians(r.number("alpha_deg", min=-360, max=360)),
+            offset_rad=math.radians(r.number("offset_deg", 0.0, min=-360, max=360)),
+        ))
+        r.reject_unknown(["a_mm", "d_mm", "alpha_deg", "offset_deg"])
+    kin.reject_unknown(["convention", "dh"])
+    limits_raw = node.raw("joint_limits_deg")
+    if not isinstance(limits_raw, list) or len(limits_raw) != N_JOINTS:
+        raise node.error("joint_limits_deg", f"expected {N_JOINTS} [min, max] pairs, got {limits_raw!r:.60}")
+    limits = []
+    for i, pair in enumerate(limits_raw):
+        from payload_agent.yamlcheck import check_numbers
+
+        lo, hi = check_numbers(pair, node.key(f"joint_limits_deg[{i}]"), 2, source=node.source, min=-720, max=720)
+        if lo >= hi:
+            raise node.error(f"joint_limits_deg[{i}]", f"min ({lo:g}) must be below max ({hi:g})")
+        limits.append((math.radians(lo), math.radians(hi)))
+    speed = node.number("max_joint_speed_deg_s", gt=0, max=1000)
+    accel = node.number("max_joint_accel_deg_s2", gt=0, max=10000)
+    node.reject_unknown(["name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s",
+                         "max_joint_accel_deg_s2"])
+    return RobotConfig(name, model, tuple(rows), tuple(limits), math.radians(speed), math.radians(accel))
+
+
+def _effort(node: Node) -> EffortConfig:
+    unit = node.string("unit", choices=EFFORT_UNITS)
+    gains = node.per_joint("gains_nm_per_unit", N_JOINTS, gt=0)
+    node.reject_unknown(["unit", "gains_nm_per_unit"])
+    return EffortConfig(unit, gains)
+
+
+def _driver(node: Node) -> Mapping[str, Any]:
+    node.string("type")
+    return dict(node.data)  # the driver class validates its own options
+
+
+def _procedure(node: Node) -> ProcedureConfig:
+    name = node.string("name")
+    speed = node.number("speed_percent", gt=0, max=100)
+    travel = node.number("travel_speed_percent", gt=0, max=100)
+    accel = node.number("accel_percent", gt=0, max=100)
+    base = node.number("base_deg", min=-360, max=360)
+    sweep = node.numbers("sweep_deg", 2, min=-90, max=90)
+    if sweep[1] - sweep[0] < 10:
+        raise node.error("sweep_deg", f"needs at least 10 degrees of travel from first to second value, got {sweep}")
+    bidirectional = node.boolean("bidirectional")
+    solver = node.string("solver", choices=["three-step", "general"])
+    node.reject_unknown(["name", "speed_percent", "travel_speed_percent", "accel_percent", "base_deg",
+                         "sweep_deg", "bidirectional", "solver"])
+    return ProcedureConfig(name, speed, travel, accel, base, sweep[0], sweep[1], bidirectional, solver)
+
+
+def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
+    margin = node.number("joint_limit_margin_deg", min=0, max=45)
+    max_speed = node.number("max_speed_percent", gt=0, max=100)
+    approach = node.number("approach_speed_percent", gt=0, max=100)
+    floor = node.number("floor_z_mm", min=-5000, max=5000)
+    box = node.child("reach_box_mm")
+    axes = []
+    for axis in ("x", "y", "z"):
+        lo, hi = box.numbers(axis, 2, min=-5000, max=5000)
+        if lo >= hi:
+            raise box.error(axis, f"min ({lo:g}) must be below max ({hi:g})")
+        axes.append((lo / 1000.0, hi / 1000.0))
+    box.reject_unknown(["x", "y", "z"])
+    timeout = node.number("motion_timeout_factor", 2.0, min=1.2, max=20)
+    node.reject_unknown(["joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm",
+                         "reach_box_mm", "motion_timeout_factor"])
+    if approach > max_speed:
+        raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
+    return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout)
+
+
+def _storage(node: Node | None, base_dir: Path | None) -> StorageConfig:
+    if node is None:
+        return StorageConfig(Path("runs"), Path("state"))
+    runs = Path(node.string("runs_dir", "runs"))
+    state = Path(node.string("state_dir", "state"))
+    node.reject_unknown(["runs_dir", "state_dir"])
+    return StorageConfig(runs, state)
+
+
+def _simulation(node: Node) -> SimulationConfig:
+    arm = node.string("arm", choices=["ec66", "ur5e"])
+    p = node.child("payload")
+    payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000))
+    p.reject_unknown(["mass_kg", "cog_mm"])
+    noise = node.per_joint("noise_nm", N_JOINTS, min=0, max=100)
+    fr = node.child("friction")
+    coulomb = fr.per_joint("coulomb_nm", N_JOINTS, min=0, max=200)
+    viscous = fr.per_joint("viscous_nm_s_rad", N_JOINTS, min=0, max=1000)
+    load = fr.per_joint("load_ratio", N_JOINTS, 0.0, min=0, max=1)
+    drift = fr.number("drift", 0.0, min=-0.9, max=2.0)
+    fr.reject_unknown(["coulomb_nm", "viscous_nm_s_rad", "load_ratio", "drift"])
+    gain_err = node.per_joint("drive_gain_error", N_JOINTS, 1.0, gt=0.5, max=1.5)
+    scale = node.number("time_scale", gt=0, max=1000)
+    seed = node.integer("seed", 0)
+    start = node.numbers("start_deg", N_JOINTS, min=-360, max=360)
+    node.reject_unknown(["arm", "payload", "noise_nm", "friction", "drive_gain_error", "time_scale", "seed",
+                         "start_deg"])
+    return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start)
+
+
+def config_snapshot(config: Config) -> dict[str, Any]:
+    """The raw YAML data as loaded: what goes into a run's manifest."""
+    return json.loads(json.dumps(config.raw, default=str))

@@ -1,0 +1,137 @@
+"""Procedure + robot config -> a Plan: the exact list of PTP joint moves, each labelled.
+
+The plan is pure data; nothing here talks to a robot. The safety gate validates it
+whole before the first move.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from payload_agent.arm_geometry import ArmGeometry
+from payload_agent.config import Config
+from payload_agent.errors import PlanError
+from payload_agent.procedure import Procedure, load_procedure
+
+
+@dataclass(frozen=True)
+class SweepKey:
+    """What a recorded sweep is: baseline matching uses all four fields."""
+
+    pose: str
+    joint: int  # 1-based
+    direction: str  # "up" (elevation increasing) or "down"
+    speed_percent: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.pose}-j{self.joint}-{self.direction}"
+
+
+@dataclass(frozen=True)
+class Move:
+    label: str
+    kind: str  # "approach" | "travel" | "sweep"
+    target_rad: tuple[float, ...]
+    speed_rad_s: float
+    accel_rad_s2: float
+    sweep: SweepKey | None = None
+
+    def to_json(self) -> dict:
+        d = {"label": self.label, "kind": self.kind, "target_deg": [round(math.degrees(v), 6) for v in self.target_rad],
+             "speed_deg_s": round(math.degrees(self.speed_rad_s), 6),
+             "accel_deg_s2": round(math.degrees(self.accel_rad_s2), 6)}
+        if self.sweep:
+            d["sweep"] = {"pose": self.sweep.pose, "joint": self.sweep.joint, "direction": self.sweep.direction,
+                          "speed_percent": self.sweep.speed_percent}
+        return d
+
+
+@dataclass(frozen=True)
+class Plan:
+    procedure: Procedure
+    moves: tuple[Move, ...]
+
+    @property
+    def sweeps(self) -> list[Move]:
+        return [m for m in self.moves if m.kind == "sweep"]
+
+    def fingerprint(self) -> str:
+        """Changes whenever any target, speed or sweep changes (a stored baseline depends on it)."""
+        data = [m.to_json() for m in self.moves if m.kind != "approach"]
+        return hashlib.sha256(json.dumps([self.procedure.fingerprint, data], sort_keys=True).encode()).hexdigest()[:16]
+
+
+def move_duration_s(start: np.ndarray, target: np.ndarray, speed: float, accel: float) -> float:
+    """Duration of a synchronized trapezoidal PTP move led by the joint with the longest travel."""
+    dist = float(np.max(np.abs(np.asarray(target) - np.asarray(start))))
+    if dist == 0:
+        return 0.0
+    if dist < speed * speed / accel:
+        return 2.0 * math.sqrt(dist / accel)
+    return dist / speed + speed / accel
+
+
+def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
+    proc = procedure or load_procedure(config.procedure.name)
+    pc = config.procedure
+    robot = config.robot
+    geo = ArmGeometry(robot.kinematics, math.radians(pc.base_deg))
+    lo, hi = math.radians(pc.sweep_from_deg), math.radians(pc.sweep_to_deg)
+    vmax, amax = robot.max_joint_speed_rad_s, robot.max_joint_accel_rad_s2
+    sweep_speed = vmax * pc.speed_percent / 100.0
+    travel_speed = vmax * pc.travel_speed_percent / 100.0
+    accel = amax * pc.accel_percent / 100.0
+    margin = config.safety.joint_limit_margin_rad
+    wrist_limits = [(a + margin, b - margin) for a, b in robot.joint_limits_rad[3:]]
+
+    wrists: dict[str, np.ndarray] = {}
+    prefer = np.zeros(3)
+    for name, pose in proc.poses.items():
+        q2, q3 = geo.joints_for(0.0, 0.0)
+        R = geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
+        wrists[name] = prefer = geo.wrist_for(q2, q3, R, wrist_limits, prefer)  # next pose: least wrist travel
+
+    def target(pose: str, joint: int, elev: float) -> np.ndarray:
+        e2, e3 = (elev, elev) if joint == 2 else (math.pi / 2, elev)
+        q2, q3 = geo.joints_for(e2, e3)
+        q = np.array([geo.base, q2, q3, *wrists[pose]])
+        # the wrist holds still relative to link 3, so the tool orientation must hold along the sweep
+        spec = proc.poses[pose]
+        if np.max(np.abs(robot.kinematics.flange(q)[:3, :3] - geo.tool_rotation(q, spec.tool_x, spec.tool_z))) > 1e-9:
+            raise PlanError(f"pose {pose}: tool orientation is not constant along the joint-{joint} sweep")
+        return q
+
+    moves: list[Move] = []
+    first = True
+    for sw in proc.sweeps:
+        start, end = target(sw.pose, sw.joint, lo), target(sw.pose, sw.joint, hi)
+        label = f"{sw.pose}-j{sw.joint}"
+        if first:
+            moves.append(Move(f"approach {label} start", "approach", tuple(start),
+                              vmax * config.safety.approach_speed_percent / 100.0, accel))
+            first = False
+        else:
+            moves.append(Move(f"to {label} start", "travel", tuple(start), travel_speed, accel))
+        moves.append(Move(f"{label} up", "sweep", tuple(end), sweep_speed, accel,
+                          SweepKey(sw.pose, sw.joint, "up", pc.speed_percent)))
+        if pc.bidirectional:
+            moves.append(Move(f"{label} down", "sweep", tuple(start), sweep_speed, accel,
+                              SweepKey(sw.pose, sw.joint, "down", pc.speed_percent)))
+    return Plan(proc, tuple(moves))
+
+
+def expected_durations(plan: Plan, start_q: np.ndarray | None) -> list[float]:
+    """Per move, in seconds; the approach move's duration needs the robot's current angles."""
+    out = []
+    prev = None if start_q is None else np.asarray(start_q, float)
+    for m in plan.moves:
+        tgt = np.asarray(m.target_rad)
+        out.append(float("nan") if prev is None else move_duration_s(prev, tgt, m.speed_rad_s, m.accel_rad_s2))
+        prev = tgt
+    return out

@@ -1,0 +1,109 @@
+"""Writes every sample of every sweep to the run folder as it arrives.
+
+Layout (see docs/run-format.md): ``manifest.json`` at the top, one CSV per sweep in a
+folder per phase (``empty/``, ``loaded/``). The manifest is rewritten after every
+sweep, so an aborted run still describes what it holds.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, TextIO
+
+from payload_agent.drivers.base import Sample
+from payload_agent.planner import Move
+
+CSV_COLUMNS = ["t_ctrl_s", "t_recv_s"] + [f"q{j}_rad" for j in range(1, 7)] + [f"effort{j}" for j in range(1, 7)]
+FLUSH_EVERY_S = 0.25
+
+
+def utc_now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+
+
+class RunRecorder:
+    def __init__(self, run_dir: Path, manifest: dict[str, Any]):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=False)
+        self.manifest = dict(manifest)
+        self.manifest.setdefault("phases", {})
+        self.manifest.setdefault("created_utc", utc_now())
+        self._lock = threading.Lock()
+        self._phase: str | None = None
+        self._file: TextIO | None = None
+        self._entry: dict[str, Any] | None = None
+        self._last_flush = 0.0
+        self.samples_seen = 0
+        self.last_sample: Sample | None = None
+        self.write_manifest()
+
+    # -- phases and sweeps ------------------------------------------------------------------
+    def begin_phase(self, name: str, **info: Any) -> None:
+        (self.run_dir / name).mkdir(exist_ok=True)
+        self._phase = name
+        self.manifest["phases"][name] = {"started_utc": utc_now(), "sweeps": [], **info}
+        self.write_manifest()
+
+    def end_phase(self, status: str) -> None:
+        if self._phase is not None:
+            self.manifest["phases"][self._phase].update(ended_utc=utc_now(), status=status)
+            self.write_manifest()
+            self._phase = None
+
+    def begin_sweep(self, move: Move) -> None:
+        if self._phase is None or move.sweep is None:
+            raise ValueError("begin_sweep needs an open phase and a sweep move")
+        rel = f"{self._phase}/{move.sweep.name}.csv"
+        f = open(self.run_dir / rel, "w", encoding="utf-8", newline="")
+        f.write(",".join(CSV_COLUMNS) + "\n")
+        entry = {"file": rel, "name": move.sweep.name, "pose": move.sweep.pose, "joint": move.sweep.joint,
+                 "direction": move.sweep.direction, "speed_percent": move.sweep.speed_percent,
+                 "target_deg": [round(math.degrees(v), 6) for v in move.target_rad],
+                 "started_utc": utc_now(), "status": "recording", "samples": 0}
+        with self._lock:
+            self._file, self._entry = f, entry
+        self.manifest["phases"][self._phase]["sweeps"].append(entry)
+        self.write_manifest()
+
+    def end_sweep(self, status: str) -> None:
+        with self._lock:
+            f, entry = self._file, self._entry
+            self._file = self._entry = None
+        if f is not None:
+            f.close()
+        if entry is not None:
+            entry.update(status=status, ended_utc=utc_now())
+            self.write_manifest()
+
+    # -- the driver's sample sink -------------------------------------------------------------
+    def sink(self, s: Sample) -> None:
+        with self._lock:
+            self.samples_seen += 1
+            self.last_sample = s
+            if self._file is None:
+                return
+            t_ctrl = "" if s.t_ctrl is None else repr(s.t_ctrl)
+            self._file.write(",".join([t_ctrl, repr(s.t_recv), *map(repr, s.q), *map(repr, s.effort)]) + "\n")
+            self._entry["samples"] += 1
+            now = time.monotonic()
+            if now - self._last_flush > FLUSH_EVERY_S:
+                self._file.flush()
+                self._last_flush = now
+
+    # -- manifest ---------------------------------------------------------------------------
+    def update(self, **fields: Any) -> None:
+        self.manifest.update(fields)
+        self.write_manifest()
+
+    def write_manifest(self) -> None:
+        tmp = self.run_dir / "manifest.json.tmp"
+        tmp.write_text(json.dumps(self.manifest, indent=2, default=str), encoding="utf-8")
+        tmp.replace(self.run_dir / "manifest.json")
+
+    def close(self) -> None:
+        self.end_sweep("aborted") if self._file is not None else None

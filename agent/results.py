@@ -1,0 +1,95 @@
+"""What a solver returns, and how it is written (JSON) and shown (table)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class Estimate:
+    solver: str
+    mass_kg: float
+    cog_m: tuple[float, float, float]
+    residual_rms_nm: dict[str, float] = field(default_factory=dict)  # per sweep (and joint where relevant)
+    samples: dict[str, int] = field(default_factory=dict)
+    mass_std_kg: float | None = None
+    cog_std_m: tuple[float, float, float] | None = None
+    covariance: list[list[float]] | None = None  # of θ = [m, m·cx, m·cy, m·cz], SI
+    condition_number: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def cog_mm(self) -> tuple[float, float, float]:
+        return tuple(1000.0 * v for v in self.cog_m)
+
+    def to_json(self) -> dict[str, Any]:
+        d = {"solver": self.solver, "mass_kg": self.mass_kg, "cog_mm": list(self.cog_mm),
+             "residual_rms_nm": self.residual_rms_nm, "samples": self.samples}
+        if self.mass_std_kg is not None:
+            d["mass_ci95_kg"] = 1.96 * self.mass_std_kg
+            d["mass_std_kg"] = self.mass_std_kg
+        if self.cog_std_m is not None:
+            d["cog_std_mm"] = [1000.0 * v for v in self.cog_std_m]
+            d["cog_ci95_mm"] = [1960.0 * v for v in self.cog_std_m]
+        if self.covariance is not None:
+            d["covariance_theta_si"] = self.covariance
+        if self.condition_number is not None:
+            d["condition_number"] = self.condition_number
+        if self.notes:
+            d["notes"] = self.notes
+        return d
+
+
+@dataclass
+class RunResult:
+    """The result file: the chosen estimate first, other solvers' estimates beside it."""
+
+    robot: str
+    run_dir: str
+    primary: Estimate
+    others: list[Estimate] = field(default_factory=list)
+    quality: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        d = {"robot": self.robot, "run_dir": self.run_dir, **self.primary.to_json(),
+             "estimates": {e.solver: e.to_json() for e in [self.primary, *self.others]}}
+        if self.quality:
+            d["quality"] = self.quality
+        d.update(self.extra)
+        return d
+
+    def write(self, path: Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json(), indent=2), encoding="utf-8")
+
+
+def format_table(result: RunResult, truth: dict[str, Any] | None = None) -> str:
+    """The terminal summary: one row per quantity, one column per solver (+ truth in simulation)."""
+    ests = [result.primary, *result.others]
+    head = ["", *[e.solver + (" *" if e is result.primary else "") for e in ests]]
+    rows = [["mass [kg]", *[_pm(e.mass_kg, e.mass_std_kg, 4) for e in ests]]]
+    for i, axis in enumerate("xyz"):
+        rows.append([f"cog {axis} [mm]", *[_pm(e.cog_mm[i], None if e.cog_std_m is None else 1000 * e.cog_std_m[i], 2)
+                                          for e in ests]])
+    if truth is not None:
+        head.append("truth")
+        rows[0].append(f"{truth['mass_kg']:.4f}")
+        for i in range(3):
+            rows[i + 1].append(f"{truth['cog_mm'][i]:.2f}")
+    widths = [max(len(r[c]) for r in [head, *rows]) for c in range(len(head))]
+    lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)) for r in [head, *rows]]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines.append("(* = primary result; ± is the 95 % interval where the solver reports one)")
+    return "\n".join(lines)
+
+
+def _pm(value: float, std: float | None, digits: int) -> str:
+    if std is None or not math.isfinite(std):
+        return f"{value:.{digits}f}"
+    return f"{value:.{digits}f} ± {1.96 * std:.{digits}f}"

@@ -1,0 +1,128 @@
+"""The safety gate: the only code that may command robot motion.
+
+It validates the whole plan (joint limits with margin, speed cap, floor and reach
+box along every joint-space path, slow first approach) before the first move, and
+then executes exactly the approved moves, in order, nothing else.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from payload_agent.config import Config
+from payload_agent.drivers.base import Driver
+from payload_agent.errors import SafetyError
+from payload_agent.planner import Move, Plan, move_duration_s
+
+PATH_CHECK_POINTS = 60
+MAX_SINGLE_MOVE_RAD = math.radians(200.0)
+
+
+@dataclass
+class Verdict:
+    ok: bool
+    problems: list[str] = field(default_factory=list)
+    checks: list[str] = field(default_factory=list)
+
+    def describe(self) -> str:
+        head = "SAFE: all checks passed" if self.ok else "REFUSED"
+        lines = [head] + [f"  ok  {c}" for c in self.checks] + [f"  !!  {p}" for p in self.problems]
+        return "\n".join(lines)
+
+
+class SafetyGate:
+    def __init__(self, config: Config):
+        self.config = config
+        self.kin = config.robot.kinematics
+        self.safety = config.safety
+        self._approved: tuple[Move, ...] | None = None
+        self._next = 0
+
+    # -- validation -------------------------------------------------------------------------
+    def check(self, plan: Plan, start_q: np.ndarray | None) -> Verdict:
+        """Check every move of the plan; ``start_q`` (current angles) is needed to check the approach path."""
+        s, robot = self.safety, self.config.robot
+        problems: list[str] = []
+        vmax = robot.max_joint_speed_rad_s
+        cap = vmax * s.max_speed_percent / 100.0
+        approach_cap = vmax * s.approach_speed_percent / 100.0
+        margin = s.joint_limit_margin_rad
+        (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
+        if not plan.moves:
+            problems.append("the plan has no moves")
+        elif plan.moves[0].kind != "approach":
+            problems.append("the first move must be the slow approach move")
+        prev = None if start_q is None else np.asarray(start_q, float)
+        if prev is None:
+            problems.append("current joint angles unknown: the approach path cannot be checked")
+        for i, m in enumerate(plan.moves):
+            tgt = np.asarray(m.target_rad, float)
+            where = f"move {i + 1} ({m.label})"
+            for j, (v, (lo, hi)) in enumerate(zip(tgt, robot.joint_limits_rad)):
+                if not (lo + margin <= v <= hi - margin):
+                    problems.append(f"{where}: joint {j + 1} target {math.degrees(v):.1f}° outside limits "
+                                    f"[{math.degrees(lo):.0f}, {math.degrees(hi):.0f}]° less "
+                                    f"{math.degrees(margin):.0f}° margin")
+            if m.speed_rad_s > cap * (1 + 1e-9):
+                problems.append(f"{where}: speed {100 * m.speed_rad_s / vmax:.2f} % above the cap "
+                                f"{s.max_speed_percent:g} %")
+            if i == 0 and m.speed_rad_s > approach_cap * (1 + 1e-9):
+                problems.append(f"{where}: first move at {100 * m.speed_rad_s / vmax:.2f} %, approach cap is "
+                                f"{s.approach_speed_percent:g} %")
+            if m.accel_rad_s2 <= 0 or m.accel_rad_s2 > robot.max_joint_accel_rad_s2 * (1 + 1e-9):
+                problems.append(f"{where}: acceleration outside (0, max_joint_accel]")
+            if prev is None:
+                prev = tgt
+                continue
+            if np.max(np.abs(tgt - prev)) > MAX_SINGLE_MOVE_RAD:
+                problems.append(f"{where}: a joint turns {math.degrees(np.max(np.abs(tgt - prev))):.0f}° in one "
+                                f"move (more than {math.degrees(MAX_SINGLE_MOVE_RAD):.0f}°)")
+            for k in range(PATH_CHECK_POINTS + 1):
+                q = prev + (tgt - prev) * k / PATH_CHECK_POINTS
+                x, y, z = self.kin.flange(q)[:3, 3]
+                if z < s.floor_z_m:
+                    problems.append(f"{where}: flange at z = {1000 * z:.0f} mm, below the floor "
+                                    f"({1000 * s.floor_z_m:.0f} mm)")
+                    break
+                if not (xlo <= x <= xhi and ylo <= y <= yhi and zlo <= z <= zhi):
+                    problems.append(f"{where}: flange at ({1000 * x:.0f}, {1000 * y:.0f}, {1000 * z:.0f}) mm leaves "
+                                    f"the reach box")
+                    break
+            prev = tgt
+        checks = [
+            f"{len(plan.moves)} moves within joint limits less {math.degrees(margin):.0f}° margin",
+            f"every speed <= {s.max_speed_percent:g} % of {math.degrees(vmax):.0f}°/s; first move <= "
+            f"{s.approach_speed_percent:g} %",
+            f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
+        ]
+        return Verdict(not problems, problems, checks if not problems else [])
+
+    def approve(self, plan: Plan, start_q: np.ndarray | None) -> Verdict:
+        verdict = self.check(plan, start_q)
+        if not verdict.ok:
+            raise SafetyError("the safety gate refused the plan:\n" + "\n".join(f"  - {p}" for p in verdict.problems))
+        self._approved = plan.moves
+        self._next = 0
+        self._start_q = np.asarray(start_q, float)
+        return verdict
+
+    # -- execution --------------------------------------------------------------------------
+    def execute(self, driver: Driver, move: Move, current_q: np.ndarray) -> None:
+        """Run the next approved move; anything else (skipped, repeated, changed, robot moved) is refused."""
+        if self._approved is None:
+            raise SafetyError("no approved plan: call approve() with the whole plan first")
+        if self._next >= len(self._approved) or self._approved[self._next] is not move:
+            raise SafetyError(f"move {move.label!r} is not the next approved move")
+        expected_start = self._start_q if self._next == 0 else np.asarray(self._approved[self._next - 1].target_rad)
+        drift = float(np.max(np.abs(np.asarray(current_q) - expected_start)))
+        if drift > math.radians(0.5):
+            raise SafetyError(f"before {move.label!r}: the robot is {math.degrees(drift):.2f}° away from where the "
+                              f"approved plan expects it; refusing to move")
+        expected = move_duration_s(np.asarray(current_q), np.asarray(move.target_rad), move.speed_rad_s,
+                                   move.accel_rad_s2)
+        timeout = expected * self.safety.motion_timeout_factor + 5.0
+        self._next += 1
+        driver.move_joints(move.target_rad, move.speed_rad_s, move.accel_rad_s2, timeout_s=timeout)

@@ -1,0 +1,245 @@
+"""Elite EC "monitor" port (TCP 8056) of the simulated controller.
+
+The real controller pushes one fixed-layout, big-endian binary frame every 8 ms to
+every client connected on port 8056 (docs.elibot.cn, "二次开发端口总结": 8056 =
+monitor port, 8 ms period; frame layout from Elite's own Python library
+JunJie-zhang-o/eliterobot ``elite/_monitor.py`` (``ECMonitorInfo._ec_struct``,
+unpacked with ``"!"`` i.e. big-endian) and a complete 1024-byte decoder in a public
+Node.js client (fields after ``jointacc``: jointTemperature, jointTorque,
+extJointTorques, exTcpForceInTool, dragState, 220 reserved bytes, matchingWord).
+See docs/sources.md, section "Elite EC".
+
+Here a frame is sent every 8 ms of SIMULATED time: the server subscribes to the
+SimRobot clock and emits whenever simulated time crosses the next 8 ms boundary.
+Each client has its own sender thread and a bounded queue, so a slow client never
+stalls the simulation thread; a client that falls far behind is disconnected, as a
+real controller closes a connection whose send buffer stays full.
+"""
+
+from __future__ import annotations
+
+import queue
+import socket
+import struct
+import threading
+from typing import Callable, Iterable, Mapping
+
+# (name, offset, struct type, count). Big-endian, no padding. Offsets verified by
+# ``_check_layout`` at import time.
+MONITOR_LAYOUT: tuple[tuple[str, int, str, int], ...] = (
+    ("MessageSize", 0, "I", 1),  # u32, total frame length in bytes (1024)
+    ("TimeStamp", 4, "Q", 1),  # u64, ms (real controller: ms since epoch; fake: sim time)
+    ("autorun_cycleMode", 12, "B", 1),  # 0 step, 1 cycle, 2 continuous
+    ("machinePos", 13, "d", 8),  # joint angles, deg
+    ("machinePose", 77, "d", 6),  # TCP pose in base: mm, rad
+    ("machineUserPose", 125, "d", 6),  # TCP pose in the user frame
+    ("torque", 173, "d", 8),  # joint torque, % of rated torque
+    ("robotState", 237, "i", 1),  # 0 stop 1 pause 2 e-stop 3 running 4 error 5 collision
+    ("servoReady", 241, "i", 1),  # 1 servo on
+    ("can_motor_run", 245, "i", 1),  # 1 encoders synchronized
+    ("motor_speed", 249, "i", 8),  # rpm
+    ("robotMode", 281, "i", 1),  # 0 teach 1 play 2 remote
+    ("analog_ioInput", 285, "d", 3),
+    ("analog_ioOutput", 309, "d", 5),
+    ("digital_ioInput", 349, "Q", 1),  # bit mask X0..X63
+    ("digital_ioOutput", 357, "Q", 1),  # bit mask Y0..Y63
+    ("collision", 365, "B", 1),  # 1 collision alarm
+    ("machineFlangePose", 366, "d", 6),
+    ("machineUserFlangePose", 414, "d", 6),
+    ("emergencyStopState", 462, "B", 1),  # 1 e-stop pressed
+    ("tcp_speed", 463, "d", 1),
+    ("joint_speed", 471, "d", 8),  # deg/s
+    ("tcpacc", 535, "d", 1),
+    ("jointacc", 543, "d", 8),  # deg/s^2
+    ("joint_temperature", 607, "d", 6),
+    ("jointTorque", 655, "d", 6),  # Nm (fake: the simulated joint torque)
+    ("extJointTorques", 703, "d", 6),
+    ("exTcpForceInTool", 751, "d", 6),
+    ("dragState", 799, "B", 1),
+    ("reserved", 800, "x", 220),
+    ("matchingWord", 1020, "I", 1),
+)
+
+FRAME_SIZE = 1024
+PERIOD_S = 0.008
+MATCHING_WORD = 0  # value not documented publicly; the fake sends 0
+
+_FIELDS = {name: (off, typ, n) for name, off, typ, n in MONITOR_LAYOUT}
+
+
+def _check_layout() -> None:
+    offset = 0
+    for name, off, typ, n in MONITOR_LAYOUT:
+        if off != offset:
+            raise AssertionError(f"monitor layout: {name} at {off}, expected {offset}")
+        offset += struct.calcsize(f"!{n}{typ}")
+    if offset != FRAME_SIZE:
+        raise AssertionError(f"monitor layout adds up to {offset} bytes, not {FRAME_SIZE}")
+
+
+_check_layout()
+
+
+def pack_frame(values: Mapping[str, object]) -> bytes:
+    """One 1024-byte frame; fields missing from ``values`` are zero."""
+    buf = bytearray(FRAME_SIZE)
+    for name, (off, typ, n) in _FIELDS.items():
+        if typ == "x":
+            continue
+        if name == "MessageSize":
+            v: object = FRAME_SIZE
+        elif name == "matchingWord":
+            v = values.get(name, MATCHING_WORD)
+        else:
+            v = values.get(name)
+        if v is None:
+            continue
+        if n == 1:
+            struct.pack_into(f"!{typ}", buf, off, v)
+        else:
+            seq = list(v)  # type: ignore[arg-type]
+            seq = (seq + [0] * n)[:n]
+            struct.pack_into(f"!{n}{typ}", buf, off, *seq)
+    return bytes(buf)
+
+
+def unpack_frame(frame: bytes) -> dict[str, object]:
+    """Decode a frame into a dict (arrays as lists); used by tests."""
+    if len(frame) < FRAME_SIZE:
+        raise ValueError(f"frame of {len(frame)} bytes, expected {FRAME_SIZE}")
+    out: dict[str, object] = {}
+    for name, (off, typ, n) in _FIELDS.items():
+        if typ == "x":
+            continue
+        vals = struct.unpack_from(f"!{n}{typ}", frame, off)
+        out[name] = vals[0] if n == 1 else list(vals)
+    return out
+
+
+class _Client:
+    def __init__(self, sock: socket.socket, max_queue: int):
+        self.sock = sock
+        self.queue: queue.Queue[bytes | None] = queue.Queue(maxsize=max_queue)
+        self.dead = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="elite-monitor-client", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            while not self.dead.is_set():
+                frame = self.queue.get()
+                if frame is None:
+                    break
+                self.sock.sendall(frame)
+        except OSError:
+            pass
+        finally:
+            self.dead.set()
+            try:
+                self.sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self.sock.close()
+
+    def offer(self, frame: bytes) -> bool:
+        """Queue a frame; False when the client fell too far behind (it is then dropped)."""
+        if self.dead.is_set():
+            return False
+        try:
+            self.queue.put_nowait(frame)
+            return True
+        except queue.Full:
+            self.drop()
+            return False
+
+    def drop(self) -> None:
+        self.dead.set()
+        try:
+            self.sock.shutdown(socket.SHUT_RDWR)  # wakes a sender blocked in sendall
+        except OSError:
+            pass
+        try:
+            self.queue.put_nowait(None)
+        except queue.Full:
+            pass
+
+
+class MonitorServer:
+    """Accepts clients on the monitor port and fans frames out to them."""
+
+    def __init__(self, host: str, port: int, max_queue: int = 250):
+        # max_queue frames = 2 s of simulated time before a client is dropped
+        self.max_queue = max_queue
+        self._listener = socket.create_server((host, port), reuse_port=False)
+        self._listener.settimeout(0.2)
+        self.port = self._listener.getsockname()[1]
+        self._clients: list[_Client] = []
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._accept_loop, name="elite-monitor-accept", daemon=True)
+        self.dropped_clients = 0
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _accept_loop(self) -> None:
+        while not self._closed.is_set():
+            try:
+                sock, _ = self._listener.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                break
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            client = _Client(sock, self.max_queue)
+            with self._lock:
+                if self._closed.is_set():
+                    sock.close()
+                    break
+                self._clients.append(client)
+            client.thread.start()
+
+    def has_clients(self) -> bool:
+        with self._lock:
+            return bool(self._clients)
+
+    def broadcast(self, frame: bytes) -> None:
+        """Called from the simulation thread: never blocks."""
+        with self._lock:
+            clients = list(self._clients)
+        gone = []
+        for c in clients:
+            if not c.offer(frame):
+                gone.append(c)
+        if gone:
+            with self._lock:
+                for c in gone:
+                    if c in self._clients:
+                        self._clients.remove(c)
+                        self.dropped_clients += 1
+
+    def close(self) -> None:
+        self._closed.set()
+        try:
+            self._listener.close()
+        except OSError:
+            pass
+        with self._lock:
+            clients, self._clients = self._clients, []
+        for c in clients:
+            c.drop()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=2.0)
+        for c in clients:
+            if c.thread.is_alive():
+                c.thread.join(timeout=2.0)
+
+
+def frame_times(t_prev_emit: float, t_now: float, period: float = PERIOD_S) -> Iterable[float]:
+    """Emission instants in (t_prev_emit, t_now] on the ``period`` grid (helper for ticks != 8 ms)."""
+    k = int(round(t_prev_emit / period)) + 1
+    while k * period <= t_now + 1e-9:
+        yield k * period
+        k += 1
+
+
+FrameSource = Callable[[], bytes]

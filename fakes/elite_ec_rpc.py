@@ -1,0 +1,176 @@
+"""Line-framed JSON-RPC 2.0 server, as on the Elite EC control port (TCP 8055).
+
+Framing and envelope as the real controller and Elite's own clients use them
+(Elite EC SDK socket manual; Elite's python library JunJie-zhang-o/eliterobot
+``elite/_baseec.py``; docs.elibot.cn "EC机器人8055端口使用": "注意字符串最后需要换行",
+the request must end with a newline):
+
+    -> {"jsonrpc":"2.0","method":"getRobotMode","params":{},"id":1}\\n
+    <- {"jsonrpc":"2.0","result":"2","id":1}\\n
+
+* one request per line; bytes without a terminating "\\n" are buffered and get no
+  answer until the newline arrives; several requests in one TCP chunk are answered
+  in order;
+* ``result`` is always a JSON-encoded *string* ("true", "2", "[0.0, ...]"), which the
+  clients decode a second time (``json.loads(jdata["result"])``);
+* errors are JSON-RPC error objects: -32700 parse error, -32600 invalid request,
+  -32601 method not found, -32602 invalid params; others are application errors.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from typing import Any, Callable
+
+PARSE_ERROR = -32700
+INVALID_REQUEST = -32600
+METHOD_NOT_FOUND = -32601
+INVALID_PARAMS = -32602
+INTERNAL_ERROR = -32603
+SERVER_ERROR = -32000  # implementation-defined (JSON-RPC reserves -32000..-32099)
+
+MAX_LINE = 1 << 20
+
+
+class RpcError(Exception):
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+Handler = Callable[[str, Any], Any]  # (method, params) -> python value to JSON-encode
+
+
+class LineJsonRpcServer:
+    """Threaded TCP server; ``handler(method, params)`` returns a value or raises RpcError."""
+
+    def __init__(self, host: str, port: int, handler: Handler, name: str = "elite-rpc",
+                 raw_override: Callable[[str], str | None] | None = None):
+        self._handler = handler
+        self._raw_override = raw_override  # test hook: answer a method with a raw (broken) line
+        self._name = name
+        self._listener = socket.create_server((host, port))
+        self._listener.settimeout(0.2)
+        self.port = self._listener.getsockname()[1]
+        self._closed = threading.Event()
+        self._conns: list[socket.socket] = []
+        self._threads: list[threading.Thread] = []
+        self._lock = threading.Lock()
+        self._accept_thread = threading.Thread(target=self._accept_loop, name=f"{name}-accept", daemon=True)
+
+    def start(self) -> None:
+        self._accept_thread.start()
+
+    def _accept_loop(self) -> None:
+        while not self._closed.is_set():
+            try:
+                sock, _ = self._listener.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                break
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            t = threading.Thread(target=self._serve, args=(sock,), name=f"{self._name}-conn", daemon=True)
+            with self._lock:
+                if self._closed.is_set():
+                    sock.close()
+                    break
+                self._conns.append(sock)
+                self._threads.append(t)
+            t.start()
+
+    def _serve(self, sock: socket.socket) -> None:
+        buf = b""
+        try:
+            while not self._closed.is_set():
+                try:
+                    chunk = sock.recv(65536)
+                except OSError:
+                    break
+                if not chunk:
+                    break
+                buf += chunk
+                while b"\n" in buf:
+                    line, buf = buf.split(b"\n", 1)
+                    reply = self._handle_line(line)
+                    if reply is not None:
+                        sock.sendall(reply)
+                if len(buf) > MAX_LINE:
+                    break  # a line that never ends: drop the client
+        except OSError:
+            pass
+        finally:
+            with self._lock:
+                if sock in self._conns:
+                    self._conns.remove(sock)
+            try:
+                sock.close()
+            except OSError:
+                pass
+
+    def _handle_line(self, line: bytes) -> bytes | None:
+        text = line.strip()
+        if not text:
+            return None
+        try:
+            req = json.loads(text.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            return _encode({"jsonrpc": "2.0", "error": {"code": PARSE_ERROR, "message": "Parse error"}, "id": None})
+        if not isinstance(req, dict):
+            return _encode({"jsonrpc": "2.0", "error": {"code": INVALID_REQUEST, "message": "Invalid Request"},
+                            "id": None})
+        req_id = req.get("id")
+        method = req.get("method")
+        if req.get("jsonrpc") != "2.0" or not isinstance(method, str):
+            return _encode({"jsonrpc": "2.0", "error": {"code": INVALID_REQUEST, "message": "Invalid Request"},
+                            "id": req_id})
+        if self._raw_override is not None:
+            raw = self._raw_override(method)
+            if raw is not None:
+                return (raw + "\n").encode("utf-8")
+        if "id" not in req:
+            # a notification: executed, never answered (JSON-RPC 2.0 §4.1)
+            try:
+                self._handler(method, req.get("params"))
+            except Exception:
+                pass
+            return None
+        try:
+            value = self._handler(method, req.get("params"))
+            return _encode({"jsonrpc": "2.0", "result": json.dumps(value), "id": req_id})
+        except RpcError as e:
+            return _encode({"jsonrpc": "2.0", "error": {"code": e.code, "message": e.message}, "id": req_id})
+        except Exception as e:  # a bug in the fake: still answer like a server would
+            return _encode({"jsonrpc": "2.0", "error": {"code": INTERNAL_ERROR, "message": f"Internal error: {e}"},
+                            "id": req_id})
+
+    def close(self) -> None:
+        self._closed.set()
+        try:
+            self._listener.close()
+        except OSError:
+            pass
+        with self._lock:
+            conns = list(self._conns)
+            threads = list(self._threads)
+        for s in conns:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            try:
+                s.close()
+            except OSError:
+                pass
+        if self._accept_thread.is_alive():
+            self._accept_thread.join(timeout=2.0)
+        for t in threads:
+            if t.is_alive() and t is not threading.current_thread():
+                t.join(timeout=2.0)
+
+
+def _encode(obj: dict) -> bytes:
+    return (json.dumps(obj, separators=(",", ":")) + "\n").encode("utf-8")

@@ -1,0 +1,303 @@
+"""EliteECDriver against the simulated controller over real loopback sockets."""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from payload_agent.drivers.base import PayloadSetting, Sample
+from payload_agent.drivers.elite_ec import EliteECDriver
+from payload_agent.drivers.registry import driver_class
+from payload_agent.errors import (
+    CommunicationError,
+    ConfigError,
+    MotionAbortedError,
+    RobotNotReadyError,
+)
+
+pytest.importorskip("mujoco")
+
+from payload_agent.fakes.arms import ec66_spec  # noqa: E402
+from payload_agent.fakes.elite_ec import FakeEliteController  # noqa: E402
+from payload_agent.fakes.elite_ec_monitor import pack_frame  # noqa: E402
+from payload_agent.fakes.sim_robot import SimRobot  # noqa: E402
+
+Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]
+SPEC = ec66_spec()
+JOINT_MAX_DEG_S = [math.degrees(v) for v in SPEC.max_speed_rad_s]
+MAX_SPEED = max(SPEC.max_speed_rad_s)
+TIME_SCALE = 40.0
+
+
+@pytest.fixture
+def sim():
+    robot = SimRobot(ec66_spec(), q0_rad=Q0, tick_s=0.008, time_scale=TIME_SCALE)
+    robot.start()
+    yield robot
+    robot.close()
+
+
+@pytest.fixture
+def ctrl(sim):
+    c = FakeEliteController(sim, rpc_port=0, monitor_port=0)
+    c.start()
+    yield c
+    c.close()
+
+
+def make_driver(ctrl, **extra) -> EliteECDriver:
+    opts = {"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port, "monitor_port": ctrl.monitor_port,
+            "joint_max_speed_deg_s": JOINT_MAX_DEG_S, "max_joint_accel_rad_s2": max(SPEC.max_accel_rad_s2),
+            "reply_timeout_s": 2.0}
+    opts.update(extra)
+    return EliteECDriver(opts, max_joint_speed_rad_s=MAX_SPEED)
+
+
+@pytest.fixture
+def drv(ctrl):
+    d = make_driver(ctrl)
+    d.connect()
+    yield d
+    d.close()
+
+
+def test_registry_finds_driver():
+    assert driver_class("elite_ec") is EliteECDriver
+    assert EliteECDriver.effort_unit == "percent_rated"
+
+
+def test_connect_identify_state(drv):
+    info = drv.identify()
+    assert info.vendor == "Elite Robots" and info.model == "EC66" and info.firmware
+    st = drv.state()
+    assert st.mode == "remote" and st.servo_on and not st.estop and not st.protective_stop and not st.moving
+    assert st.fault is None
+
+
+def test_state_reports_estop_and_collision(drv, ctrl):
+    ctrl.trigger_collision()
+    st = drv.state()
+    assert st.protective_stop and st.fault
+    ctrl.press_estop()
+    st = drv.state()
+    assert st.estop and not st.servo_on
+
+
+def test_move_reaches_target_and_samples_stream(drv, sim):
+    samples: list[Sample] = []
+    drv.start_stream(samples.append)
+    target = np.array(Q0) + np.radians([15.0, 10.0, -8.0, 5.0, 0.0, 40.0])
+    drv.move_joints(target, speed_rad_s=math.radians(60), accel_rad_s2=6.0, timeout_s=10.0)
+    assert np.allclose(sim.snapshot().q, target, atol=1e-6)
+    time.sleep(0.05)
+    drv.stop_stream()
+    n = len(samples)
+    assert n > 20
+    ts = [s.t_ctrl for s in samples]
+    assert all(b - a == pytest.approx(0.008, abs=1e-9) for a, b in zip(ts, ts[1:]))
+    assert all(b.t_recv >= a.t_recv for a, b in zip(samples, samples[1:]))
+    last = samples[-1]
+    assert len(last.q) == 6 and len(last.effort) == 6
+    assert np.allclose(last.q, target, atol=1e-6)
+    # effort is percent of rated torque: joint 2 carries the arm
+    expected = sim.snapshot().torque_nm / np.asarray(ec66_spec().rated_torque_nm) * 100.0
+    assert last.effort[1] == pytest.approx(expected[1], rel=0.02)
+    # the leading joint (J6: 40 deg) cruised at the requested 60 deg/s
+    qd6 = np.diff([s.q[5] for s in samples]) / 0.008
+    assert np.max(np.abs(qd6)) == pytest.approx(math.radians(60), rel=0.02)
+    time.sleep(0.05)
+    assert len(samples) == n  # stop_stream really stopped delivery
+    assert drv.stream_error is None
+
+
+def test_move_params_sent_to_controller(drv, ctrl):
+    target = np.array(Q0) + np.radians([10.0, 0, 0, 0, 0, 0])
+    drv.move_joints(target, speed_rad_s=math.radians(75), accel_rad_s2=3.0, timeout_s=10.0)
+    params = [p for m, p in ctrl.requests if m == "moveByJoint"][-1]
+    assert len(params["targetPos"]) == 8 and params["targetPos"][6:] == [0.0, 0.0]
+    assert params["targetPos"][0] == pytest.approx(10.0)
+    assert params["speed"] == pytest.approx(75.0 / JOINT_MAX_DEG_S[0] * 100.0, abs=1e-3)
+    assert params["acc"] == params["dec"] == 50  # 3 of 6 rad/s^2
+
+
+def test_estop_mid_move_aborts(drv, ctrl, sim):
+    target = np.array(Q0) + np.radians([90.0, 0, 0, 0, 0, 0])
+    timer = threading.Timer(0.1, ctrl.press_estop)
+    timer.start()
+    with pytest.raises(MotionAbortedError, match="emergency stop"):
+        drv.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
+    timer.join()
+    assert sim.snapshot().q[0] < target[0] - 0.1
+    assert any(m == "stop" for m, _ in ctrl.requests)
+
+
+def test_collision_mid_move_aborts(drv, ctrl):
+    target = np.array(Q0) + np.radians([90.0, 0, 0, 0, 0, 0])
+    timer = threading.Timer(0.1, ctrl.trigger_collision)
+    timer.start()
+    with pytest.raises(MotionAbortedError, match="collision"):
+        drv.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
+    timer.join()
+
+
+def test_timeout_stops_robot(drv, ctrl, sim):
+    target = np.array(Q0) + np.radians([90.0, 0, 0, 0, 0, 0])
+    with pytest.raises(MotionAbortedError, match="did not finish"):
+        drv.move_joints(target, speed_rad_s=math.radians(10), accel_rad_s2=2.0, timeout_s=0.1)
+    assert any(m == "stop" for m, _ in ctrl.requests)
+    time.sleep(0.3)
+    assert not sim.snapshot().moving
+
+
+@pytest.mark.parametrize("mode", [0, 1])
+def test_not_remote_refused_before_moving(drv, ctrl, mode):
+    ctrl.set_mode(mode)
+    with pytest.raises(RobotNotReadyError, match="REMOTE"):
+        drv.move_joints(np.array(Q0) + 0.1, math.radians(30), 2.0, 5.0)
+    assert not any(m == "moveByJoint" for m, _ in ctrl.requests)
+
+
+def test_servo_off_and_estop_refused_before_moving(drv, ctrl):
+    ctrl.set_servo(False)
+    with pytest.raises(RobotNotReadyError, match="servo"):
+        drv.move_joints(np.array(Q0) + 0.1, math.radians(30), 2.0, 5.0)
+    ctrl.press_estop()
+    with pytest.raises(RobotNotReadyError, match="emergency stop"):
+        drv.move_joints(np.array(Q0) + 0.1, math.radians(30), 2.0, 5.0)
+    assert not any(m == "moveByJoint" for m, _ in ctrl.requests)
+
+
+def test_payload_write_read_back(drv, ctrl):
+    drv.write_payload(PayloadSetting(mass_kg=1.75, cog_m=(0.012, -0.004, 0.061)))
+    assert ctrl.payload_setting(0) == {"m": 1.75, "tool_cog": [12.0, -4.0, 61.0]}
+    back = drv.read_payload()
+    assert back.mass_kg == pytest.approx(1.75) and back.tool_num == 0
+    assert np.allclose(back.cog_m, (0.012, -0.004, 0.061))
+    ctrl.set_mode(0)
+    with pytest.raises(RobotNotReadyError, match="REMOTE"):
+        drv.write_payload(PayloadSetting(mass_kg=1.0, cog_m=(0, 0, 0)))
+
+
+def test_poll_fallback(ctrl, sim):
+    d = make_driver(ctrl, sample_source="poll", poll_rate_hz=100)
+    d.connect()
+    try:
+        samples: list[Sample] = []
+        d.start_stream(samples.append)
+        target = np.array(Q0) + np.radians([0, 0, 0, 0, 0, 15.0])
+        d.move_joints(target, math.radians(90), 4.0, timeout_s=10.0)
+        time.sleep(0.1)
+        d.stop_stream()
+        assert len(samples) >= 5
+        assert all(s.t_ctrl is None for s in samples)
+        assert np.allclose(samples[-1].q, target, atol=1e-6)
+        assert abs(samples[-1].effort[1]) > 1.0
+        assert d.stream_error is None
+    finally:
+        d.close()
+
+
+def test_garbage_reply_is_communication_error_naming_method(drv, ctrl):
+    ctrl.set_garbage_reply("getRobotSubtype", "<<this is not json>>")
+    with pytest.raises(CommunicationError) as ei:
+        drv.identify()
+    assert "getRobotSubtype" in str(ei.value) and "this is not json" in str(ei.value)
+    ctrl.set_garbage_reply("getRobotSubtype", None)
+    assert drv.identify().model == "EC66"  # the connection is still usable
+
+
+def test_bad_result_string_is_communication_error(drv, ctrl):
+    ctrl.set_garbage_reply("getRobotMode", '{"jsonrpc":"2.0","result":"[1, 2","id":null}')
+    with pytest.raises(CommunicationError, match="getRobotMode"):
+        drv.state()
+
+
+def test_stop_never_raises(ctrl):
+    d = make_driver(ctrl)
+    d.stop()  # not connected
+    d.connect()
+    ctrl.close()
+    d.stop()  # controller gone
+    d.close()
+
+
+def test_connect_failure_names_host_and_port():
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    d = EliteECDriver({"host": "127.0.0.1", "rpc_port": port, "connect_timeout_s": 1.0},
+                      max_joint_speed_rad_s=MAX_SPEED)
+    with pytest.raises(CommunicationError, match=f"127.0.0.1:{port}"):
+        d.connect()
+
+
+@pytest.mark.parametrize("opts,key", [
+    ({}, "driver.host"),
+    ({"host": ""}, "driver.host"),
+    ({"host": "h", "rpc_port": 0}, "driver.rpc_port"),
+    ({"host": "h", "monitor_port": "8056"}, "driver.monitor_port"),
+    ({"host": "h", "sample_source": "rtde"}, "driver.sample_source"),
+    ({"host": "h", "poll_rate_hz": 0}, "driver.poll_rate_hz"),
+    ({"host": "h", "connect_timeout_s": -1}, "driver.connect_timeout_s"),
+    ({"host": "h", "reply_timeout_s": "2"}, "driver.reply_timeout_s"),
+    ({"host": "h", "tool_num": 8}, "driver.tool_num"),
+    ({"host": "h", "joint_max_speed_deg_s": [1, 2, 3]}, "driver.joint_max_speed_deg_s"),
+    ({"host": "h", "hots": "x"}, "driver.hots"),
+])
+def test_config_validation(opts, key):
+    with pytest.raises(ConfigError) as ei:
+        EliteECDriver(opts, max_joint_speed_rad_s=MAX_SPEED)
+    assert ei.value.key_path == key
+
+
+class _ChunkedMonitor:
+    """A stand-in monitor port that sends frames in odd-size pieces."""
+
+    def __init__(self, frames: list[bytes], chunk_sizes=(5, 1, 700, 2000, 3, 1024)):
+        self.data = b"".join(frames)
+        self.chunks = chunk_sizes
+        self.srv = socket.create_server(("127.0.0.1", 0))
+        self.port = self.srv.getsockname()[1]
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        conn, _ = self.srv.accept()
+        i = pos = 0
+        while pos < len(self.data):
+            n = self.chunks[i % len(self.chunks)]
+            conn.sendall(self.data[pos:pos + n])
+            pos += n
+            i += 1
+            time.sleep(0.001)
+        time.sleep(1.0)
+        conn.close()
+        self.srv.close()
+
+
+def test_driver_frames_monitor_on_message_size(ctrl):
+    frames = [pack_frame({"TimeStamp": 1000 + 8 * k, "machinePos": [k, -90, 90, 0, 90, 0, 0, 0],
+                          "torque": [0, 10 + k, -5, 1, 0, 0, 0, 0], "robotMode": 2}) for k in range(12)]
+    mon = _ChunkedMonitor(frames)
+    d = make_driver(ctrl, monitor_port=mon.port)
+    got: list[Sample] = []
+    d.connect()
+    try:
+        d.start_stream(got.append)
+        deadline = time.monotonic() + 5
+        while len(got) < 12 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        d.close()
+    assert len(got) == 12
+    for k, s in enumerate(got):
+        assert s.t_ctrl == pytest.approx(1.0 + 0.008 * k)
+        assert s.q[0] == pytest.approx(math.radians(k)) and s.q[1] == pytest.approx(-math.pi / 2)
+        assert s.effort[1] == pytest.approx(10 + k)

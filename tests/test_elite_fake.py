@@ -1,0 +1,337 @@
+"""The simulated Elite EC controller is strict like the real one (real sockets, loopback)."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import struct
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from payload_agent.fakes.arms import ec66_spec  # noqa: E402
+from payload_agent.fakes.elite_ec import NOT_REMOTE_CODE, FakeEliteController  # noqa: E402
+from payload_agent.fakes.elite_ec_monitor import FRAME_SIZE, MONITOR_LAYOUT, unpack_frame  # noqa: E402
+from payload_agent.fakes.sim_robot import SimRobot  # noqa: E402
+
+Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]
+TIME_SCALE = 40.0
+
+
+@pytest.fixture
+def sim():
+    robot = SimRobot(ec66_spec(), q0_rad=Q0, tick_s=0.008, time_scale=TIME_SCALE)
+    robot.start()
+    yield robot
+    robot.close()
+
+
+@pytest.fixture
+def ctrl(sim):
+    gain = [1.0, 1.03, 0.98, 1.0, 1.0, 1.0]
+    c = FakeEliteController(sim, rpc_port=0, monitor_port=0, gain_error=gain)
+    c.start()
+    yield c
+    c.close()
+
+
+class Raw:
+    """A bare 8055 client: bytes in, lines out."""
+
+    def __init__(self, port: int):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=3.0)
+        self.buf = b""
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def line(self, timeout: float = 3.0) -> bytes | None:
+        self.sock.settimeout(timeout)
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self.buf:
+            if time.monotonic() > deadline:
+                return None
+            try:
+                chunk = self.sock.recv(4096)
+            except socket.timeout:
+                return None
+            if not chunk:
+                return None
+            self.buf += chunk
+        out, self.buf = self.buf.split(b"\n", 1)
+        return out
+
+    def call(self, method: str, params=None, req_id: int = 1) -> dict:
+        req = {"jsonrpc": "2.0", "method": method, "params": params if params is not None else {}, "id": req_id}
+        self.send((json.dumps(req) + "\n").encode())
+        reply = self.line()
+        assert reply is not None, f"no reply to {method}"
+        return json.loads(reply)
+
+    def result(self, method: str, params=None):
+        reply = self.call(method, params)
+        assert "result" in reply, reply
+        assert isinstance(reply["result"], str), "result must be a JSON-encoded string"
+        return json.loads(reply["result"])
+
+    def close(self):
+        self.sock.close()
+
+
+@pytest.fixture
+def raw(ctrl):
+    r = Raw(ctrl.rpc_port)
+    yield r
+    r.close()
+
+
+def wait_state(raw: Raw, wanted: int, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if raw.result("getRobotState") == wanted:
+            return
+        time.sleep(0.005)
+    raise AssertionError(f"robotState never became {wanted}")
+
+
+# -- JSON-RPC framing and envelope --------------------------------------------------------------
+
+def test_results_are_json_encoded_strings(raw):
+    assert raw.call("getRobotMode")["result"] == "2"
+    assert raw.call("getServoStatus")["result"] == "true"
+    reply = raw.call("get_joint_pos")
+    assert reply["jsonrpc"] == "2.0" and reply["id"] == 1
+    pos = json.loads(reply["result"])
+    assert len(pos) == 8 and np.allclose(pos[:6], np.degrees(Q0))
+    assert isinstance(raw.result("getSoftVersion"), str)
+    assert raw.result("getRobotSubtype") == 6
+    assert len(raw.result("getRobotTorques")) == 8
+    assert len(raw.result("get_motor_torque")) == 8
+    assert raw.result("get_estop_status") == 0
+    assert raw.result("getRobotState") == 0
+
+
+def test_request_without_newline_is_not_answered_until_newline(raw):
+    raw.send(b'{"jsonrpc":"2.0","method":"getRobotMode","params":{},"id":7}')
+    assert raw.line(timeout=0.3) is None
+    raw.send(b"\n")
+    reply = json.loads(raw.line())
+    assert reply == {"jsonrpc": "2.0", "result": "2", "id": 7}
+
+
+def test_request_split_over_many_chunks(raw):
+    data = b'{"jsonrpc":"2.0","method":"getRobotSubtype","params":{},"id":11}\n'
+    for i in range(0, len(data), 5):
+        raw.send(data[i:i + 5])
+        time.sleep(0.002)
+    reply = json.loads(raw.line())
+    assert reply["id"] == 11 and reply["result"] == "6"
+
+
+def test_coalesced_requests_answered_in_order(raw):
+    reqs = [{"jsonrpc": "2.0", "method": m, "params": {}, "id": i}
+            for i, m in enumerate(["getRobotMode", "getRobotSubtype", "get_estop_status"], start=1)]
+    raw.send(b"".join((json.dumps(r) + "\n").encode() for r in reqs))
+    replies = [json.loads(raw.line()) for _ in reqs]
+    assert [r["id"] for r in replies] == [1, 2, 3]
+    assert [r["result"] for r in replies] == ["2", "6", "0"]
+
+
+def test_error_codes(raw):
+    assert raw.call("noSuchMethod")["error"]["code"] == -32601
+    raw.send(b'{"jsonrpc":"2.0","method":"getRobotMode",,,}\n')
+    err = json.loads(raw.line())
+    assert err["error"]["code"] == -32700 and err["id"] is None
+    raw.send(b'[1, 2]\n')
+    assert json.loads(raw.line())["error"]["code"] == -32600
+    bad = [
+        ("moveByJoint", {"targetPos": [0, 0, 0, 0, 0], "speed": 10}),
+        ("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, 0], "speed": 0}),
+        ("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, 0], "speed": 101}),
+        ("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, "x"], "speed": 10}),
+        ("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, 0], "speed": 10, "acc": 150}),
+        ("cmd_set_payload", {"tool_num": 9, "m": 1.0, "cog": [0, 0, 0]}),
+        ("cmd_set_payload", {"tool_num": 0, "m": -1.0, "cog": [0, 0, 0]}),
+        ("cmd_set_payload", {"tool_num": 0, "m": 1.0, "cog": [0, 0]}),
+        ("get_tool_payload", {}),
+        ("set_servo_status", {"status": 3}),
+    ]
+    for method, params in bad:
+        reply = raw.call(method, params)
+        assert reply.get("error", {}).get("code") == -32602, (method, params, reply)
+
+
+def test_motion_and_settings_refused_outside_remote_mode(ctrl, raw, sim):
+    for mode in (0, 1):
+        ctrl.set_mode(mode)
+        assert raw.result("getRobotMode") == mode
+        for method, params in (("moveByJoint", {"targetPos": [10, -90, 90, 0, 90, 0], "speed": 20}),
+                               ("cmd_set_payload", {"tool_num": 0, "m": 1.0, "cog": [0, 0, 50]}),
+                               ("set_servo_status", {"status": 1})):
+            reply = raw.call(method, params)
+            assert "result" not in reply
+            assert reply["error"]["code"] == NOT_REMOTE_CODE
+            assert "remote" in reply["error"]["message"].lower()
+        # queries still answer
+        assert len(raw.result("get_joint_pos")) == 8
+    time.sleep(0.05)
+    assert np.allclose(sim.snapshot().q, Q0)
+    assert ctrl.payload_setting(0)["m"] == 0.0
+
+
+# -- motion -------------------------------------------------------------------------------------
+
+def test_move_by_joint_returns_at_once_and_runs(raw, sim):
+    target = [20.0, -80.0, 95.0, 5.0, 90.0, -10.0, 0.0, 0.0]
+    t0 = sim.now()
+    assert raw.result("moveByJoint", {"targetPos": target, "speed": 30, "acc": 50, "dec": 50}) is True
+    assert raw.result("getRobotState") == 3  # running right after the reply
+    assert sim.now() - t0 < 0.2  # answered long before the move (about 1 s of sim time) ends
+    wait_state(raw, 0, timeout=10)
+    assert np.allclose(raw.result("get_joint_pos")[:6], target[:6], atol=1e-6)
+    # the speed percentage applies to each joint's maximum: J1 leads (20 deg at 30 % of 150 deg/s)
+    assert 20.0 / (0.3 * 150.0) < sim.now() - t0 < 3.0
+
+
+def test_six_value_target_accepted(raw):
+    assert raw.result("moveByJoint", {"targetPos": [1.0, -90, 90, 0, 90, 0], "speed": 50}) is True
+    wait_state(raw, 0)
+    assert raw.result("get_joint_pos")[0] == pytest.approx(1.0)
+
+
+def test_estop_stops_motion_and_needs_clear_and_servo(ctrl, raw, sim):
+    assert raw.result("moveByJoint", {"targetPos": [60, -90, 90, 0, 90, 0], "speed": 5}) is True
+    time.sleep(0.02)
+    ctrl.press_estop()
+    assert raw.result("getRobotState") == 2
+    assert raw.result("get_estop_status") == 1
+    assert raw.result("getServoStatus") is False
+    assert raw.result("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, 0], "speed": 5}) is False
+    assert raw.result("clearAlarm") is False  # still pressed
+    ctrl.release_estop()
+    assert raw.result("getRobotState") == 4  # alarm remains
+    assert raw.result("set_servo_status", {"status": 1}) is False
+    assert raw.result("clearAlarm") is True
+    assert raw.result("set_servo_status", {"status": 1}) is True
+    assert raw.result("getRobotState") == 0
+    assert raw.result("getServoStatus") is True
+    assert raw.result("get_joint_pos")[0] < 60.0  # it never arrived
+
+
+def test_collision_state(ctrl, raw):
+    ctrl.trigger_collision()
+    assert raw.result("getRobotState") == 5
+    assert raw.result("getCollisionState") == 1
+    assert raw.result("clearAlarm") is True
+    assert raw.result("getRobotState") == 0
+
+
+def test_payload_roundtrip_and_legacy_point(raw, ctrl):
+    assert raw.result("cmd_set_payload", {"tool_num": 2, "m": 1.25, "cog": [10.0, -5.0, 60.0]}) is True
+    assert raw.result("get_tool_payload", {"tool_num": 2}) == {"m": 1.25, "tool_cog": [10.0, -5.0, 60.0]}
+    assert raw.result("cmd_set_payload", {"tool_num": 3, "m": 0.5, "point": [0, 0, 20]}) is True
+    assert ctrl.payload_setting(3) == {"m": 0.5, "tool_cog": [0.0, 0.0, 20.0]}
+    assert raw.result("getPayload", {"tool_num": 2}) == 1.25
+
+
+def test_torque_percent_of_rated_with_gain_error(raw, ctrl, sim):
+    pct = np.asarray(raw.result("getRobotTorques")[:6])
+    tau = sim.snapshot().torque_nm
+    expected = tau / np.asarray(ec66_spec().rated_torque_nm) * 100.0 * ctrl.gain_error
+    assert np.allclose(pct, expected, atol=1e-9)
+    assert abs(pct[1]) > 1.0  # joint 2 holds the arm against gravity
+
+
+# -- monitor port -------------------------------------------------------------------------------
+
+def read_frames(port: int, n: int, chunk_sizes=(4096,), timeout: float = 5.0) -> list[bytes]:
+    sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    buf = b""
+    frames: list[bytes] = []
+    i = 0
+    try:
+        while len(frames) < n:
+            data = sock.recv(chunk_sizes[i % len(chunk_sizes)])
+            i += 1
+            assert data, "monitor port closed"
+            buf += data
+            while len(buf) >= 4:
+                size = struct.unpack_from("!I", buf)[0]
+                if len(buf) < size:
+                    break
+                frames.append(buf[:size])
+                buf = buf[size:]
+    finally:
+        sock.close()
+    return frames
+
+
+def test_monitor_layout_table_is_the_public_one():
+    offsets = {name: off for name, off, _, _ in MONITOR_LAYOUT}
+    assert offsets["MessageSize"] == 0 and offsets["TimeStamp"] == 4 and offsets["machinePos"] == 13
+    assert offsets["torque"] == 173 and offsets["robotState"] == 237 and offsets["servoReady"] == 241
+    assert offsets["robotMode"] == 281 and offsets["collision"] == 365 and offsets["emergencyStopState"] == 462
+    assert offsets["joint_speed"] == 471 and offsets["jointTorque"] == 655
+    assert FRAME_SIZE == 1024
+
+
+def test_monitor_frames_layout_and_rate_in_sim_time(ctrl, sim):
+    frames = read_frames(ctrl.monitor_port, 30)
+    for f in frames:
+        assert len(f) == 1024
+        assert struct.unpack_from("!I", f, 0)[0] == 1024
+    stamps = [struct.unpack_from("!Q", f, 4)[0] for f in frames]
+    assert all(b - a == 8 for a, b in zip(stamps, stamps[1:])), stamps
+    f = frames[-1]
+    pos = struct.unpack_from("!8d", f, 13)
+    assert np.allclose(pos[:6], np.degrees(Q0), atol=1e-9) and pos[6:] == (0.0, 0.0)
+    torque = struct.unpack_from("!8d", f, 173)
+    expected = sim.snapshot().torque_nm / np.asarray(ec66_spec().rated_torque_nm) * 100.0 * ctrl.gain_error
+    assert np.allclose(torque[:6], expected, atol=1e-6)
+    assert struct.unpack_from("!i", f, 237)[0] == 0  # robotState stop
+    assert struct.unpack_from("!i", f, 241)[0] == 1  # servoReady
+    assert struct.unpack_from("!i", f, 281)[0] == 2  # robotMode remote
+    assert f[365] == 0 and f[462] == 0  # collision, e-stop
+    joint_torque = struct.unpack_from("!6d", f, 655)
+    assert np.allclose(joint_torque, sim.snapshot().torque_nm, atol=1e-9)
+    decoded = unpack_frame(f)
+    assert decoded["MessageSize"] == 1024 and decoded["robotMode"] == 2
+
+
+def test_monitor_reports_motion_and_estop(ctrl, raw):
+    assert raw.result("moveByJoint", {"targetPos": [30, -90, 90, 0, 90, 0], "speed": 10}) is True
+    frames = read_frames(ctrl.monitor_port, 5)
+    d = unpack_frame(frames[-1])
+    assert d["robotState"] == 3 and d["joint_speed"][0] > 0.0
+    ctrl.press_estop()
+    time.sleep(0.02)
+    d = unpack_frame(read_frames(ctrl.monitor_port, 2)[-1])
+    assert d["robotState"] == 2 and d["emergencyStopState"] == 1 and d["servoReady"] == 0
+
+
+def test_monitor_odd_size_chunks_still_frame(ctrl):
+    frames = read_frames(ctrl.monitor_port, 20, chunk_sizes=(7, 333, 1, 1500, 64, 1023))
+    stamps = [unpack_frame(f)["TimeStamp"] for f in frames]
+    assert all(len(f) == 1024 for f in frames)
+    assert all(b - a == 8 for a, b in zip(stamps, stamps[1:]))
+
+
+def test_slow_monitor_client_is_dropped_without_stalling_sim(sim):
+    with FakeEliteController(sim, rpc_port=0, monitor_port=0) as c:
+        c._monitor.max_queue = 10
+        lazy = socket.socket()
+        lazy.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        lazy.connect(("127.0.0.1", c.monitor_port))
+        t0 = sim.now()
+        deadline = time.monotonic() + 15
+        while c._monitor.dropped_clients == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert c._monitor.dropped_clients == 1
+        assert sim.now() > t0  # the clock kept running
+        # a well-behaved client still gets frames
+        assert len(read_frames(c.monitor_port, 3)) >= 3
+        lazy.close()
