@@ -22,7 +22,7 @@ import queue
 import socket
 import struct
 import threading
-from typing import Callable, Iterable, Mapping
+from typing import Mapping
 
 # (name, offset, struct type, count). Big-endian, no padding. Offsets verified by
 # ``_check_layout`` at import time.
@@ -232,14 +232,3 @@ class MonitorServer:
         for c in clients:
             if c.thread.is_alive():
                 c.thread.join(timeout=2.0)
-
-
-def frame_times(t_prev_emit: float, t_now: float, period: float = PERIOD_S) -> Iterable[float]:
-    """Emission instants in (t_prev_emit, t_now] on the ``period`` grid (helper for ticks != 8 ms)."""
-    k = int(round(t_prev_emit / period)) + 1
-    while k * period <= t_now + 1e-9:
-        yield k * period
-        k += 1
-
-
-FrameSource = Callable[[], bytes]
