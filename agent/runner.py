@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from payload_agent import __version__
-from payload_agent.analysis import deltas_for, solve_all
+from payload_agent.analysis import deltas_for, quality_checks, solve_all
 from payload_agent.config import Config, config_snapshot
 from payload_agent.drivers.base import Driver
 from payload_agent.drivers.registry import driver_class
@@ -28,6 +28,7 @@ from payload_agent.results import RunResult, format_table
 from payload_agent.safety import SafetyGate
 
 SAMPLE_WAIT_S = 5.0
+SETTLED_RAD = math.radians(0.05)
 
 
 @dataclass
@@ -38,6 +39,7 @@ class RunOptions:
     solver: str | None = None
     out: Callable[[str], None] = print
     ask: Callable[[str], str] = input
+    on_cell: Callable[[object], None] | None = None  # tests: sees the SimulatedCell once it runs
 
 
 @dataclass
@@ -72,12 +74,14 @@ class _Session:
     def __init__(self, config: Config, driver: Driver, gate: SafetyGate, recorder: RunRecorder, out):
         self.config, self.driver, self.gate, self.recorder, self.out = config, driver, gate, recorder, out
 
-    def current_q(self, after: float | None = None) -> np.ndarray:
-        """Latest joint angles; with ``after`` (monotonic time), wait for a sample received after it."""
+    def current_q(self, after: float | None = None, near: tuple[float, ...] | None = None) -> np.ndarray:
+        """Latest joint angles; with ``after`` (monotonic time), wait for a sample received after it,
+        and with ``near``, for one at those angles (the stream may lag the motion-finished reply)."""
         deadline = time.monotonic() + SAMPLE_WAIT_S
         while True:
             s = self.recorder.last_sample
-            if s is not None and (after is None or s.t_recv > after):
+            if s is not None and (after is None or s.t_recv > after) and (
+                    near is None or np.max(np.abs(np.asarray(s.q) - near)) < SETTLED_RAD):
                 return np.asarray(s.q, float)
             if self.driver.stream_error is not None:
                 raise CommunicationError(f"sample stream ended: {self.driver.stream_error}")
@@ -98,7 +102,7 @@ class _Session:
                 self.out(f"  [{name}] {i}/{n} {move.label}")
                 self.gate.execute(self.driver, move, q_now)
                 done = time.monotonic()
-                self.current_q(after=done)  # the stream has caught up with the end of the move
+                self.current_q(after=done, near=move.target_rad)  # the stream has caught up with the move
                 if move.sweep is not None:
                     self.recorder.end_sweep("complete")
         except BaseException as exc:
@@ -129,6 +133,8 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
 
         cell = SimulatedCell(config).start()
         driver_options = cell.options
+        if opts.on_cell is not None:
+            opts.on_cell(cell)
         out(f"Simulated {config.simulation.arm} controller on {driver_options.get('host')} "
             f"(time x{config.simulation.time_scale:g}); payload truth {cell.truth_json}")
     t0 = time.monotonic()
@@ -211,8 +217,12 @@ def _prepare_tool(phase: str, mounted: bool, cell, opts: RunOptions, out) -> Non
 
 
 def analyse(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None) -> RunResult:
-    deltas = deltas_for(run_dir, np.asarray(config.effort.gains_nm_per_unit), baseline_dir)
-    primary, others = solve_all(deltas, config.robot.kinematics, solver or config.procedure.solver)
-    result = RunResult(config.robot.name, str(run_dir), primary, others)
+    notes: list[str] = []
+    deltas = deltas_for(run_dir, np.asarray(config.effort.gains_nm_per_unit), baseline_dir, notes=notes)
+    kin = config.robot.kinematics
+    primary, others = solve_all(deltas, kin, solver or config.procedure.solver)
+    primary.notes.extend(notes)
+    quality = quality_checks(deltas, kin, primary)
+    result = RunResult(config.robot.name, str(run_dir), primary, others, quality=quality)
     result.write(Path(run_dir) / "result.json")
     return result

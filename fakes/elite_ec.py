@@ -114,6 +114,7 @@ class FakeEliteController:
         self._synced = True
         self._servo = bool(robot.snapshot().servo_on)  # commanded servo state (snapshots lag a tick)
         self._auto_tool = 0
+        self._reset_t = -1.0  # sim time of the last successful clearAlarm
         self._payloads = [{"m": 0.0, "tool_cog": [0.0, 0.0, 0.0]} for _ in range(N_TOOLS)]
         self._motion: dict | None = None  # {"t0", "dur", "seen"} while robotState is "running"
         self._next_frame_t: float | None = None
@@ -123,7 +124,9 @@ class FakeEliteController:
 
         self._rpc = LineJsonRpcServer(host, rpc_port, self._dispatch, name="elite-rpc",
                                       raw_override=self._raw_override)
-        self._monitor = MonitorServer(host, monitor_port)
+        # drop a client only after ~2 s of wall time behind (the sim may run many times faster)
+        self._monitor = MonitorServer(host, monitor_port,
+                                      max_queue=int(max(250, 2.0 * robot.time_scale / robot.tick_s)))
         self._token: int | None = None
         self._started = False
 
@@ -223,7 +226,9 @@ class FakeEliteController:
                 return STATE_ESTOP
             if self._collision:
                 return STATE_COLLISION
-            if self._alarm or s.estop or s.protective_stop:
+            # the sim's own safety flags count too (set directly on the SimRobot), except in a
+            # snapshot taken before the last clearAlarm (snapshots lag up to one tick)
+            if self._alarm or ((s.estop or s.protective_stop) and s.t > self._reset_t):
                 return STATE_ERROR
             if self._motion is not None:
                 return STATE_RUNNING
@@ -347,6 +352,7 @@ class FakeEliteController:
             self._alarm = False
             self._collision = False
             self.robot.reset_safety()
+            self._reset_t = self.robot.now()
         return True
 
     def _m_resetCollisionState(self, p: dict) -> bool:

@@ -223,8 +223,8 @@ class ScriptCompileError(Exception):
 
 # -- the controller ----------------------------------------------------------------------------
 
-class FakeURController:
-    """A simulated UR e-Series controller on ``host`` (a loopback address)."""
+class URControllerCore:
+    """The controller itself, in the current process (``FakeURController`` hosts it in a child process)."""
 
     def __init__(self, host: str | None = None, sim: SimRobot | None = None, *, spec=None,
                  q0_rad: Sequence[float] = UR5E_HOME_Q, time_scale: float = 1.0, tick_s: float = 0.002,
@@ -280,6 +280,7 @@ class FakeURController:
 
         self.log: collections.deque[str] = collections.deque(maxlen=2000)
         self.script_errors: list[str] = []
+        self.rtde_errors: list[str] = []
         self.programs_run: list[str] = []  # names of programs started
         self.rtde_sessions: list[_RTDESession] = []
         self._program: _Program | None = None
@@ -297,7 +298,7 @@ class FakeURController:
         self._started = False
 
     # -- lifecycle --------------------------------------------------------------------------------
-    def start(self) -> "FakeURController":
+    def start(self) -> "URControllerCore":
         if self._started:
             return self
         if self.host is None:
@@ -334,7 +335,7 @@ class FakeURController:
             self.robot.close()
         self._started = False
 
-    def __enter__(self) -> "FakeURController":
+    def __enter__(self) -> "URControllerCore":
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -740,7 +741,7 @@ class _RTDESession:
 
     QUEUE_SECONDS = 2.0  # the real controller drops a client whose buffer overflows
 
-    def __init__(self, ctrl: FakeURController, conn: socket.socket):
+    def __init__(self, ctrl: URControllerCore, conn: socket.socket):
         self.ctrl = ctrl
         self.conn = conn
         self.protocol = 1
@@ -774,6 +775,7 @@ class _RTDESession:
 
     def _error(self, text: str, notify: bool = False) -> None:
         self.errors.append(text)
+        self.ctrl.rtde_errors.append(text)
         self.ctrl._note(f"rtde: {text}")
         if notify:
             with self.send_lock:
@@ -1021,7 +1023,7 @@ class _ScriptCollector:
 class _Program:
     name = "program"
 
-    def __init__(self, ctrl: FakeURController, name: str):
+    def __init__(self, ctrl: URControllerCore, name: str):
         self.ctrl = ctrl
         self.name = name
         self.thread: threading.Thread | None = None
@@ -1326,7 +1328,7 @@ class _ScriptProgram(_Program):
             raise _ProgramError(f"{fn}: bad arguments ({exc})") from exc
 
 
-def _compile_program(ctrl: FakeURController, text: str, secondary: bool = False) -> _Program:
+def _compile_program(ctrl: URControllerCore, text: str, secondary: bool = False) -> _Program:
     lines = text.split("\n")
     m = _DEF_RE.match(lines[0].rstrip()) if lines else None
     if not m:
@@ -1366,3 +1368,251 @@ def _compile_program(ctrl: FakeURController, text: str, secondary: bool = False)
         kw = {k.arg: _literal(k.value) for k in call.keywords}
         calls.append((fn, args, kw))
     return _ScriptProgram(ctrl, name, calls)
+
+
+# -- hosting the controller in a child process --------------------------------------------------------
+#
+# ur_rtde's Python constructors (RTDEReceiveInterface, RTDEControlInterface) keep the GIL
+# while they connect and wait for the controller's replies (rtde_python_bindings.cpp:
+# ``py::init<...>()`` without ``py::call_guard<py::gil_scoped_release>``), so a fake
+# served by Python threads of the *same* process can never answer them. The fake
+# therefore runs in its own process; the parent gets a thin proxy.
+
+_ROBOT_METHODS = {"now", "snapshot", "set_payload", "set_friction_scale", "set_servo", "trigger_protective_stop",
+                  "trigger_estop", "reset_safety", "stop", "move_joints"}
+_CTRL_METHODS = {"trigger_protective_stop", "trigger_estop", "release_estop", "reset_safety", "set_remote_control",
+                 "run_script", "wait_ticks"}
+_CTRL_ATTRS = {"controller_payload", "script_errors", "rtde_errors", "programs_run", "log", "runtime_state",
+               "robot_mode", "gains", "current_noise_a", "controller_version", "serial_number", "host",
+               "out_int", "out_dbl", "in_int", "in_dbl"}
+
+
+def _child_main(conn) -> None:  # runs in the child process
+    try:
+        host, options = conn.recv()
+        core = URControllerCore(host, **options).start()
+    except BaseException as exc:  # report, then exit
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    conn.send(("ok", core.host))
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                break
+            op = msg[0]
+            if op == "close":
+                break
+            try:
+                if op == "call":
+                    _, target, name, args, kwargs = msg
+                    obj = core.robot if target == "robot" else core
+                    allowed = _ROBOT_METHODS if target == "robot" else _CTRL_METHODS
+                    if name not in allowed:
+                        raise AttributeError(name)
+                    result = getattr(obj, name)(*args, **kwargs)
+                elif op == "get":
+                    _, target, name = msg
+                    if target == "robot":
+                        result = {"payload": lambda: core.robot.payload, "spec": lambda: core.robot.spec,
+                                  "time_scale": lambda: core.robot.time_scale,
+                                  "tick_s": lambda: core.robot.tick_s}[name]()
+                    else:
+                        if name not in _CTRL_ATTRS:
+                            raise AttributeError(name)
+                        result = getattr(core, name)
+                        if isinstance(result, (collections.deque, list)):
+                            result = list(result)
+                        elif isinstance(result, np.ndarray):
+                            result = result.copy()
+                else:
+                    raise ValueError(f"unknown request {op!r}")
+                conn.send(("ok", result))
+            except Exception as exc:
+                conn.send(("exc", exc if _picklable(exc) else RuntimeError(repr(exc))))
+    finally:
+        core.close()
+        try:
+            conn.send(("closed", None))
+        except (OSError, ValueError):
+            pass
+
+
+def _picklable(obj) -> bool:
+    import pickle
+
+    try:
+        pickle.dumps(obj)
+        return True
+    except Exception:
+        return False
+
+
+class _RemoteRobot:
+    """Parent-side stand-in for the child's ``SimRobot`` (same method names)."""
+
+    def __init__(self, owner: "FakeURController"):
+        self._owner = owner
+
+    def __getattr__(self, name: str):
+        if name in _ROBOT_METHODS:
+            return lambda *a, **kw: self._owner._request(("call", "robot", name, a, kw))
+        if name in ("payload", "spec", "time_scale", "tick_s"):
+            return self._owner._request(("get", "robot", name))
+        raise AttributeError(name)
+
+
+class FakeURController:
+    """A simulated UR e-Series controller serving ``host`` (127.0.0.x; picked if None).
+
+    By default the controller runs in a child process (see the note above): ``robot``
+    is then a proxy with the ``SimRobot`` methods (``snapshot``, ``set_payload``,
+    ``trigger_protective_stop``, ...). ``in_process=True`` runs it in this process
+    (raw-socket tests; a ``SimRobot`` instance may be passed as ``sim``), which
+    real ur_rtde clients of this process cannot talk to.
+
+    Options (keyword): spec, q0_rad, time_scale, tick_s, gains_nm_per_a,
+    current_noise_a, seed, payload (PayloadTruth), friction (FrictionParams),
+    controller_version, serial_number, robot_model, remote_control, max_payload_kg, ports.
+    """
+
+    def __init__(self, host: str | None = None, sim: SimRobot | None = None, *, in_process: bool = False,
+                 start_timeout_s: float = 30.0, **options):
+        if sim is not None and not in_process:
+            raise TypeError("a SimRobot instance cannot be moved to the controller's process; pass the simulation "
+                            "options (spec, q0_rad, time_scale, payload, friction, ...) or use in_process=True")
+        self.host = host
+        self.in_process = in_process
+        self._sim = sim
+        self._options = options
+        self._start_timeout_s = start_timeout_s
+        self._core: URControllerCore | None = None
+        self._proc = None
+        self._conn = None
+        self._req_lock = threading.Lock()
+        self.robot: Any = None
+
+    # lifecycle ----------------------------------------------------------------------------------
+    def start(self) -> "FakeURController":
+        if self._core is not None or self._proc is not None:
+            return self
+        if self.in_process:
+            self._core = URControllerCore(self.host, self._sim, **self._options).start()
+            self.host = self._core.host
+            self.robot = self._core.robot
+            return self
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+
+        parent_sock, child_sock = socket.socketpair()
+        proc = subprocess.Popen([sys.executable, "-m", "payload_agent.fakes.ur_controller", "--child",
+                                 str(child_sock.fileno())], pass_fds=(child_sock.fileno(),), close_fds=True)
+        child_sock.close()
+        parent = Connection(parent_sock.detach())
+        try:
+            parent.send((self.host, self._options))
+            if not parent.poll(self._start_timeout_s):
+                raise RuntimeError("the fake UR controller process did not start in time")
+            status, value = parent.recv()
+        except (OSError, EOFError, RuntimeError) as exc:
+            proc.kill()
+            proc.wait(timeout=5)
+            parent.close()
+            raise RuntimeError(f"the fake UR controller process failed to start: {exc}") from exc
+        if status != "ok":
+            proc.wait(timeout=5)
+            parent.close()
+            raise RuntimeError(f"the fake UR controller could not start: {value}")
+        self.host = value
+        self._proc, self._conn = proc, parent
+        self.robot = _RemoteRobot(self)
+        return self
+
+    def close(self) -> None:
+        if self._core is not None:
+            self._core.close()
+            self._core = None
+            return
+        if self._proc is None:
+            return
+        try:
+            with self._req_lock:
+                self._conn.send(("close",))
+                if self._conn.poll(5.0):
+                    self._conn.recv()
+        except (OSError, EOFError, BrokenPipeError):
+            pass
+        try:
+            self._proc.wait(timeout=5.0)
+        except Exception:
+            self._proc.kill()
+            self._proc.wait(timeout=2.0)
+        self._conn.close()
+        self._proc = self._conn = None
+
+    def __enter__(self) -> "FakeURController":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _request(self, msg):
+        if self._core is not None:  # in process
+            if msg[0] == "call":
+                _, target, name, args, kwargs = msg
+                return getattr(self._core.robot if target == "robot" else self._core, name)(*args, **kwargs)
+            return getattr(self._core.robot if msg[1] == "robot" else self._core, msg[2])
+        if self._conn is None:
+            raise RuntimeError("the fake UR controller is not running")
+        with self._req_lock:
+            self._conn.send(msg)
+            status, value = self._conn.recv()
+        if status == "exc":
+            raise value
+        return value
+
+    # test-side API --------------------------------------------------------------------------------
+    def trigger_protective_stop(self) -> None:
+        self._request(("call", "ctrl", "trigger_protective_stop", (), {}))
+
+    def trigger_estop(self) -> None:
+        self._request(("call", "ctrl", "trigger_estop", (), {}))
+
+    def release_estop(self) -> None:
+        self._request(("call", "ctrl", "release_estop", (), {}))
+
+    def reset_safety(self) -> None:
+        self._request(("call", "ctrl", "reset_safety", (), {}))
+
+    def set_remote_control(self, on: bool) -> None:
+        self._request(("call", "ctrl", "set_remote_control", (on,), {}))
+
+    def run_script(self, text: str, source: str = "test") -> None:
+        self._request(("call", "ctrl", "run_script", (text, source), {}))
+
+    def wait_ticks(self, n: int = 1, timeout: float = 5.0) -> None:
+        self._request(("call", "ctrl", "wait_ticks", (n, timeout), {}))
+
+    def __getattr__(self, name: str):
+        if name in _CTRL_ATTRS and name != "host":
+            return self._request(("get", "ctrl", name))
+        raise AttributeError(name)
+
+
+if __name__ == "__main__":  # python -m payload_agent.fakes.ur_controller [host] | --child FD
+    import sys
+
+    if len(sys.argv) == 3 and sys.argv[1] == "--child":
+        from multiprocessing.connection import Connection
+
+        _child_main(Connection(int(sys.argv[2])))
+    else:
+        with FakeURController(sys.argv[1] if len(sys.argv) > 1 else None, in_process=True) as _ur:
+            print(f"fake UR controller on {_ur.host} (Ctrl-C to stop)")
+            try:
+                while True:
+                    time.sleep(1)
+            except KeyboardInterrupt:
+                pass

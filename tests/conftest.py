@@ -1,0 +1,38 @@
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def sim_ec66_data():
+    """The simulated EC66 config as a dict, to be tweaked per test."""
+    return yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+
+
+@pytest.fixture
+def ec66_data():
+    return yaml.safe_load((ROOT / "configs" / "ec66.yaml").read_text())
+
+
+def tweak(data, path, value):
+    """Return a deep copy with ``path`` ("a.b[2].c") set to value; value=DELETE removes the key."""
+    data = copy.deepcopy(data)
+    node = data
+    parts = path.replace("]", "").replace("[", ".").split(".")
+    for p in parts[:-1]:
+        node = node[int(p)] if isinstance(node, list) else node[p]
+    last = parts[-1]
+    if value is DELETE:
+        del node[last]
+    elif isinstance(node, list):
+        node[int(last)] = value
+    else:
+        node[last] = value
+    return data
+
+
+DELETE = object()

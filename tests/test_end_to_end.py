@@ -1,0 +1,79 @@
+"""The whole product against the simulated EC66 over its real protocol on loopback."""
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from conftest import tweak
+from payload_agent.cli import main
+from payload_agent.config import parse_config
+from payload_agent.errors import MotionAbortedError
+from payload_agent.rundata import load_manifest
+from payload_agent.runner import RunOptions, run_identification
+
+
+def _config(data, tmp_path, **changes):
+    data = tweak(data, "driver.rpc_port", 0)
+    data = tweak(data, "driver.monitor_port", 0)
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    for path, value in changes.items():
+        data = tweak(data, path.replace("__", "."), value)
+    return parse_config(data, source="test")
+
+
+def test_identifies_simulated_payload_over_the_protocol(sim_ec66_data, tmp_path):
+    # the shipped sim-ec66.yaml as it is (paper speed 1 %, noise 0.3 N·m, friction on), loopback ports
+    cfg = _config(sim_ec66_data, tmp_path)
+    truth = sim_ec66_data["simulation"]["payload"]
+    lines = []
+    outcome = run_identification(cfg, RunOptions(assume_yes=True, result_path=tmp_path / "r.json",
+                                                 out=lines.append))
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["solver"] == "three-step"
+    assert abs(result["mass_kg"] - truth["mass_kg"]) < 0.03, result
+    assert np.max(np.abs(np.array(result["cog_mm"]) - truth["cog_mm"])) < 5.0, result
+    assert set(result["residual_rms_nm"]) and all(v < 1.0 for v in result["residual_rms_nm"].values())
+    manifest = load_manifest(outcome.run_dir)
+    assert manifest["phases"]["empty"]["status"] == "complete"
+    sweeps = manifest["phases"]["loaded"]["sweeps"]
+    assert [s["name"] for s in sweeps] == ["b-j2-up", "b-j3-up", "d-j2-up", "d-j3-up"]
+    assert all(s["status"] == "complete" and s["samples"] > 500 for s in sweeps)
+    assert (outcome.run_dir / "result.json").exists()
+    # the offline analysis of the recorded run gives the same answer
+    assert main(["solve", str(outcome.run_dir), "--result", str(tmp_path / "again.json")]) == 0
+    again = json.loads((tmp_path / "again.json").read_text())
+    assert again["mass_kg"] == pytest.approx(result["mass_kg"], rel=1e-12)
+
+
+def test_estop_mid_sweep_stops_and_keeps_data(sim_ec66_data, tmp_path):
+    cfg = _config(sim_ec66_data, tmp_path, procedure__speed_percent=3)
+    cells = []
+
+    def out(line):
+        if "[loaded] 2/8" in line:  # the first loaded sweep has just been commanded
+            cell = cells[0]
+            threading.Timer(0.15, cell.controller.press_estop).start()
+
+    with pytest.raises(MotionAbortedError):
+        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append))
+    cell = cells[0]
+    assert not cell.robot.snapshot().moving
+    run_dir = next((tmp_path / "runs").iterdir())
+    manifest = load_manifest(run_dir)
+    assert manifest["phases"]["empty"]["status"] == "complete"
+    assert manifest["phases"]["loaded"]["status"].startswith("aborted")
+    sweep = manifest["phases"]["loaded"]["sweeps"][0]
+    assert sweep["status"] == "aborted" and sweep["samples"] > 0
+    lines = (run_dir / sweep["file"]).read_text().splitlines()
+    assert len(lines) - 1 == sweep["samples"]
+
+
+def test_operator_declines_nothing_moves(sim_ec66_data, tmp_path):
+    cfg = _config(sim_ec66_data, tmp_path)
+    cells = []
+    with pytest.raises(MotionAbortedError, match="declined"):
+        run_identification(cfg, RunOptions(ask=lambda prompt: "n", out=lambda s: None, on_cell=cells.append))
+    assert cells[0].robot.snapshot().move_id == 0

@@ -1,0 +1,99 @@
+"""The planner puts the links where the paper's procedure says; the gate refuses unsafe plans."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from conftest import tweak
+from payload_agent.arm_geometry import ArmGeometry
+from payload_agent.config import parse_config
+from payload_agent.errors import SafetyError
+from payload_agent.planner import make_plan
+from payload_agent.safety import SafetyGate
+
+
+def test_sweeps_follow_the_paper(sim_ec66_data):
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    kin = cfg.robot.kinematics
+    geo = ArmGeometry(kin, 0.0)
+    sweeps = plan.sweeps
+    assert [m.sweep.name for m in sweeps] == ["b-j2-up", "b-j3-up", "d-j2-up", "d-j3-up"]
+    for m in sweeps:
+        q = np.asarray(m.target_rad)
+        e2, e3 = geo.elevations(q[1], q[2])
+        if m.sweep.joint == 2:  # links collinear, raised to 55°
+            assert math.degrees(e2) == pytest.approx(55) and math.degrees(e3) == pytest.approx(55)
+        else:  # link 2 vertical, link 3 raised to 55°
+            assert math.degrees(e2) == pytest.approx(90) and math.degrees(e3) == pytest.approx(55)
+        R = kin.flange(q)[:3, :3]
+        arm = geo.arm_frame(q)
+        if m.sweep.pose == "b":  # tool x along the arm, tool z along the joint axes
+            assert R[:, 0] @ arm["arm"] == pytest.approx(1) and abs(R[:, 2] @ arm["axis"]) == pytest.approx(1)
+        else:  # tool z along the arm
+            assert R[:, 2] @ arm["arm"] == pytest.approx(1)
+
+
+def test_bidirectional_adds_return_sweeps(sim_ec66_data):
+    cfg = parse_config(tweak(sim_ec66_data, "procedure.bidirectional", True))
+    names = [m.sweep.name for m in make_plan(cfg).sweeps]
+    assert names == ["b-j2-up", "b-j2-down", "b-j3-up", "b-j3-down", "d-j2-up", "d-j2-down", "d-j3-up", "d-j3-down"]
+
+
+def test_gate_accepts_the_shipped_plan(sim_ec66_data):
+    cfg = parse_config(sim_ec66_data)
+    verdict = SafetyGate(cfg).check(make_plan(cfg), np.radians(cfg.simulation.start_deg))
+    assert verdict.ok, verdict.describe()
+
+
+@pytest.mark.parametrize("path,value,problem", [
+    ("safety.floor_z_mm", 400, "below the floor"),
+    ("safety.reach_box_mm.x", [-1000, 500], "reach box"),
+    ("robot.joint_limits_deg[1]", [-50, 50], "outside limits"),
+])
+def test_gate_refuses(sim_ec66_data, path, value, problem):
+    cfg = parse_config(tweak(sim_ec66_data, path, value))
+    gate = SafetyGate(cfg)
+    plan = make_plan(cfg)
+    start = np.radians(cfg.simulation.start_deg)
+    assert not gate.check(plan, start).ok
+    with pytest.raises(SafetyError, match=problem):
+        gate.approve(plan, start)
+
+
+def test_gate_refuses_unknown_start_and_fast_approach(sim_ec66_data):
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    assert any("current joint angles unknown" in p for p in SafetyGate(cfg).check(plan, None).problems)
+    first = plan.moves[0]
+    fast = dataclasses.replace(plan, moves=(dataclasses.replace(first, speed_rad_s=first.speed_rad_s * 2),
+                                            *plan.moves[1:]))
+    problems = SafetyGate(cfg).check(fast, np.radians(cfg.simulation.start_deg)).problems
+    assert any("approach cap" in p for p in problems)
+
+
+class _RecordingDriver:
+    def __init__(self):
+        self.moves = []
+
+    def move_joints(self, target, speed, accel, timeout_s):
+        self.moves.append(tuple(target))
+
+
+def test_gate_executes_only_the_next_approved_move(sim_ec66_data):
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    gate = SafetyGate(cfg)
+    start = np.radians(cfg.simulation.start_deg)
+    driver = _RecordingDriver()
+    with pytest.raises(SafetyError, match="no approved plan"):
+        gate.execute(driver, plan.moves[0], start)
+    gate.approve(plan, start)
+    with pytest.raises(SafetyError, match="not the next approved move"):
+        gate.execute(driver, plan.moves[1], start)
+    with pytest.raises(SafetyError, match="away from where"):
+        gate.execute(driver, plan.moves[0], start + 0.1)
+    gate.execute(driver, plan.moves[0], start)
+    assert driver.moves == [plan.moves[0].target_rad]
