@@ -166,8 +166,9 @@ class _Client:
 class MonitorServer:
     """Accepts clients on the monitor port and fans frames out to them."""
 
-    def __init__(self, host: str, port: int, max_queue: int = 250):
-        # max_queue frames = 2 s of simulated time before a client is dropped
+    def __init__(self, host: str, port: int, max_queue: int = 1000):
+        # max_queue frames (8 s of simulated time) queued behind a full socket buffer before a
+        # client is dropped
         self.max_queue = max_queue
         self._listener = socket.create_server((host, port), reuse_port=False)
         self._listener.settimeout(0.2)

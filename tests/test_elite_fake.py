@@ -188,13 +188,14 @@ def test_motion_and_settings_refused_outside_remote_mode(ctrl, raw, sim):
 def test_move_by_joint_returns_at_once_and_runs(raw, sim):
     target = [20.0, -80.0, 95.0, 5.0, 90.0, -10.0, 0.0, 0.0]
     t0 = sim.now()
-    assert raw.result("moveByJoint", {"targetPos": target, "speed": 30, "acc": 50, "dec": 50}) is True
+    assert raw.result("moveByJoint", {"targetPos": target, "speed": 3, "acc": 50, "dec": 50}) is True
     assert raw.result("getRobotState") == 3  # running right after the reply
-    assert sim.now() - t0 < 0.2  # answered long before the move (about 1 s of sim time) ends
+    assert sim.now() - t0 < 2.0  # answered long before the move (about 5 s of sim time) ends
     wait_state(raw, 0, timeout=10)
     assert np.allclose(raw.result("get_joint_pos")[:6], target[:6], atol=1e-6)
-    # the speed percentage applies to each joint's maximum: J1 leads (20 deg at 30 % of 150 deg/s)
-    assert 20.0 / (0.3 * 150.0) < sim.now() - t0 < 3.0
+    # the speed percentage applies to each joint's maximum: J1 leads (20 deg at 3 % of its maximum)
+    v_j1 = 0.03 * math.degrees(ec66_spec().max_speed_rad_s[0])
+    assert 20.0 / v_j1 < sim.now() - t0 < 20.0 / v_j1 + 2.0
 
 
 def test_six_value_target_accepted(raw):
@@ -332,6 +333,7 @@ def test_slow_monitor_client_is_dropped_without_stalling_sim(sim):
             time.sleep(0.05)
         assert c._monitor.dropped_clients == 1
         assert sim.now() > t0  # the clock kept running
+        c._monitor.max_queue = 1000
         # a well-behaved client still gets frames
         assert len(read_frames(c.monitor_port, 3)) >= 3
         lazy.close()
