@@ -86,6 +86,22 @@ def format_table(result: RunResult, truth: dict[str, Any] | None = None) -> str:
     lines = ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)) for r in [head, *rows]]
     lines.insert(1, "  ".join("-" * w for w in widths))
     lines.append("(* = primary result; ± is the 95 % interval where the solver reports one)")
+    p = result.primary
+    if p.condition_number is not None or p.residual_rms_nm:
+        worst = max(p.residual_rms_nm.items(), key=lambda kv: kv[1], default=None)
+        parts = []
+        if p.condition_number is not None:
+            parts.append(f"condition number {p.condition_number:.3g}")
+        if worst is not None:
+            parts.append(f"largest residual RMS {worst[1]:.3g} N·m ({worst[0]})")
+        lines.append(f"{p.solver}: " + ", ".join(parts))
+    if result.quality:
+        checks = ", ".join(f"{c['check']}: z = {c['z']:+.1f}" if "z" in c else c["check"]
+                           for c in result.quality.get("checks", []))
+        verdict = "passed" if result.quality.get("passed") else "FAILED"
+        lines.append(f"quality checks {verdict}" + (f" ({checks})" if checks else ""))
+        for reason in result.quality.get("reasons", []):
+            lines.append(f"  - {reason}")
     return "\n".join(lines)
 
 

@@ -14,12 +14,25 @@ use distinct 127.0.0.x addresses):
 Physics: a ``SimRobot`` (UR5e ``ArmSpec`` by default, 500 Hz ticks). The drives
 report ``actual_current = torque / gain + noise`` in A (gain in N·m/A per joint).
 
+The controller runs in a child process of its own (``FakeURController``): ur_rtde's
+Python constructors keep the GIL while they wait for the controller, so a fake served
+by threads of the client's process would deadlock. ``URControllerCore`` is the
+controller itself (``FakeURController(in_process=True)`` uses it directly, for
+raw-socket tests).
+
 Test-side API::
 
-    with FakeURController(host="127.0.0.7", time_scale=1.0) as ur:
-        ur.robot                      # the SimRobot (tool change: ur.robot.set_payload(...))
-        ur.trigger_protective_stop(); ur.trigger_estop(); ur.reset_safety()
+    with FakeURController(time_scale=1.0, payload=PayloadTruth(...)) as ur:   # host: a free 127.0.0.x
+        ur.host
+        ur.robot                      # proxy of the SimRobot: snapshot(), set_payload(), set_friction_scale(), ...
+        ur.trigger_protective_stop(); ur.trigger_estop(); ur.reset_safety(); ur.set_remote_control(False)
         ur.controller_payload         # (mass, cog) the controller was told via set_payload
+        ur.script_errors, ur.rtde_errors, ur.log, ur.programs_run   # what happened, for assertions
+
+Simulation options (keywords): spec (ArmSpec, default UR5e), q0_rad, time_scale, tick_s
+(0.002 = 500 Hz), friction, noise_nm, seed, payload, gains_nm_per_a (~10 N·m/A),
+current_noise_a (A), gain_error (multiplicative, per joint), controller_version,
+serial_number, robot_model, remote_control, max_payload_kg.
 
 The real controller's behaviour follows ur_rtde 1.6 sources and UR's RTDE guide;
 where the real behaviour is not documented the choice made here is written next to
@@ -38,7 +51,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -231,6 +244,8 @@ class URControllerCore:
                  gains_nm_per_a: Sequence[float] = DEFAULT_GAINS_NM_PER_A,
                  current_noise_a: float | Sequence[float] = DEFAULT_CURRENT_NOISE_A, seed: int | None = 0,
                  payload: PayloadTruth | None = None, friction: FrictionParams | None = None,
+                 noise_nm: float | Sequence[float] = 0.0, gain_error: float | Sequence[float] = 1.0,
+                 sim_options: dict[str, Any] | None = None,
                  controller_version: tuple[int, int, int, int] = (5, 11, 1, 108318),
                  serial_number: str = "20215300042", robot_model: str = "UR5",
                  remote_control: bool = True, max_payload_kg: float = 5.0,
@@ -240,13 +255,15 @@ class URControllerCore:
 
             spec = spec or ur5e_spec()
             sim = SimRobot(spec, q0_rad=q0_rad, tick_s=tick_s, time_scale=time_scale, friction=friction,
-                           seed=seed, payload=payload)
+                           noise_nm=noise_nm, seed=seed, payload=payload, **(sim_options or {}))
             self._own_sim = True
         else:
             self._own_sim = False
         self.robot: SimRobot = sim
         self.host = host
         self.gains = np.broadcast_to(np.asarray(gains_nm_per_a, float), (6,)).copy()
+        # multiplicative drive-gain error per joint (1.0 = the drive reports exactly torque / gain)
+        self.gain_error = np.broadcast_to(np.asarray(gain_error, float), (6,)).copy()
         self.current_noise_a = np.broadcast_to(np.asarray(current_noise_a, float), (6,)).copy()
         self._rng = np.random.default_rng(None if seed is None else seed + 7919)
         self.controller_version = tuple(int(v) for v in controller_version)
@@ -282,6 +299,7 @@ class URControllerCore:
         self.script_errors: list[str] = []
         self.rtde_errors: list[str] = []
         self.programs_run: list[str] = []  # names of programs started
+        self.last_script = ""  # the last full program received on a script port
         self.rtde_sessions: list[_RTDESession] = []
         self._program: _Program | None = None
         self._program_lock = threading.Lock()
@@ -301,15 +319,19 @@ class URControllerCore:
     def start(self) -> "URControllerCore":
         if self._started:
             return self
-        if self.host is None:
-            self.host = pick_loopback_host()
-        try:
-            for port, handler in ((self.rtde_port, self._serve_rtde), (self.dashboard_port, self._serve_dashboard),
-                                  *((p, self._serve_script) for p in self.script_ports)):
-                self._listen(port, handler)
-        except OSError:
-            self._close_listeners()
-            raise
+        attempts = 1 if self.host is not None else 8
+        for attempt in range(attempts):
+            host = self.host if attempts == 1 else pick_loopback_host()
+            try:
+                for port, handler in ((self.rtde_port, self._serve_rtde), (self.dashboard_port, self._serve_dashboard),
+                                      *((p, self._serve_script) for p in self.script_ports)):
+                    self._listen(host, port, handler)
+                self.host = host
+                break
+            except OSError:
+                self._close_listeners()
+                if attempt == attempts - 1:
+                    raise
         self._sub_token = self.robot.subscribe(self._on_tick)
         if self.robot._thread is None:  # noqa: SLF001 - start the clock if nobody did
             self.robot.start()
@@ -341,14 +363,14 @@ class URControllerCore:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _listen(self, port: int, handler: Callable[[socket.socket, tuple], None]) -> None:
+    def _listen(self, host: str, port: int, handler: Callable[[socket.socket, tuple], None]) -> None:
         ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            ls.bind((self.host, port))
+            ls.bind((host, port))
         except OSError as exc:
             ls.close()
-            raise OSError(f"fake UR controller cannot bind {self.host}:{port}: {exc}") from exc
+            raise OSError(f"fake UR controller cannot bind {host}:{port}: {exc}") from exc
         ls.listen(8)
         ls.settimeout(0.2)
         self._listeners.append(ls)
@@ -402,9 +424,10 @@ class URControllerCore:
         self.robot.trigger_estop()
 
     def release_estop(self) -> None:
-        """Release the e-stop button; the arm stays powered off until 'power on'/'brake release'."""
-        with self._lock:
-            self.robot.reset_safety() if not self.robot.snapshot().protective_stop else None
+        """Release the e-stop button; the arm stays powered off until 'power on' + 'brake release'
+        (dashboard). The simulation has one reset for both stops: a pending protective stop
+        is cleared too."""
+        self.robot.reset_safety()
 
     def reset_safety(self) -> None:
         """Clear every stop and bring the arm back to RUNNING (test convenience)."""
@@ -456,7 +479,7 @@ class URControllerCore:
         if safety != self._last_safety:
             self._on_safety_change(safety)
             self._last_safety = safety
-        current = st.torque_nm / self.gains + self._rng.normal(0.0, 1.0, 6) * self.current_noise_a
+        current = st.torque_nm / self.gains * self.gain_error + self._rng.normal(0.0, 1.0, 6) * self.current_noise_a
         s = _Snap()
         s.ctrl = self
         s.t, s.q, s.qd, s.qdd, s.tau, s.moving = st.t, st.q, st.qd, st.qdd, st.torque_nm, st.moving
@@ -485,8 +508,7 @@ class URControllerCore:
         if estop:
             self._note("safety: robot emergency stop")
             with self._lock:
-                self.robot_mode = ROBOT_MODE_POWER_OFF
-            self.robot.set_servo(False)
+                self.robot_mode = ROBOT_MODE_POWER_OFF  # the arm loses power; the sim brakes it
             self._stop_program("emergency stop", wait=False)
         elif protective:
             self._note("safety: protective stop")
@@ -504,6 +526,7 @@ class URControllerCore:
     # -- programs ----------------------------------------------------------------------------------
     def run_script(self, text: str, source: str = "script") -> None:
         """Compile and start a URScript program (what the script ports do with a full program)."""
+        self.last_script = text
         try:
             program = _compile_program(self, text)
         except ScriptCompileError as exc:
@@ -517,7 +540,7 @@ class URControllerCore:
 
     def _start_program(self, program: "_Program") -> None:
         with self._program_lock:
-            self._stop_program("replaced by a new program", wait=True, locked=True)
+            self._stop_program("replaced by a new program", wait=True)
             st = self.robot.snapshot()
             with self._lock:
                 if st.estop or st.protective_stop or self.robot_mode != ROBOT_MODE_RUNNING:
@@ -550,7 +573,7 @@ class URControllerCore:
                     self._program = None
                     self.runtime_state = RUNTIME_STOPPED
 
-    def _stop_program(self, reason: str, wait: bool, locked: bool = False) -> bool:
+    def _stop_program(self, reason: str, wait: bool) -> bool:
         prog = self._program
         if prog is None:
             return False
@@ -691,6 +714,9 @@ class URControllerCore:
                 return
             for kind, text in collector.feed(data.decode(errors="replace")):
                 self._note(f"script port {port}: received {kind} ({len(text)} chars)")
+                if not self.remote_control:  # PolyScope 5 in Local mode ignores programs from the network
+                    self._script_error(f"port {port}: program ignored, the robot is not in remote control")
+                    continue
                 if kind == "sec":
                     self._run_secondary(text, port)
                 else:
@@ -844,11 +870,7 @@ class _RTDESession:
             names = self._split_names(payload)
         types = []
         for n in names:
-            t = rp.OUTPUT_TYPES.get(n)
-            min_v = rp.OUTPUT_MIN_VERSION.get(n)
-            if t is not None and min_v is not None and tuple(c.controller_version[:3]) < min_v:
-                t = None
-            types.append(t or "NOT_FOUND")
+            types.append(rp.OUTPUT_TYPES[n] if rp.output_available(n, c.controller_version) else "NOT_FOUND")
         freq_ok = math.isfinite(freq) and 0 < freq <= c.max_frequency_hz
         valid = bool(names) and "NOT_FOUND" not in types and freq_ok
         rid = len(self.outputs) + 1 if valid else 0
@@ -945,6 +967,12 @@ class _RTDESession:
             _shutdown(self.conn)
 
     def _send_loop(self) -> None:
+        # The real controller sends one package every cycle. The simulated clock may fall
+        # behind and then run a few cycles back to back (a loaded machine); packages sent
+        # in such a burst would arrive together, and clients that keep only the newest
+        # package (ur_rtde does) would lose the others. So packages are spaced by at
+        # least 60 % of their period in wall time, unless a backlog has built up.
+        last_send = 0.0
         while True:
             with self.cv:
                 while self.alive and not self.queue:
@@ -953,6 +981,9 @@ class _RTDESession:
                     return
                 items = list(self.queue)
                 self.queue.clear()
+            scale = max(self.ctrl.robot.time_scale, 1e-9)
+            min_gap = 0.6 * min(rec.period for rec, _ in items) / scale
+            pace = min_gap >= 0.0001 and len(items) <= 25
             chunks = []
             for rec, s in items:
                 try:
@@ -964,8 +995,18 @@ class _RTDESession:
             if not chunks:
                 continue
             try:
-                with self.send_lock:
-                    self.conn.sendall(b"".join(chunks))
+                if pace:
+                    for chunk in chunks:
+                        wait = last_send + min_gap - time.monotonic()
+                        if wait > 0:
+                            time.sleep(wait)
+                        with self.send_lock:
+                            self.conn.sendall(chunk)
+                        last_send = time.monotonic()
+                else:
+                    with self.send_lock:
+                        self.conn.sendall(b"".join(chunks))
+                    last_send = time.monotonic()
                 self.sent_packages += len(chunks)
             except OSError:
                 self.alive = False
@@ -1224,7 +1265,7 @@ class _RtdeControlProgram(_Program):
             mass = self.in_dbl(0)
             cog = [self.in_dbl(i) for i in (1, 2, 3)]
             inertia = [self.in_dbl(i) for i in range(4, 10)]
-            c._set_payload(mass, cog, inertia)
+            c._set_payload(mass, None if cog == [0.0, 0.0, 0.0] else cog, inertia)  # same zero-cog rule (5.10+)
         elif cmd == CMD_PROTECTIVE_STOP:
             c.robot.trigger_protective_stop()
         elif cmd == CMD_SET_WATCHDOG:
@@ -1382,12 +1423,17 @@ _ROBOT_METHODS = {"now", "snapshot", "set_payload", "set_friction_scale", "set_s
                   "trigger_estop", "reset_safety", "stop", "move_joints"}
 _CTRL_METHODS = {"trigger_protective_stop", "trigger_estop", "release_estop", "reset_safety", "set_remote_control",
                  "run_script", "wait_ticks"}
-_CTRL_ATTRS = {"controller_payload", "script_errors", "rtde_errors", "programs_run", "log", "runtime_state",
+_CTRL_ATTRS = {"last_script", "gain_error", "controller_payload", "script_errors", "rtde_errors", "programs_run", "log", "runtime_state",
                "robot_mode", "gains", "current_noise_a", "controller_version", "serial_number", "host",
                "out_int", "out_dbl", "in_int", "in_dbl"}
 
 
 def _child_main(conn) -> None:  # runs in the child process
+    import sys
+
+    # The controller's threads (clock, RTDE senders, program) hand the GIL to each other
+    # every cycle; the default 5 ms switch interval would add up to 5 ms jitter to 2 ms cycles.
+    sys.setswitchinterval(0.0002)
     try:
         host, options = conn.recv()
         core = URControllerCore(host, **options).start()
@@ -1455,7 +1501,17 @@ class _RemoteRobot:
     def __init__(self, owner: "FakeURController"):
         self._owner = owner
 
+    def start(self) -> "_RemoteRobot":
+        """Starts the controller that owns the simulation (the clock runs in its process)."""
+        self._owner.start()
+        return self
+
+    def close(self) -> None:
+        """No-op: the simulation ends with ``FakeURController.close()``."""
+
     def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
         if name in _ROBOT_METHODS:
             return lambda *a, **kw: self._owner._request(("call", "robot", name, a, kw))
         if name in ("payload", "spec", "time_scale", "tick_s"):
@@ -1479,6 +1535,10 @@ class FakeURController:
 
     def __init__(self, host: str | None = None, sim: SimRobot | None = None, *, in_process: bool = False,
                  start_timeout_s: float = 30.0, **options):
+        if "robot" in options:
+            raise TypeError("FakeURController takes no 'robot': the simulation runs in the controller's own process "
+                            "(ur_rtde's constructors hold the GIL); pass spec=, q0_rad=, time_scale=, friction=, "
+                            "noise_nm=, seed=, payload= and use the controller's .robot proxy for tool changes")
         if sim is not None and not in_process:
             raise TypeError("a SimRobot instance cannot be moved to the controller's process; pass the simulation "
                             "options (spec, q0_rad, time_scale, payload, friction, ...) or use in_process=True")
@@ -1491,7 +1551,7 @@ class FakeURController:
         self._proc = None
         self._conn = None
         self._req_lock = threading.Lock()
-        self.robot: Any = None
+        self.robot: Any = sim if in_process and sim is not None else _RemoteRobot(self)
 
     # lifecycle ----------------------------------------------------------------------------------
     def start(self) -> "FakeURController":
@@ -1527,7 +1587,6 @@ class FakeURController:
             raise RuntimeError(f"the fake UR controller could not start: {value}")
         self.host = value
         self._proc, self._conn = proc, parent
-        self.robot = _RemoteRobot(self)
         return self
 
     def close(self) -> None:

@@ -145,14 +145,30 @@ OUTPUT_TYPES: dict[str, str] = {
     **_registers("input_double_register_", "DOUBLE", 0, 47),
 }
 
-# Outputs that only exist from some PolyScope 5 version on: (major, minor, bugfix).
-OUTPUT_MIN_VERSION: dict[str, tuple[int, int, int]] = {
-    "payload": (5, 5, 1),
-    "payload_cog": (5, 5, 1),
-    "ft_raw_wrench": (5, 9, 0),
-    "payload_inertia": (5, 11, 0),
-    "actual_current_as_torque": (5, 23, 0),
+# Outputs that only exist from some PolyScope version on, per major version (3 = CB3,
+# 5 = e-Series); a series not listed does not have the field at all (ur_rtde's
+# RTDEReceiveInterface::setupRecipes makes the same version checks).
+OUTPUT_MIN_VERSION: dict[str, dict[int, tuple[int, int, int]]] = {
+    "payload": {3: (3, 11, 0), 5: (5, 5, 1)},
+    "payload_cog": {3: (3, 11, 0), 5: (5, 5, 1)},
+    "payload_inertia": {3: (3, 15, 0), 5: (5, 11, 0)},
+    "ft_raw_wrench": {5: (5, 9, 0)},
+    "actual_current_as_torque": {5: (5, 23, 0)},
 }
+
+
+def output_available(name: str, version: tuple[int, ...]) -> bool:
+    """Whether a controller of ``version`` (major, minor, bugfix, ...) knows output ``name``."""
+    if name not in OUTPUT_TYPES:
+        return False
+    need = OUTPUT_MIN_VERSION.get(name)
+    if need is None:
+        return True
+    major = version[0]
+    if major in need:
+        return tuple(version[:3]) >= need[major]
+    return major > max(need)
+
 
 # Controller inputs (RTDE guide). Register names are shared with the outputs above
 # (a client may read back the input registers).

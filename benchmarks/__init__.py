@@ -1,0 +1,1 @@
+"""Accuracy benchmarks (not tests): ``python -m benchmarks.accuracy``."""

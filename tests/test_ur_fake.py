@@ -1,0 +1,352 @@
+"""The fake UR controller against the real ur_rtde client (and raw sockets for the strictness checks)."""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import time
+
+import numpy as np
+import pytest
+
+rtde_receive = pytest.importorskip("rtde_receive", reason="ur-rtde wheel not installed (CPython 3.11/3.12)")
+rtde_control = pytest.importorskip("rtde_control")
+
+from payload_agent.fakes import ur_rtde_protocol as rp  # noqa: E402
+from payload_agent.fakes.physics import PayloadTruth  # noqa: E402
+from payload_agent.fakes.ur_controller import DEFAULT_GAINS_NM_PER_A, FakeURController  # noqa: E402
+
+HOME = [0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0]
+
+
+@pytest.fixture(scope="module")
+def ur():
+    with FakeURController(time_scale=1.0, current_noise_a=0.05) as fake:
+        yield fake
+
+
+@pytest.fixture
+def clean(ur):
+    """Every test starts from a healthy, idle controller."""
+    ur.reset_safety()
+    ur.set_remote_control(True)
+    yield ur
+    ur.reset_safety()
+
+
+# -- a raw RTDE client for the strictness checks ------------------------------------------------------
+
+class RawRTDE:
+    def __init__(self, host: str):
+        self.sock = socket.create_connection((host, 30004), timeout=3)
+
+    def send(self, kind: int, payload: bytes = b"") -> None:
+        self.sock.sendall(rp.pack(kind, payload))
+
+    def recv(self) -> tuple[int, bytes]:
+        _, kind, payload = rp.recv_package(self.sock)
+        return kind, payload
+
+    def request(self, kind: int, payload: bytes = b"") -> tuple[int, bytes]:
+        self.send(kind, payload)
+        return self.recv()
+
+    def negotiate(self, version: int = 2) -> int:
+        kind, payload = self.request(rp.REQUEST_PROTOCOL_VERSION, struct.pack(">H", version))
+        assert kind == rp.REQUEST_PROTOCOL_VERSION
+        return payload[0]
+
+    def setup_outputs(self, names, freq=500.0) -> tuple[int, list[str]]:
+        kind, payload = self.request(rp.CONTROL_PACKAGE_SETUP_OUTPUTS,
+                                     struct.pack(">d", freq) + ",".join(names).encode())
+        assert kind == rp.CONTROL_PACKAGE_SETUP_OUTPUTS
+        return payload[0], payload[1:].decode().split(",")
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def test_protocol_version_and_controller_version(ur):
+    c = RawRTDE(ur.host)
+    try:
+        assert c.negotiate(2) == 1
+        assert c.negotiate(2) == 1  # repeats are accepted
+        assert c.negotiate(3) == 0  # unknown protocol version refused
+        kind, payload = c.request(rp.GET_URCONTROL_VERSION)
+        assert kind == rp.GET_URCONTROL_VERSION
+        assert struct.unpack(">IIII", payload) == (5, 11, 1, 108318)
+    finally:
+        c.close()
+
+
+def test_output_setup_types_and_not_found(ur):
+    c = RawRTDE(ur.host)
+    try:
+        c.negotiate()
+        rid, types = c.setup_outputs(["timestamp", "actual_q", "joint_mode", "payload_cog", "runtime_state",
+                                      "safety_status_bits", "actual_digital_input_bits"])
+        assert rid == 1
+        assert types == ["DOUBLE", "VECTOR6D", "VECTOR6INT32", "VECTOR3D", "UINT32", "UINT32", "UINT64"]
+        rid, types = c.setup_outputs(["timestamp", "no_such_variable"])
+        assert rid == 0 and types == ["DOUBLE", "NOT_FOUND"]
+        # a PolyScope 5.23 field on a 5.11 controller
+        rid, types = c.setup_outputs(["actual_current_as_torque"])
+        assert rid == 0 and types == ["NOT_FOUND"]
+    finally:
+        c.close()
+
+
+def test_ur_rtde_reports_unknown_variable(ur):
+    with pytest.raises(RuntimeError, match="no_such_variable"):
+        rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "no_such_variable"])
+
+
+def test_input_registers_in_use_by_another_client(ur):
+    a, b = RawRTDE(ur.host), RawRTDE(ur.host)
+    try:
+        a.negotiate()
+        b.negotiate()
+        kind, payload = a.request(rp.CONTROL_PACKAGE_SETUP_INPUTS, b"input_int_register_40,input_double_register_40")
+        assert payload[0] == 1 and payload[1:] == b"INT32,DOUBLE"
+        kind, payload = b.request(rp.CONTROL_PACKAGE_SETUP_INPUTS, b"input_int_register_40")
+        assert payload[0] == 0 and payload[1:] == b"IN_USE"
+        kind, payload = b.request(rp.CONTROL_PACKAGE_SETUP_INPUTS, b"no_such_input")
+        assert payload[0] == 0 and payload[1:] == b"NOT_FOUND"
+    finally:
+        a.close()
+        b.close()
+
+
+def test_bad_framing_and_unknown_packages(ur):
+    c = RawRTDE(ur.host)
+    try:
+        c.negotiate()
+        # unknown package type: the controller answers with an error text message
+        kind, payload = c.request(ord("X"))
+        assert kind == rp.TEXT_MESSAGE and b"unknown package type" in payload
+        # data package for an input recipe that does not exist
+        kind, payload = c.request(rp.DATA_PACKAGE, bytes([9]) + struct.pack(">i", 1))
+        assert kind == rp.TEXT_MESSAGE and b"unknown input recipe" in payload
+        # data package of the wrong length
+        _, p = c.request(rp.CONTROL_PACKAGE_SETUP_INPUTS, b"input_int_register_41")
+        kind, payload = c.request(rp.DATA_PACKAGE, bytes([p[0]]) + struct.pack(">ii", 1, 2))
+        assert kind == rp.TEXT_MESSAGE and b"expected 5" in payload
+        # start without an output recipe is refused
+        kind, payload = c.request(rp.CONTROL_PACKAGE_START)
+        assert kind == rp.CONTROL_PACKAGE_START and payload == b"\x00"
+        # a header whose size is smaller than the header itself: the controller hangs up
+        c.sock.sendall(struct.pack(">HB", 1, rp.REQUEST_PROTOCOL_VERSION))
+        assert c.sock.recv(100) == b""
+    finally:
+        c.close()
+    assert any("bad framing" in e for e in ur.rtde_errors)
+
+
+def test_raw_stream_rate_500hz_and_decimation(ur):
+    """Protocol-rate check at time_scale 1: >= 95 % of the 500 Hz packages arrive in real time."""
+    c = RawRTDE(ur.host)
+    try:
+        c.negotiate()
+        c.setup_outputs(["timestamp", "actual_q", "actual_current"], 500.0)
+        _, ok = c.request(rp.CONTROL_PACKAGE_START)
+        assert ok == b"\x01"
+        st = rp.recipe_struct(["DOUBLE", "VECTOR6D", "VECTOR6D"])
+        stamps = []
+        t_end = time.monotonic() + 2.0
+        while time.monotonic() < t_end:
+            kind, payload = c.recv()
+            assert kind == rp.DATA_PACKAGE and payload[0] == 1 and len(payload) == st.size
+            stamps.append(st.unpack(payload)[1])
+        _, ok = c.request(rp.CONTROL_PACKAGE_PAUSE)
+    finally:
+        c.close()
+    assert len(stamps) >= 0.95 * 1000, f"{len(stamps)} packages in 2 s"
+    assert np.allclose(np.diff(stamps), 0.002, atol=1e-9)  # every simulated cycle, none skipped
+
+    c = RawRTDE(ur.host)
+    try:
+        c.negotiate()
+        c.setup_outputs(["timestamp"], 125.0)
+        c.request(rp.CONTROL_PACKAGE_START)
+        stamps = [struct.unpack(">Bd", c.recv()[1])[1] for _ in range(20)]
+    finally:
+        c.close()
+    assert np.allclose(np.diff(stamps), 0.008, atol=1e-9)
+
+
+def test_receive_interface_streams_in_sim_time(ur):
+    r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_q", "actual_current", "robot_mode",
+                                                            "safety_mode", "safety_status_bits", "runtime_state"])
+    try:
+        assert r.isConnected()
+        t0, w0 = r.getTimestamp(), time.monotonic()
+        time.sleep(0.5)
+        dt_sim, dt_wall = r.getTimestamp() - t0, time.monotonic() - w0
+        assert abs(dt_sim - dt_wall) < 0.05
+        assert r.getRobotMode() == 7 and r.getSafetyMode() == 1 and r.getSafetyStatusBits() == 1
+        assert len(r.getActualQ()) == 6
+        # actual_current = torque / gain (+ noise): compare with the simulation's torque
+        tau = ur.robot.snapshot().torque_nm
+        cur = np.asarray(r.getActualCurrent())
+        assert np.allclose(cur, tau / np.asarray(DEFAULT_GAINS_NM_PER_A), atol=0.4)
+    finally:
+        r.disconnect()
+
+
+def test_dashboard(ur):
+    with socket.create_connection((ur.host, 29999), timeout=3) as s:
+        f = s.makefile("rwb")
+        assert f.readline() == b"Connected: Universal Robots Dashboard Server\n"
+
+        def ask(cmd: str) -> str:
+            f.write(cmd.encode() + b"\n")
+            f.flush()
+            return f.readline().decode().rstrip("\n")
+
+        assert "5.11.1.108318" in ask("PolyscopeVersion")
+        assert ask("get serial number").isdigit()
+        assert ask("is in remote control") == "true"
+        assert ask("robotmode") == "Robotmode: RUNNING"
+        assert ask("safetymode") == "Safetymode: NORMAL"
+        assert ask("get robot model") == "UR5"
+        assert ask("bogus") == "could not understand: 'bogus'"
+
+
+def test_control_interface_move_stop_and_payload(clean):
+    ur = clean
+    r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_q", "payload", "payload_cog",
+                                                            "runtime_state"])
+    c = rtde_control.RTDEControlInterface(ur.host)
+    try:
+        assert c.isConnected() and c.isProgramRunning()
+        assert "rtde_control" in ur.programs_run
+        target = [0.1, -1.45, 1.45, -1.65, -1.5, 0.05]
+        assert c.moveJ(target, 1.0, 3.0)  # synchronous: returns when the move is done
+        assert np.allclose(r.getActualQ(), target, atol=1e-9)
+        assert c.setPayload(1.25, [0.01, -0.02, 0.07])
+        time.sleep(0.02)
+        assert r.getPayload() == pytest.approx(1.25)
+        assert r.getPayloadCog() == pytest.approx([0.01, -0.02, 0.07])
+        assert ur.controller_payload[0] == pytest.approx(1.25)
+        # async move, then stopJ halts it short of the target
+        assert c.moveJ(HOME, 0.3, 1.0, True)
+        time.sleep(0.3)
+        assert c.getAsyncOperationProgressEx().isAsyncOperationRunning()
+        c.stopJ(2.0)
+        time.sleep(0.05)
+        q = np.asarray(r.getActualQ())
+        assert not np.allclose(q, HOME, atol=1e-3)
+        assert not c.getAsyncOperationProgressEx().isAsyncOperationRunning()
+        c.stopScript()
+        assert not c.isProgramRunning()
+        assert r.getRuntimeState() == 1
+    finally:
+        c.disconnect()
+        r.disconnect()
+    assert ur.script_errors == []
+
+
+def test_control_interface_needs_remote_control(clean):
+    clean.set_remote_control(False)
+    with pytest.raises(RuntimeError, match="remote control"):
+        rtde_control.RTDEControlInterface(clean.host)
+
+
+def test_plain_script_on_port_30002(clean):
+    ur = clean
+    target = [0.05, -1.5, 1.5, -1.6, -1.55, 0.02]
+    with socket.create_connection((ur.host, 30002), timeout=3) as s:
+        s.sendall(f"movej({target}, a=3.0, v=1.5)\n".encode())
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            st = ur.robot.snapshot()
+            if not st.moving and np.allclose(st.q, target, atol=1e-9):
+                break
+            time.sleep(0.02)
+        assert np.allclose(ur.robot.snapshot().q, target, atol=1e-9)
+        n_errors = len(ur.script_errors)
+        s.sendall(b"def prog():\n  set_payload(0.8, [0, 0, 0.05])\n  launch_rockets()\nend\n")
+        deadline = time.monotonic() + 2
+        while len(ur.script_errors) == n_errors and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert "launch_rockets" in ur.script_errors[-1]
+        assert ur.controller_payload[0] != pytest.approx(0.8)  # the program never ran
+
+
+def test_protective_stop_and_estop_are_visible(clean):
+    ur = clean
+    r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_qd", "robot_mode", "safety_mode",
+                                                            "safety_status_bits", "runtime_state"])
+    c = rtde_control.RTDEControlInterface(ur.host)
+    try:
+        assert c.moveJ([0.6, -1.2, 1.2, -1.4, -1.2, 0.4], 0.5, 2.0, True)
+        time.sleep(0.4)
+        assert np.max(np.abs(r.getActualQd())) > 0.1
+        ur.trigger_protective_stop()
+        time.sleep(0.4)
+        bits = r.getSafetyStatusBits()
+        assert bits & (1 << 2) and bits & (1 << 10) and not bits & 1
+        assert r.getSafetyMode() == 3
+        assert np.max(np.abs(r.getActualQd())) == 0.0  # motion stopped
+        assert r.getRuntimeState() == 1  # the control script was stopped
+        assert not c.moveJ(HOME, 0.5, 2.0)  # ur_rtde refuses: script not running
+        with socket.create_connection((ur.host, 29999), timeout=3) as s:
+            f = s.makefile("rwb")
+            f.readline()
+            f.write(b"unlock protective stop\n")
+            f.flush()
+            assert f.readline().startswith(b"Cannot unlock protective stop until 5s")
+        ur.reset_safety()
+        time.sleep(0.05)
+        assert r.getSafetyStatusBits() == 1
+        ur.trigger_estop()
+        time.sleep(0.05)
+        bits = r.getSafetyStatusBits()
+        assert bits & (1 << 6) and bits & (1 << 7)
+        assert r.getSafetyMode() == 7 and r.getRobotMode() == 3
+    finally:
+        c.disconnect()
+        r.disconnect()
+
+
+def test_tool_change_shows_in_actual_current(clean):
+    ur = clean
+    r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_current"])
+
+    def mean_current() -> np.ndarray:
+        vals = []
+        for _ in range(60):
+            vals.append(r.getActualCurrent())
+            time.sleep(0.002)
+        return np.mean(vals, axis=0)
+
+    try:
+        ur.robot.set_payload(None)
+        ur.wait_ticks(5)
+        empty_tau, empty = ur.robot.snapshot().torque_nm, mean_current()
+        ur.robot.set_payload(PayloadTruth(2.0, (0.0, 0.0, 0.05)))
+        ur.wait_ticks(5)
+        loaded_tau, loaded = ur.robot.snapshot().torque_nm, mean_current()
+    finally:
+        ur.robot.set_payload(None)
+        r.disconnect()
+    gains = np.asarray(DEFAULT_GAINS_NM_PER_A)
+    assert abs(loaded_tau[1] - empty_tau[1]) > 5.0  # the shoulder carries the extra 2 kg
+    assert np.allclose((loaded - empty) * gains, loaded_tau - empty_tau, atol=0.3)
+
+
+def test_upper_range_registers(clean):
+    ur = clean
+    flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT | \
+        rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
+    c = rtde_control.RTDEControlInterface(ur.host, 500.0, flags)
+    try:
+        assert c.isProgramRunning()
+        target = [0.02, -1.55, 1.55, -1.55, -1.55, 0.01]
+        assert c.moveJ(target, 1.0, 3.0)
+        assert np.allclose(ur.robot.snapshot().q, target, atol=1e-9)
+        assert ur.out_int[24] in (1, 2)  # ready / done, in the upper range (offset 24)
+    finally:
+        c.stopScript()
+        c.disconnect()
