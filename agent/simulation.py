@@ -37,22 +37,27 @@ class SimulatedCell:
         tick = {"elite_ec": 0.008, "ur_rtde": 0.002}.get(kind)
         if tick is None:
             raise ConfigError("driver.type", f"no simulated controller for driver {kind!r}")
-        self.robot = SimRobot(spec, q0_rad=q0, tick_s=tick, time_scale=sim.time_scale, friction=self.friction,
-                              noise_nm=np.array(sim.noise_nm), seed=sim.seed, payload=None)
         self.options: dict[str, Any] = dict(config.driver)
         if kind == "elite_ec":
             from payload_agent.fakes.elite_ec import FakeEliteController
 
+            self.robot = SimRobot(spec, q0_rad=q0, tick_s=tick, time_scale=sim.time_scale, friction=self.friction,
+                                  noise_nm=np.array(sim.noise_nm), seed=sim.seed, payload=None)
             self.controller = FakeEliteController(
                 self.robot, host=str(self.options.get("host", "127.0.0.1")),
                 rpc_port=int(self.options.get("rpc_port", 8055)),
                 monitor_port=int(self.options.get("monitor_port", 8056)),
                 rated_torque_nm=spec.rated_torque_nm, gain_error=sim.drive_gain_error)
         else:
+            # ur_rtde's constructors hold the GIL while waiting for replies: the fake UR runs in a
+            # child process and .robot forwards the SimRobot calls to it.
             from payload_agent.fakes.ur_controller import FakeURController
 
-            self.controller = FakeURController(host=str(self.options.get("host", "127.0.0.2")), robot=self.robot,
-                                               gain_error=sim.drive_gain_error)
+            self.controller = FakeURController(
+                host=str(self.options.get("host", "127.0.0.2")), spec=spec, q0_rad=q0, tick_s=tick,
+                time_scale=sim.time_scale, friction=self.friction, noise_nm=np.array(sim.noise_nm),
+                seed=sim.seed, payload=None, gain_error=sim.drive_gain_error)
+            self.robot = self.controller.robot
 
     def start(self) -> "SimulatedCell":
         self.robot.start()

@@ -395,13 +395,17 @@ class URRTDEDriver(Driver):
                 self._stop_now()
                 raise MotionAbortedError(f"move did not finish within {timeout_s:.1f} s")
             time.sleep(0.002)
-        # the last data package may predate the end of the move by one cycle: allow a few
+        # The receive interface's packages may trail the control interface's by a cycle or
+        # two: wait until they show the arm at rest, then check the position.
         deadline = time.monotonic() + 10.0 / (self.frequency_hz or 125.0) + 0.05
         while True:
             err = float(np.max(np.abs(np.asarray(r.getActualQ()) - target)))
-            if err <= self.target_tolerance_rad:
+            at_rest = float(np.max(np.abs(np.asarray(r.getActualQd())))) < 1e-4
+            if err <= self.target_tolerance_rad and at_rest:
                 return
             if time.monotonic() > deadline:
+                if err <= self.target_tolerance_rad:
+                    raise MotionAbortedError("the controller reported the move finished but the arm is still moving")
                 raise MotionAbortedError(f"move ended {math.degrees(err):.3f} deg from its target "
                                          f"(tolerance {math.degrees(self.target_tolerance_rad):.3f} deg)")
             time.sleep(0.002)
