@@ -21,6 +21,7 @@ from payload_agent.yamlcheck import Node
 
 N_JOINTS = 6
 EFFORT_UNITS = ("percent_rated", "permille_rated", "A", "Nm")
+DEFAULT_BASELINE_MAX_AGE_DAYS = 7.0  # friction changes with temperature and wear; re-record weekly
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,21 @@ class SafetyConfig:
 @dataclass(frozen=True)
 class StorageConfig:
     runs_dir: Path
-    state_dir: Path
+    state_dir: Path  # per-robot state lives in state_dir/<robot.name>/ (see payload_agent.state)
+    baseline_max_age_days: float  # a stored empty-flange baseline older than this is refused
+
+
+WATCH_TRIGGERS = ("file", "digital_input")
+
+
+@dataclass(frozen=True)
+class WatchConfig:
+    """What `payload-agent watch` waits for before an unattended run with --apply."""
+
+    trigger: str  # "file": a file appears; "digital_input": a controller input goes high
+    path: Path | None  # trigger "file"
+    input_index: int | None  # trigger "digital_input": the controller's digital input number
+    poll_interval_s: float
 
 
 @dataclass(frozen=True)
@@ -105,6 +120,7 @@ class Config:
     safety: SafetyConfig
     storage: StorageConfig
     simulation: SimulationConfig | None
+    watch: WatchConfig | None = None
     raw: Mapping[str, Any] = field(repr=False, compare=False, default_factory=dict)
 
     @property
@@ -142,7 +158,9 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     storage = _storage(top.child("storage", required=False), base_dir)
     sim_node = top.child("simulation", required=False)
     simulation = _simulation(sim_node) if sim_node is not None else None
-    top.reject_unknown(["robot", "effort", "driver", "procedure", "safety", "storage", "simulation"])
+    watch_node = top.child("watch", required=False)
+    watch = _watch(watch_node, base_dir) if watch_node is not None else None
+    top.reject_unknown(["robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch"])
     if procedure.speed_percent > safety.max_speed_percent:
         raise ConfigError("procedure.speed_percent",
                           f"{procedure.speed_percent:g} % exceeds safety.max_speed_percent "
@@ -151,7 +169,7 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
         raise ConfigError("procedure.travel_speed_percent",
                           f"{procedure.travel_speed_percent:g} % exceeds safety.max_speed_percent "
                           f"({safety.max_speed_percent:g} %)", source)
-    return Config(source, robot, effort, driver, procedure, safety, storage, simulation, raw=data)
+    return Config(source, robot, effort, driver, procedure, safety, storage, simulation, watch, raw=data)
 
 
 def _robot(node: Node) -> RobotConfig:
@@ -242,11 +260,27 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
 
 def _storage(node: Node | None, base_dir: Path | None) -> StorageConfig:
     if node is None:
-        return StorageConfig(Path("runs"), Path("state"))
+        return StorageConfig(Path("runs"), Path("state"), DEFAULT_BASELINE_MAX_AGE_DAYS)
     runs = Path(node.string("runs_dir", "runs"))
     state = Path(node.string("state_dir", "state"))
-    node.reject_unknown(["runs_dir", "state_dir"])
-    return StorageConfig(runs, state)
+    age = node.number("baseline_max_age_days", DEFAULT_BASELINE_MAX_AGE_DAYS, gt=0, max=3650)
+    node.reject_unknown(["runs_dir", "state_dir", "baseline_max_age_days"])
+    return StorageConfig(runs, state, age)
+
+
+def _watch(node: Node, base_dir: Path | None) -> WatchConfig:
+    t = node.child("trigger")
+    kind = t.string("type", choices=WATCH_TRIGGERS)
+    path = index = None
+    if kind == "file":
+        path = Path(t.string("path"))
+        t.reject_unknown(["type", "path"])
+    else:
+        index = t.integer("index", min=0, max=255)
+        t.reject_unknown(["type", "index"])
+    poll = node.number("poll_interval_s", 0.5, gt=0, max=60)
+    node.reject_unknown(["trigger", "poll_interval_s"])
+    return WatchConfig(kind, path, index, poll)
 
 
 def _simulation(node: Node) -> SimulationConfig:

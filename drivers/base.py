@@ -136,6 +136,12 @@ class Driver(abc.ABC):
 
         raise UnsupportedCapability(f"driver {self.name!r} cannot write the payload setting")
 
+    def read_digital_input(self, index: int) -> bool:
+        """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
+        from payload_agent.errors import UnsupportedCapability
+
+        raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
+
     # -- context manager --------------------------------------------------------------------
     def __enter__(self) -> "Driver":
         self.connect()
