@@ -129,7 +129,11 @@ class Config:
 
     def fingerprint(self, *sections: str) -> str:
         """Stable hash of the named raw sections (what a stored baseline depends on)."""
-        data = {s: self.raw.get(s) for s in sections}
+        return self.fingerprint_of({s: self.raw.get(s) for s in sections})
+
+    @staticmethod
+    def fingerprint_of(data: Any) -> str:
+        """Stable short hash of JSON-able data."""
         return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 

@@ -38,6 +38,12 @@ class RobotNotReadyError(PayloadAgentError):
     exit_code = 3
 
 
+class BaselineError(RobotNotReadyError):
+    """No stored empty-flange baseline fits this run (missing, other robot, changed procedure, too old)."""
+
+    exit_code = 3
+
+
 class MotionAbortedError(PayloadAgentError):
     """A motion ended abnormally (stop, protective stop, e-stop, timeout, Ctrl-C)."""
 

@@ -1,0 +1,122 @@
+"""The operator's workflow against one simulated EC66 over its real protocol (issue 5).
+
+The first run records the empty-flange baseline and identifies the first tool; then two
+tool changes through the fake, each identified unattended from the stored baseline and
+written to the controller (read back); the history holds three entries; a changed
+procedure invalidates the baseline; --unattended never asks.
+"""
+
+import builtins
+import json
+
+import numpy as np
+import pytest
+
+from conftest import tweak
+from payload_agent import history
+from payload_agent.cli import main
+from payload_agent.config import parse_config
+from payload_agent.errors import BaselineError
+from payload_agent.runner import RunOptions, run_identification
+from payload_agent.simulation import SimulatedCell
+from payload_agent.state import RobotState
+
+TOOLS = {"gripper-A": (1.2, (10.0, 20.0, 60.0)), "gripper-B": (3.1, (-30.0, 40.0, 110.0)),
+         "camera": (0.8, (0.0, -45.0, 35.0))}
+
+
+def _data(sim_ec66_data, tmp_path):
+    data = tweak(sim_ec66_data, "driver.rpc_port", 0)
+    data = tweak(data, "driver.monitor_port", 0)
+    return tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+
+
+def _never_ask(prompt):
+    raise AssertionError(f"an unattended run asked: {prompt!r}")
+
+
+@pytest.fixture
+def no_stdin(monkeypatch):
+    monkeypatch.setattr(builtins, "input", _never_ask)
+
+
+def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(sim_ec66_data, tmp_path,
+                                                                                  no_stdin):
+    data = _data(sim_ec66_data, tmp_path)
+    cfg = parse_config(data, source="test")
+    state = RobotState.for_config(cfg)
+    cell = SimulatedCell(cfg).start()
+    lines = []
+    try:
+        for i, (tool, (mass, cog)) in enumerate(TOOLS.items()):
+            cell.change_tool(mass, cog)
+            moves_before = cell.robot.snapshot().move_id
+            first = i == 0  # no stored baseline yet: an attended run records the empty flange first
+            out = run_identification(cfg, RunOptions(unattended=not first, assume_yes=first, apply=True, tool=tool,
+                                                     cell=cell, ask=_never_ask, out=lines.append, report=False))
+            manifest = json.loads((out.run_dir / "manifest.json").read_text())
+            if first:
+                assert list(manifest["phases"]) == ["empty", "loaded"]
+                assert (state.baseline_dir / "baseline.json").exists()
+                assert (state.baseline_dir / "empty").is_dir()
+            else:  # the stored baseline replaced the empty run; the run folder keeps a copy of it
+                assert manifest["phases"]["empty"]["from_baseline"]["dir"] == str(state.baseline_dir)
+                assert manifest["baseline"]["plan_fingerprint"]
+                assert all((out.run_dir / s["file"]).exists() for s in manifest["phases"]["empty"]["sweeps"])
+            assert cell.robot.snapshot().move_id > moves_before
+            est = out.result.primary
+            assert abs(est.mass_kg - mass) < 0.03, (tool, est.mass_kg)
+            assert np.max(np.abs(np.array(est.cog_mm) - cog)) < 5.0, (tool, est.cog_mm)
+            # written to the controller and read back
+            setting = cell.controller.payload_setting(0)
+            assert setting["m"] == pytest.approx(est.mass_kg, abs=1e-4)
+            assert np.allclose(setting["tool_cog"], est.cog_mm, atol=1e-3)
+            assert out.applied is not None and out.applied.mass_kg == pytest.approx(est.mass_kg, abs=1e-4)
+    finally:
+        cell.close()
+    text = "\n".join(lines)
+    assert "Using the stored empty-flange baseline" in text
+    assert "Controller payload setting" in text and "Difference" in text
+
+    rows = history.entries(state.history_db)
+    assert len(rows) == 3
+    assert [r.tool for r in rows] == list(TOOLS)
+    assert all(r.applied and r.quality_passed for r in rows)
+    assert [r.baseline_run_dir is None for r in rows] == [True, False, False]
+    assert main(["history", "--robot", _write(tmp_path, data)]) == 0
+
+
+def test_changed_procedure_invalidates_baseline(sim_ec66_data, tmp_path, no_stdin, capsys):
+    data = _data(sim_ec66_data, tmp_path)
+    cfg = parse_config(data, source="test")
+    cell = SimulatedCell(cfg).start()
+    try:
+        run_identification(cfg, RunOptions(mode="baseline", unattended=True, cell=cell, ask=_never_ask,
+                                           out=lambda s: None, report=False))
+        changed = parse_config(tweak(data, "procedure.sweep_deg", [0, 50]), source="test")
+        moves = cell.robot.snapshot().move_id
+        with pytest.raises(BaselineError, match="procedure changed"):
+            run_identification(changed, RunOptions(unattended=True, cell=cell, ask=_never_ask,
+                                                   out=lambda s: None, report=False))
+        assert cell.robot.snapshot().move_id == moves  # refused before anything moved
+    finally:
+        cell.close()
+    # the same through the command line: exit code 3 (not ready) and the reason on stderr
+    path = _write(tmp_path, tweak(data, "procedure.sweep_deg", [0, 50]))
+    assert main(["run", "--robot", path, "--unattended"]) == 3
+    err = capsys.readouterr().err
+    assert "baseline" in err and "procedure changed" in err
+
+
+def test_unattended_without_baseline_refuses_without_asking(sim_ec66_data, tmp_path, no_stdin, capsys):
+    path = _write(tmp_path, _data(sim_ec66_data, tmp_path))
+    assert main(["run", "--robot", path, "--unattended"]) == 3
+    assert "no stored empty-flange baseline" in capsys.readouterr().err
+
+
+def _write(tmp_path, data) -> str:
+    import yaml
+
+    path = tmp_path / "robot.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
