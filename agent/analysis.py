@@ -8,20 +8,23 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
+from payload_agent import quality
+from payload_agent.calibration import effective_calibration, effective_gains
 from payload_agent.combine import add_combined
+from payload_agent.config import Config
 from payload_agent.delta import DeltaSweep, subtract_all
 from payload_agent.errors import DataError
 from payload_agent.kinematics import Kinematics
 from payload_agent.planner import SweepKey
-from payload_agent.results import Estimate
+from payload_agent.results import Estimate, RunResult
 from payload_agent.rundata import load_manifest, load_phase
 from payload_agent.solvers import SOLVERS, general
 
-POSE_AGREEMENT_Z = 3.0  # |m_b − m_d| / σ above this fails the pose-agreement check
+POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
 
 
 def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
@@ -45,67 +48,71 @@ def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
     return deltas
 
 
-def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str) -> tuple[Estimate, list[Estimate]]:
-    """The primary solver's estimate, plus every other solver's that can be computed on the same data."""
+def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
+              gain_rel_std: Sequence[float] | None = None) -> tuple[Estimate, list[Estimate]]:
+    """The primary solver's estimate, plus every other solver's that can be computed on the same data.
+
+    ``gain_rel_std`` (relative drive-gain uncertainty per joint, from a calibration) goes into the
+    general solver's covariance; solvers without a covariance ignore it.
+    """
     if primary not in SOLVERS:
         raise DataError(f"unknown solver {primary!r}; available: {', '.join(SOLVERS)}")
-    main = SOLVERS[primary](deltas, kin)
+
+    def run(name: str) -> Estimate:
+        if name == general.NAME and gain_rel_std is not None:
+            return general.solve(deltas, kin, gain_rel_std=gain_rel_std)
+        return SOLVERS[name](deltas, kin)
+
+    main = run(primary)
     others = []
-    for name, fn in SOLVERS.items():
+    for name in SOLVERS:
         if name == primary:
             continue
         try:
-            others.append(fn(deltas, kin))
+            others.append(run(name))
         except DataError as exc:
             main.notes.append(f"{name} not computed: {exc}")
     return main, others
 
 
 def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate) -> dict[str, Any]:
-    """Redundant checks recorded beside the result (no gate yet: nothing here raises).
+    """Redundant checks recorded beside the result; ``payload_agent.quality.require_passed`` enforces them."""
+    return quality.evaluate(deltas, kin, primary)
 
-    - pose agreement: the general solver restricted to each pose's sweeps gives two independent
-      masses; they must agree within their combined standard uncertainty (|z| <= 3);
-    - the primary estimate's uncertainty, conditioning and worst residual.
+
+def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
+                gains: Sequence[float] | None = None) -> RunResult:
+    """Segment, subtract, combine, solve and check one run folder; the result is returned, not written.
+
+    Drive gains: ``gains`` if given, else the robot's valid calibration (``state/<robot>/gains.json``)
+    if there is one, else the config's nominal gains. Which were used goes into the result
+    (``gains_nm_per_unit``, ``gains_source``) and the primary estimate's notes. With a
+    calibration, its per-joint uncertainty is part of the general solver's covariance; with
+    nominal gains the reported uncertainty cannot include the gain error, and a note says so.
     """
-    q: dict[str, Any] = {"passed": True, "reasons": []}
-    poses = sorted({k.pose for k in deltas})
-    per_pose: dict[str, dict[str, float]] = {}
-    for pose in poses:
-        try:
-            est = general.solve(deltas, kin, poses=[pose], name=f"general[{pose}]")
-        except (DataError, np.linalg.LinAlgError) as exc:
-            q["reasons"].append(f"pose {pose} alone: not solvable ({exc})")
-            continue
-        per_pose[pose] = {"mass_kg": est.mass_kg, "mass_std_kg": est.mass_std_kg,
-                          "cog_mm": list(est.cog_mm), "cog_std_mm": [1000 * v for v in est.cog_std_m],
-                          "condition_number": est.condition_number}
-    q["per_pose"] = per_pose
-    checks = []
-    names = sorted(per_pose)
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            ea, eb = per_pose[a], per_pose[b]
-            sigma = math.hypot(ea["mass_std_kg"], eb["mass_std_kg"])
-            diff = ea["mass_kg"] - eb["mass_kg"]
-            z = diff / sigma if sigma > 0 else (0.0 if diff == 0 else math.inf)
-            ok = abs(z) <= POSE_AGREEMENT_Z
-            checks.append({"check": f"mass pose {a} vs pose {b}", "difference_kg": diff, "sigma_kg": sigma,
-                           "z": z, "limit_z": POSE_AGREEMENT_Z, "passed": ok})
-            if not ok:
-                q["reasons"].append(f"mass from pose {a} ({ea['mass_kg']:.4f} kg) and from pose {b} "
-                                    f"({eb['mass_kg']:.4f} kg) differ by {abs(z):.1f} σ "
-                                    f"(limit {POSE_AGREEMENT_Z:g} σ): friction or gain error not cancelled?")
-    if len(per_pose) < 2:
-        q["reasons"].append("fewer than two poses solvable on their own: no pose-agreement check")
-    q["checks"] = checks
-    q["primary"] = {"solver": primary.solver, "condition_number": primary.condition_number,
-                    "mass_std_kg": primary.mass_std_kg,
-                    "cog_std_mm": None if primary.cog_std_m is None else [1000 * v for v in primary.cog_std_m],
-                    "max_residual_rms_nm": max(primary.residual_rms_nm.values(), default=None)}
-    if primary.condition_number is not None and primary.condition_number > 1e6:
-        q["reasons"].append(f"ill-conditioned ({primary.condition_number:.3g})")
-        checks.append({"check": "condition number", "value": primary.condition_number, "limit": 1e6,
-                       "passed": False})
-    q["passed"] = all(c["passed"] for c in checks) and len(per_pose) >= 2
-    return q
+    gain_rel_std = None
+    if gains is not None:
+        gains_arr, source = np.asarray(gains, float), "given by the caller"
+        note = None
+    else:
+        gains_arr, note = effective_gains(config)
+        cal = effective_calibration(config) if note is not None else None
+        if cal is not None:
+            gain_rel_std = cal.gain_rel_std()
+            source = note
+        else:
+            source = "nominal (effort.gains_nm_per_unit of the config)"
+            note = ("drive gains are nominal: the reported uncertainty does not include their error (a few % "
+                    "on most arms); run `payload-agent calibrate` with a known reference payload")
+    notes: list[str] = []
+    deltas = deltas_for(run_dir, gains_arr, baseline_dir, notes=notes)
+    kin = config.robot.kinematics
+    primary, others = solve_all(deltas, kin, solver or config.procedure.solver, gain_rel_std)
+    primary.notes.extend(notes)
+    if note:
+        primary.notes.append(note)
+    quality_result = quality_checks(deltas, kin, primary)
+    extra = {"gains_nm_per_unit": [float(g) for g in gains_arr], "gains_source": source}
+    if gain_rel_std is not None:
+        extra["gains_rel_std"] = list(gain_rel_std)
+    return RunResult(config.robot.name, str(run_dir), primary, others, quality=quality_result, extra=extra)

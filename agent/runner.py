@@ -320,10 +320,13 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         finally:
             if own_cell and cell is not None:
                 cell.close()
-    if outcome.result is not None and not outcome.result.quality.get("passed", False):
-        raise QualityGateError("the result failed the quality checks and was not written to the controller: "
-                               + "; ".join(outcome.result.quality.get("reasons", [])) +
-                               f". Data and result kept in {outcome.run_dir}")
+    if outcome.result is not None:
+        from payload_agent.quality import require_passed
+
+        try:
+            require_passed(outcome.result)
+        except QualityGateError as exc:
+            raise QualityGateError(f"{exc}\nData, result and report kept in {outcome.run_dir}") from None
     return outcome
 
 

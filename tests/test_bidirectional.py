@@ -25,7 +25,7 @@ def friction_deltas(sweeps, kin, noise=0.0, rng=None):
         v = np.sign(q[-1, j] - q[0, j])
         dtau = np.zeros_like(q)
         for i, qi in enumerate(q):
-            dtau[i, 1:] = kin.payload_regressor(qi, range(1, 6)) @ THETA
+            dtau[i, 1:] = general.regressor(kin, qi, range(1, 6), j, 0.025) @ THETA  # gravity + centripetal
         dtau[:, j] += v * (COULOMB[j] * 0.1 + LOAD_RATIO * np.abs(dtau[:, j]))  # what the baseline missed
         if noise:
             dtau += rng.normal(0.0, noise, dtau.shape)

@@ -34,15 +34,19 @@ def planned_sweeps(bidirectional: bool = False, n: int = 200):
     return config, out
 
 
+SPEED_RAD_S = 0.025  # the sweeps' constant speed (only the small centripetal term depends on it)
+
+
 def synthetic(sweeps, kin, noise=0.0, rng=None, theta=THETA):
+    """Exact Δτ of the model (gravity + centripetal at SPEED_RAD_S), plus optional Gaussian noise."""
     deltas = {}
     for key, q in sweeps:
         dtau = np.zeros_like(q)
         for i, qi in enumerate(q):
-            dtau[i, 1:] = kin.payload_regressor(qi, range(1, 6)) @ theta
+            dtau[i, 1:] = general.regressor(kin, qi, range(1, 6), key.joint - 1, SPEED_RAD_S) @ theta
         if noise:
             dtau = dtau + rng.normal(0.0, noise, dtau.shape)
-        deltas[key] = DeltaSweep(key, q, dtau, 0.025)
+        deltas[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
     return deltas
 
 

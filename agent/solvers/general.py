@@ -1,4 +1,4 @@
-"""The general solver: weighted least squares on Δτ = Y(q)·θ over every loaded joint and sweep.
+"""The general solver: weighted least squares on Δτ = Y(q, q̇)·θ over every loaded joint and sweep.
 
 θ = [m, m·cx, m·cy, m·cz] (c in the flange frame, SI). Rows come from every joint whose
 regressor rows are not all zero (joint 1 has a vertical axis and never carries the
@@ -6,12 +6,22 @@ payload's weight) and from every constant-speed sample of every sweep. Where a
 bidirectional sweep was combined (direction "both", see ``payload_agent.combine``) the
 combined sweep replaces its "up" and "down" halves.
 
+Model: the static gravity regressor (``Kinematics.payload_regressor``) plus the centripetal
+force the arm must exert to carry the payload round the moving joint's axis at the
+sweep's constant speed ω. That term is even in ω, so combining the two directions does
+not remove it; at 20 % of the EC66's maximum speed it biases the centre of mass by about
+1 mm if left out. Only its part linear in θ is kept (the rest, ∝ m·|c|²·ω², is a
+rotational-inertia effect below 0.05 N·m at these speeds).
+
 Weights: one unweighted fit, then the residual variance σ²(sweep, joint) of each group,
-then the fit again with weights 1/σ². The covariance of θ is s²·(YᵀWY)⁻¹ with s² the
-weighted residual variance per degree of freedom (≈ 1 after reweighting), which is the
-least-squares (Cramér–Rao) covariance for independent Gaussian noise. Samples of one
-sweep are in practice correlated through friction that did not cancel; the residual
-RMS per sweep and joint is reported so that shows up.
+then the fit again with weights 1/σ². Covariance: the samples of one sweep are not
+independent (interpolation onto the combined grid, friction ripple, unmodelled slow
+effects), so the textbook s²·(YᵀWY)⁻¹ is too optimistic. The covariance is a sandwich
+A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance of the weighted scores, estimated
+sweep by sweep with a Bartlett (Newey–West) kernel whose bandwidth follows the residuals'
+own autocorrelation length; it never goes below the independent-noise covariance. An
+optional relative drive-gain uncertainty per joint (from ``payload-agent calibrate``) is
+propagated on top.
 
 The centre of mass c = (m·c)/m gets its covariance from the delta method.
 """
@@ -33,6 +43,8 @@ NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 SIGMA_FLOOR_NM = 1e-9  # noise-free data: keep the weights finite
+HAC_WINDOW_C = 5.0  # Sokal's automatic window: smallest lag M with M >= C·τ_int
+HAC_MAX_FRACTION = 0.25  # bandwidth at most this fraction of a sweep's samples
 
 
 @dataclass
@@ -43,6 +55,7 @@ class Group:
     sweep: str
     Y: np.ndarray  # (n, 4)
     y: np.ndarray  # (n,)
+    joint: int = -1  # 0-based joint of these rows (-1: unknown)
 
 
 def select_sweeps(deltas: dict[SweepKey, DeltaSweep], *, poses: Iterable[str] | None = None,
@@ -59,18 +72,92 @@ def select_sweeps(deltas: dict[SweepKey, DeltaSweep], *, poses: Iterable[str] | 
     return sorted(chosen, key=lambda d: (d.key.pose, d.key.joint, d.key.direction, d.key.speed_percent))
 
 
+def centripetal_regressor(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int,
+                          speed_rad_s: float) -> np.ndarray:
+    """Rows added to Y(q) by carrying the payload round joint ``moving`` at constant speed ω.
+
+    The payload's centre of mass x = p + R·c moves on a circle about the moving joint's axis
+    (z_k through o_k) with acceleration ẍ = ω²·(z_k z_kᵀ − I)(x − o_k); the arm supplies the
+    force m·ẍ, which loads joint j with z_j·((x − o_j) × m·ẍ). Expanded, this is linear in θ
+    except for a term in m·c·cᵀ (a rotational-inertia effect, left out). Same sign convention
+    as ``Kinematics.payload_regressor`` (support force m·g·ẑ).
+    """
+    joints = tuple(joints)
+    w2 = float(speed_rad_s) ** 2
+    if w2 == 0.0:
+        return np.zeros((len(joints), 4))
+    pose = kin.pose(q)
+    p, R = pose.flange[:3, 3], pose.flange[:3, :3]
+    zk, ok = pose.axis(moving), pose.origin(moving)
+    A = np.outer(zk, zk) - np.eye(3)
+    f_m = A @ (p - ok)  # centripetal acceleration of the flange origin per ω²
+    rows = []
+    for j in joints:
+        z, a = pose.axis(j), p - pose.origin(j)
+        rows.append(w2 * np.concatenate(([z @ np.cross(a, f_m)], R.T @ (A @ np.cross(z, a) + np.cross(f_m, z)))))
+    return np.array(rows)
+
+
+def regressor(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int | None = None,
+              speed_rad_s: float = 0.0) -> np.ndarray:
+    """Δτ_joints = regressor · θ at angles q, with joint ``moving`` turning at ``speed_rad_s`` (static: 0)."""
+    joints = tuple(joints)
+    Y = kin.payload_regressor(q, joints)
+    if moving is not None and speed_rad_s:
+        Y = Y + centripetal_regressor(kin, q, joints, moving, speed_rad_s)
+    return Y
+
+
 def build_groups(sweeps: list[DeltaSweep], kin: Kinematics,
                  joints: Iterable[int] = GRAVITY_JOINTS) -> list[Group]:
     joints = tuple(joints)
     groups = []
+    # vectorised: the payload's Newton–Euler regressor at constant speed of the moving joint,
+    # first four columns, is exactly regressor() (gravity + centripetal), ~500x faster per sweep
+    from payload_agent.solvers.dynamic import payload_regressor
+
     for d in sweeps:
-        Y = np.array([kin.payload_regressor(q, joints) for q in d.q])  # (n, len(joints), 4)
+        qd = np.zeros_like(d.q)
+        qd[:, d.moving] = d.speed_rad_s
+        Y = payload_regressor(kin, d.q, qd, np.zeros_like(d.q))[:, list(joints), :4]  # (n, len(joints), 4)
         for c, j in enumerate(joints):
             Yj = Y[:, c, :]
             if np.max(np.abs(Yj)) < ZERO_ROW_TOL:
                 continue
-            groups.append(Group(f"{d.key.name}/j{j + 1}", d.key.name, Yj, np.asarray(d.dtau[:, j], float)))
+            groups.append(Group(f"{d.key.name}/j{j + 1}", d.key.name, Yj, np.asarray(d.dtau[:, j], float), j))
     return groups
+
+
+def autocorrelation_time(x: np.ndarray, *, c: float = HAC_WINDOW_C, max_lag: int | None = None) -> tuple[float, int]:
+    """Integrated autocorrelation time τ = 1 + 2·Σρ_k of a series, and the window M it used.
+
+    Sokal's automatic window: the smallest M with M >= c·τ(M). τ ≈ 1 for independent
+    samples; a series whose samples come in correlated runs of length L has τ ≈ L, i.e. it
+    carries as much information as n/τ independent samples.
+    """
+    x = np.asarray(x, float) - np.mean(x)
+    n = len(x)
+    max_lag = n // 2 if max_lag is None else min(max_lag, n - 1)
+    var = float(x @ x)
+    if n < 3 or var <= 0.0 or max_lag < 1:
+        return 1.0, 0
+    f = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[: max_lag + 1] / var
+    tau = 1.0
+    for m in range(1, max_lag + 1):
+        tau += 2.0 * acf[m]
+        if m >= c * tau:
+            return max(tau, 1.0), m
+    return max(tau, 1.0), max_lag
+
+
+def _long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
+    """Σ_l k(l)·Σ_i u_i u_{i+l}ᵀ (both signs of l) with the Bartlett kernel k(l) = 1 − |l|/(L+1)."""
+    B = U.T @ U
+    for lag in range(1, bandwidth + 1):
+        G = U[lag:].T @ U[:-lag]
+        B += (1.0 - lag / (bandwidth + 1.0)) * (G + G.T)
+    return B
 
 
 def _wls(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,8 +175,14 @@ def _wls(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.nd
     return theta, inv
 
 
-def fit(groups: list[Group]) -> dict:
-    """Two-pass weighted fit. Returns θ, its covariance, per-group σ and residual RMS, condition number."""
+def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> dict:
+    """Two-pass weighted fit. Returns θ, its covariance, per-group σ and residual RMS, condition number.
+
+    ``cov`` is the autocorrelation-robust covariance (see the module docstring), ``cov_iid`` the
+    textbook one for independent noise, ``inflation`` the largest ratio of their diagonals and
+    ``tau`` each sweep's autocorrelation time. ``gain_rel_std`` (per joint, 0-based, relative):
+    the standard uncertainty of each drive gain, added to ``cov`` through ∂θ/∂gain.
+    """
     if not groups:
         raise DataError("general: no sweep carries any payload torque (no usable joint rows)")
     Y = np.vstack([g.Y for g in groups])
@@ -109,13 +202,60 @@ def fit(groups: list[Group]) -> dict:
     theta, inv = _wls(Y, y, w)
     r = y - Y @ theta
     s2 = float(r @ (w * r) / (n - p))
-    cov = s2 * inv
+    cov_iid = s2 * inv
+
+    # sandwich: long-run variance of the weighted scores, sweep by sweep (the joints of one
+    # sample share its instant, so their scores are summed before the lags are taken)
+    B = np.zeros((p, p))
+    tau: dict[str, float] = {}
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    for sweep in dict.fromkeys(g.sweep for g in groups):
+        members = [i for i, g in enumerate(groups) if g.sweep == sweep]
+        U = sum(groups[i].Y * (w[starts[i]:starts[i + 1]] * r[starts[i]:starts[i + 1]])[:, None] for i in members)
+        z = sum(r[starts[i]:starts[i + 1]] / sigma[i] for i in members)  # normalised residual per instant
+        m = len(z)
+        t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
+        tau[sweep] = t
+        B += _long_run_scores(U, lag) * dof_factor
+    cov = inv @ B @ inv
+    # never below the independent-noise covariance (the kernel estimate is itself noisy)
+    ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
+    if np.any(ratio < 1.0):
+        f = np.sqrt(np.maximum(1.0 / ratio, 1.0))
+        cov = cov * np.outer(f, f)
+    if gain_rel_std is not None:
+        cov = cov + gain_covariance(groups, Y, w, inv, theta, gain_rel_std)
+
     normal = (Y * w[:, None]).T @ Y
     d = 1.0 / np.sqrt(np.diag(normal))
     cond = float(np.linalg.cond(normal * np.outer(d, d)))
     rms = {g.label: float(np.sqrt(np.mean(r[idx == i] ** 2))) for i, g in enumerate(groups)}
-    return {"theta": theta, "cov": cov, "sigma": dict(zip([g.label for g in groups], sigma.tolist())),
-            "rms": rms, "cond": cond, "s2": s2, "n": n}
+    return {"theta": theta, "cov": cov, "cov_iid": cov_iid, "sigma": dict(zip([g.label for g in groups], sigma.tolist())),
+            "rms": rms, "cond": cond, "s2": s2, "n": n, "tau": tau,
+            "inflation": float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300))))}
+
+
+def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
+                    gain_rel_std: Iterable[float]) -> np.ndarray:
+    """Covariance of θ from independent relative drive-gain uncertainties (one per joint).
+
+    A relative gain error ε_j multiplies every measured Δτ on joint j by (1 + ε_j), so
+    ∂θ/∂ε_j = (YᵀWY)⁻¹·YᵀW·y_j with y_j the measured torques of joint j (0 elsewhere);
+    the fitted model's prediction is used for y_j so that noise does not enter twice.
+    """
+    std = np.asarray(list(gain_rel_std), float)
+    pred = Y @ theta
+    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+    cov = np.zeros((len(theta), len(theta)))
+    for j, sj in enumerate(std):
+        if sj <= 0:
+            continue
+        rows = joint_of_row == j
+        if not rows.any():
+            continue
+        dth = inv @ (Y[rows].T @ (w[rows] * pred[rows]))
+        cov += sj ** 2 * np.outer(dth, dth)
+    return cov
 
 
 def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,13 +269,18 @@ def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray,
 
 
 def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterable[str] | None = None,
-          use_combined: bool = True, name: str = NAME) -> Estimate:
+          use_combined: bool = True, name: str = NAME, gain_rel_std: Iterable[float] | None = None) -> Estimate:
+    """Weighted LS estimate of mass and centre of mass with its covariance (see the module docstring).
+
+    ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), e.g.
+    a calibration's ``scale_std``; included in the reported uncertainty when given.
+    """
     sweeps = select_sweeps(deltas, poses=poses, use_combined=use_combined)
     if not sweeps:
         which = "" if poses is None else f" in pose(s) {', '.join(sorted(poses))}"
         raise DataError(f"general: no sweep{which} to solve with")
     groups = build_groups(sweeps, kin)
-    res = fit(groups)
+    res = fit(groups, gain_rel_std)
     theta, cov = res["theta"], res["cov"]
     mass = float(theta[0])
     if not mass > 0:

@@ -1,0 +1,269 @@
+"""Drive-gain calibration with a known reference payload (``payload-agent calibrate``).
+
+The controller reports effort in its own unit; ``effort.gains_nm_per_unit`` turns it into
+N·m. Those gains are nominal (rated torque / 100, a datasheet torque constant) and on a
+real arm off by a few per cent per joint — and a gain error of 3 % is a mass error of 3 %,
+which no amount of averaging removes. With a payload of known mass and centre of mass on
+the flange, the loaded-minus-empty torque on every joint is known exactly,
+Δτ_pred = Y(q, q̇)·θ_ref, so one run of the normal procedure (empty + loaded) measures each
+joint's true gain:
+
+    Δτ_meas (at nominal gain) = k_j · Δτ_pred   ⇒   gain_j = nominal_j · s_j,  s_j = 1/k_j
+
+k_j is fitted by least squares over the constant-speed samples of every sweep (noise is in
+the measurement, so the measurement is regressed on the prediction, which keeps the fit
+unbiased); bidirectional combined sweeps ("both") are preferred, since friction odd in
+velocity cancels there. Where only one direction was recorded, each (sweep, joint) group
+on the moving joint gets its own offset to absorb the friction the baseline left.
+
+Only joints that carry enough of the payload's torque are fitted (in ``paper_bd``: joints
+2 and 3, sometimes 5); the others keep their nominal gain. A fitted scale outside
+0.8–1.25 is refused: it means a wrong reference mass was typed or the tool was not mounted.
+
+The result lives in ``state/<robot>/gains.json`` and is valid only for the configuration
+it was fitted on (robot name, effort unit, nominal gains, kinematics): ``load_calibration``
+refuses it otherwise, rather than silently applying stale gains.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from payload_agent.config import Config
+from payload_agent.delta import DeltaSweep
+from payload_agent.errors import DataError, QualityGateError
+from payload_agent.kinematics import Kinematics
+from payload_agent.planner import SweepKey
+from payload_agent.solvers import general
+from payload_agent.state import RobotState, write_json_atomic
+
+FORMAT = "payload-agent-gains/1"
+SCALE_MIN, SCALE_MAX = 0.8, 1.25  # a drive gain this far off nominal is a wrong reference, not a drive
+MIN_SIGNAL_TO_NOISE = 5.0  # a joint is fitted when its largest |Δτ_pred| is this many residual σ
+MAX_SCALE_STD = 0.01  # ... and its scale comes out to better than 1 %
+# what an unfitted joint's nominal gain is assumed to be good for (datasheet torque constants and
+# "rated torque / 100" conversions are typically within a few per cent): enters the uncertainty
+UNFITTED_GAIN_REL_STD = 0.03
+MIN_SAMPLES = 50  # per joint, over all sweeps
+
+
+@dataclass(frozen=True)
+class GainCalibration:
+    """Per-joint drive gains fitted with a reference payload, and what they are valid for."""
+
+    gains_nm_per_unit: tuple[float, ...]  # full vector: fitted joints replaced, others = config's
+    fitted_joints: tuple[int, ...]  # 0-based
+    scale: tuple[float, ...]  # fitted / nominal per joint (1.0 for unfitted)
+    scale_std: tuple[float, ...]  # standard uncertainty of each scale (0 for unfitted)
+    reference_mass_kg: float
+    reference_cog_m: tuple[float, float, float]
+    robot: str
+    effort_unit: str
+    nominal_fingerprint: str  # calibration_fingerprint(config) of the config it was fitted on
+    run_dir: str
+    created_utc: str
+
+    @property
+    def nominal_gains(self) -> tuple[float, ...]:
+        """The config gains the calibration was fitted against (fitted / scale)."""
+        return tuple(g / s for g, s in zip(self.gains_nm_per_unit, self.scale))
+
+    def gain_rel_std(self, unfitted: float = UNFITTED_GAIN_REL_STD) -> tuple[float, ...]:
+        """Relative standard uncertainty of every joint's gain: the fit's for fitted joints, else ``unfitted``."""
+        return tuple(s if j in self.fitted_joints else unfitted for j, s in enumerate(self.scale_std))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": FORMAT, "robot": self.robot, "effort_unit": self.effort_unit,
+                "gains_nm_per_unit": list(self.gains_nm_per_unit), "fitted_joints": [j + 1 for j in self.fitted_joints],
+                "scale": list(self.scale), "scale_std": list(self.scale_std),
+                "reference_mass_kg": self.reference_mass_kg,
+                "reference_cog_mm": [1000.0 * v for v in self.reference_cog_m],
+                "nominal_fingerprint": self.nominal_fingerprint, "run_dir": self.run_dir,
+                "created_utc": self.created_utc}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
+        """Inverse of ``to_json`` (joints are 1-based and the centre of mass in mm in the file)."""
+        if d.get("format") != FORMAT:
+            raise ValueError(f"format is {d.get('format')!r}, expected {FORMAT!r}")
+        gains = tuple(float(v) for v in d["gains_nm_per_unit"])
+        scale = tuple(float(v) for v in d["scale"])
+        scale_std = tuple(float(v) for v in d["scale_std"])
+        if not len(gains) == len(scale) == len(scale_std):
+            raise ValueError("gains_nm_per_unit, scale and scale_std differ in length")
+        cog = tuple(float(v) / 1000.0 for v in d["reference_cog_mm"])
+        if len(cog) != 3:
+            raise ValueError("reference_cog_mm must have 3 components")
+        return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
+                   float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]))
+
+
+def calibration_fingerprint(config: Config) -> str:
+    """16 hex digits over the nominal gains, effort unit and kinematics a calibration depends on."""
+    data = {"unit": config.effort.unit,
+            "gains": [repr(float(g)) for g in config.effort.gains_nm_per_unit],
+            "dh": [[repr(float(v)) for v in (r.a_m, r.d_m, r.alpha_rad, r.offset_rad)] for r in config.robot.dh]}
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _groups_by_joint(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool]]]:
+    """Per joint: (predicted Δτ, measured Δτ, needs an offset) for every sweep carrying that joint."""
+    sweeps = general.select_sweeps(deltas)
+    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool]]] = {}
+    for g, d in ((g, d) for d in sweeps for g in general.build_groups([d], kin)):
+        # a moving joint in a one-direction sweep keeps friction the baseline did not remove
+        offset = d.key.direction != "both" and g.joint == d.moving
+        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset))
+    return out
+
+
+def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, nominal_gains: Sequence[float],
+                          known_mass_kg: float, known_cog_m: Sequence[float]
+                          ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+    """Per-joint gain scale (true / nominal), its standard uncertainty, and the joints fitted.
+
+    ``deltas`` must have been converted to N·m with ``nominal_gains``. Joints without enough
+    payload torque keep scale 1 and std 0. Raises QualityGateError when no joint can be
+    fitted or a fitted scale is implausible (outside 0.8–1.25).
+    """
+    nominal = np.asarray(nominal_gains, float)
+    if not known_mass_kg > 0:
+        raise DataError(f"the reference mass must be positive, got {known_mass_kg} kg")
+    c = np.asarray(known_cog_m, float)
+    theta = np.concatenate(([known_mass_kg], known_mass_kg * c))
+    scale = np.ones(len(nominal))
+    scale_std = np.zeros(len(nominal))
+    fitted: list[int] = []
+    skipped: list[str] = []
+    for j, parts in sorted(_groups_by_joint(deltas, kin, theta).items()):
+        pred = np.concatenate([p for p, _, _ in parts])
+        meas = np.concatenate([m for _, m, _ in parts])
+        n = len(pred)
+        offset_parts = [i for i, (_, _, off) in enumerate(parts) if off]
+        X = np.zeros((n, 1 + len(offset_parts)))
+        X[:, 0] = pred
+        start = np.concatenate(([0], np.cumsum([len(p) for p, _, _ in parts])))
+        for col, i in enumerate(offset_parts, 1):
+            X[start[i]:start[i + 1], col] = 1.0
+        if n < MIN_SAMPLES + X.shape[1]:
+            skipped.append(f"joint {j + 1}: {n} samples")
+            continue
+        coef, *_ = np.linalg.lstsq(X, meas, rcond=None)
+        resid = meas - X @ coef
+        dof = n - X.shape[1]
+        sigma = float(np.sqrt(resid @ resid / dof))
+        k = float(coef[0])
+        # standard error of k with correlated residuals: Bartlett sandwich over each sweep
+        XtX_inv = np.linalg.pinv(X.T @ X)
+        B = np.zeros((X.shape[1], X.shape[1]))
+        for i in range(len(parts)):
+            sl = slice(start[i], start[i + 1])
+            r = resid[sl]
+            _, lag = general.autocorrelation_time(r, max_lag=max(1, int(general.HAC_MAX_FRACTION * len(r))))
+            B += general._long_run_scores(X[sl] * r[:, None], lag)
+        k_var = max(float((XtX_inv @ B @ XtX_inv)[0, 0]), float(XtX_inv[0, 0]) * sigma ** 2) * n / dof
+        peak = float(np.max(np.abs(pred)))
+        if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
+            skipped.append(f"joint {j + 1}: payload torque at most {peak:.3g} N·m against {sigma:.2g} N·m noise")
+            continue
+        s, s_std = 1.0 / k, float(np.sqrt(k_var)) / k ** 2
+        if s_std > MAX_SCALE_STD:
+            skipped.append(f"joint {j + 1}: scale {s:.4f} ± {s_std:.4f} too uncertain")
+            continue
+        if not SCALE_MIN <= s <= SCALE_MAX:
+            raise QualityGateError(
+                f"calibration: joint {j + 1} would need {s:.3f} × its nominal drive gain (plausible "
+                f"{SCALE_MIN:g}–{SCALE_MAX:g}); the measured payload torque does not match a "
+                f"{known_mass_kg:.3f} kg reference at {1000 * c[0]:.1f}, {1000 * c[1]:.1f}, {1000 * c[2]:.1f} mm. "
+                "Check the reference mass and centre of mass you typed (kg, mm, flange frame) and that the "
+                "reference payload was mounted for the loaded run and removed for the empty one.")
+        scale[j], scale_std[j] = s, s_std
+        fitted.append(j)
+    if not fitted:
+        raise QualityGateError("calibration: no joint carried enough of the reference payload's torque to fit "
+                               f"its gain ({'; '.join(skipped) or 'no usable sweep'}). Use a heavier reference "
+                               "payload (a few kg) and check that it was mounted for the loaded run.")
+    return scale, scale_std, tuple(fitted)
+
+
+def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: Sequence[float],
+              baseline_dir: Path | None = None) -> GainCalibration:
+    """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains."""
+    from payload_agent.analysis import deltas_for  # analysis uses this module: import late
+
+    nominal = np.asarray(config.effort.gains_nm_per_unit, float)
+    deltas = deltas_for(Path(run_dir), nominal, baseline_dir)
+    scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics, nominal,
+                                                     known_mass_kg, known_cog_m)
+    c = tuple(float(v) for v in known_cog_m)
+    return GainCalibration(
+        gains_nm_per_unit=tuple(float(v) for v in nominal * scale), fitted_joints=fitted,
+        scale=tuple(float(v) for v in scale), scale_std=tuple(float(v) for v in scale_std),
+        reference_mass_kg=float(known_mass_kg), reference_cog_m=(c[0], c[1], c[2]),
+        robot=config.robot.name, effort_unit=config.effort.unit,
+        nominal_fingerprint=calibration_fingerprint(config), run_dir=str(run_dir),
+        created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+
+
+def save_calibration(state: RobotState, cal: GainCalibration) -> Path:
+    """Write ``state/<robot>/gains.json`` atomically; returns its path."""
+    write_json_atomic(state.gains_path, cal.to_json())
+    return state.gains_path
+
+
+def load_calibration(state: RobotState, config: Config) -> GainCalibration | None:
+    """The stored calibration if there is one and it fits ``config``; None if there is none.
+
+    Raises DataError naming the file when it cannot be read or was fitted on another
+    configuration (robot, effort unit, nominal gains or kinematics changed).
+    """
+    path = state.gains_path
+    if not path.exists():
+        return None
+    redo = (f"run `payload-agent calibrate --robot {config.source} --known-mass KG --known-cog X,Y,Z` again, "
+            f"or delete {path} to use the nominal gains")
+    try:
+        cal = GainCalibration.from_json(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path}: cannot read the drive-gain calibration ({exc}); {redo}") from None
+    problems = []
+    if cal.robot != config.robot.name:
+        problems.append(f"it is for robot {cal.robot!r}, the config is {config.robot.name!r}")
+    if cal.effort_unit != config.effort.unit:
+        problems.append(f"it was fitted for effort unit {cal.effort_unit!r}, the config says {config.effort.unit!r}")
+    nominal = np.asarray(config.effort.gains_nm_per_unit, float)
+    if len(cal.nominal_gains) != len(nominal) or not np.allclose(cal.nominal_gains, nominal, rtol=1e-9, atol=0):
+        problems.append(f"effort.gains_nm_per_unit changed since (was {[round(g, 6) for g in cal.nominal_gains]}, "
+                        f"now {list(config.effort.gains_nm_per_unit)})")
+    if not problems and cal.nominal_fingerprint != calibration_fingerprint(config):
+        problems.append("the kinematics (DH parameters) changed since")
+    if problems:
+        raise DataError(f"{path}: the drive-gain calibration of {cal.created_utc} does not match "
+                        f"{config.source}: {'; '.join(problems)}. {redo[0].upper()}{redo[1:]}.")
+    return cal
+
+
+def effective_gains(config: Config) -> tuple[np.ndarray, str | None]:
+    """The gains the analysis should use (calibrated if a valid calibration exists) and a note saying so."""
+    state = RobotState.for_config(config)
+    cal = load_calibration(state, config)
+    if cal is None:
+        return np.asarray(config.effort.gains_nm_per_unit, float), None
+    joints = ", ".join(str(j + 1) for j in cal.fitted_joints)
+    note = (f"drive gains from calibration of {cal.created_utc[:10]} ({state.gains_path}, reference "
+            f"{cal.reference_mass_kg:.3f} kg; joints {joints} fitted, others nominal)")
+    return np.asarray(cal.gains_nm_per_unit, float), note
+
+
+def effective_calibration(config: Config) -> GainCalibration | None:
+    """The valid stored calibration for ``config`` or None (for the uncertainty of the gains)."""
+    return load_calibration(RobotState.for_config(config), config)
