@@ -50,13 +50,21 @@ class SimulatedCell:
                 rated_torque_nm=spec.rated_torque_nm, gain_error=sim.drive_gain_error)
         else:
             # ur_rtde's constructors hold the GIL while waiting for replies: the fake UR runs in a
-            # child process and .robot forwards the SimRobot calls to it.
+            # child process and .robot forwards the SimRobot calls (set_payload, set_friction_scale,
+            # snapshot, ...) to it. The drives report current = torque / gain with the config's
+            # own gains (times drive_gain_error), so the config describes the simulated robot
+            # exactly; sensor noise is simulation.noise_nm on the torque (no extra current noise).
             from payload_agent.fakes.ur_controller import FakeURController
 
+            if config.effort.unit != "A":
+                raise ConfigError("effort.unit", f"the simulated UR controller reports motor current in A, "
+                                  f"not {config.effort.unit!r}")
+            host = self.options.get("host")
             self.controller = FakeURController(
-                host=str(self.options.get("host", "127.0.0.2")), spec=spec, q0_rad=q0, tick_s=tick,
-                time_scale=sim.time_scale, friction=self.friction, noise_nm=np.array(sim.noise_nm),
-                seed=sim.seed, payload=None, gain_error=sim.drive_gain_error)
+                host=None if host in (None, "", "auto") else str(host), spec=spec, q0_rad=tuple(q0), tick_s=tick,
+                time_scale=sim.time_scale, friction=self.friction, noise_nm=tuple(sim.noise_nm),
+                seed=sim.seed, payload=None, gain_error=tuple(sim.drive_gain_error),
+                gains_nm_per_a=tuple(config.effort.gains_nm_per_unit), current_noise_a=0.0)
             self.robot = self.controller.robot
 
     def start(self) -> "SimulatedCell":
@@ -65,6 +73,8 @@ class SimulatedCell:
         if self.config.driver_type == "elite_ec":  # ports may have been 0 (ephemeral)
             self.options["rpc_port"] = self.controller.rpc_port
             self.options["monitor_port"] = self.controller.monitor_port
+        else:  # the fake may have picked a free 127.0.0.x itself ("auto")
+            self.options["host"] = self.controller.host
         return self
 
     def close(self) -> None:
@@ -73,6 +83,12 @@ class SimulatedCell:
                 part.close()
             except Exception:
                 pass
+
+    def change_tool(self, mass_kg: float, cog_mm: tuple[float, float, float]) -> None:
+        """Swap the simulated tool for another (the truth of the next loaded run); used by tests and demos."""
+        from payload_agent.fakes.physics import PayloadTruth
+
+        self.truth = PayloadTruth.point(mass_kg, cog_mm)
 
     def mount_tool(self, mounted: bool) -> None:
         """The simulated tool change; friction drifts by ``friction.drift`` between the runs."""

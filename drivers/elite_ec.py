@@ -574,6 +574,26 @@ class EliteECDriver(Driver):
             if not self._stop_evt.is_set():
                 self._stream_error = e
 
+    # -- digital inputs ---------------------------------------------------------------------
+    def read_digital_input(self, index: int) -> bool:
+        """State of the controller's digital input X<index>: JSON-RPC ``getInput {"addr": index}`` -> 0 / 1.
+
+        Elite's own Python library (``elite/_var.py``, ``IO.get_digital_io``) documents X0..X63;
+        see docs/sources.md ("Elite EC"). Used by ``payload-agent watch`` to wait for a trigger.
+        """
+        if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+            raise ValueError(f"digital input index must be a non-negative integer, got {index!r}")
+        try:
+            v = self.call("getInput", {"addr": index})
+        except EliteRPCError as e:
+            raise CommunicationError(f"the Elite controller refused to read digital input X{index}: {e.rpc_message} "
+                                     f"(JSON-RPC error {e.code}); inputs are X0..X63") from e
+        if isinstance(v, bool):
+            return v
+        if isinstance(v, (int, float)) and v in (0, 1):
+            return bool(v)
+        raise CommunicationError(f"getInput X{index} returned {v!r}, expected 0 or 1")
+
     # -- payload ----------------------------------------------------------------------------
     def read_payload(self) -> PayloadSetting:
         n = self._cfg["tool_num"]

@@ -33,6 +33,12 @@ Design notes:
   delivers >= 95 % of the packages (see tests/test_ur_driver.py); ``samples_missed``
   counts the gaps seen in the controller timestamps.
 * ``effort`` is ``actual_current`` in A (motor current; torque = gain × current).
+* The control script is uploaded on the first command (move, payload write), not by
+  ``connect()``: uploading it replaces the program the robot runs, and a connection that
+  only reads (``payload-agent watch`` polling a digital input) must not do that. Remote
+  Control is therefore checked by ur-rtde at the first command (RobotNotReadyError).
+* ``read_digital_input(i)``: bit i of RTDE ``actual_digital_input_bits`` (0-7 DI, 8-15 CI,
+  16-17 tool inputs) through ``getDigitalInState``.
 * ur-rtde's constructors return even when the connection failed; ``isConnected()``
   is checked after each of them.
 """
@@ -83,7 +89,7 @@ DASHBOARD_PORT = 29999
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the
 # payload fields exist from PolyScope 5.5.1 / 3.11 on and are added only there).
 RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "target_moment", "robot_mode", "safety_mode",
-          "safety_status_bits", "runtime_state"]
+          "safety_status_bits", "runtime_state", "actual_digital_input_bits"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
 
 ROBOT_MODE_RUNNING = 7
@@ -95,6 +101,8 @@ SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVE
                      13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
 RUNTIME_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
 RUNTIME_PLAYING = 2
+# actual_digital_input_bits (UR RTDE guide): bits 0-7 standard DI0-7, 8-15 configurable CI0-7, 16-17 tool TI0-1
+DIGITAL_INPUT_NAMES = [f"DI{i}" for i in range(8)] + [f"CI{i}" for i in range(8)] + ["TI0", "TI1"]
 # safety_status_bits bit numbers (ur_rtde rtde_control_interface.h enum SafetyStatus)
 BIT_PROTECTIVE, BIT_RECOVERY, BIT_SAFEGUARD, BIT_SYS_ESTOP, BIT_ROBOT_ESTOP, BIT_ESTOP = 2, 3, 4, 5, 6, 7
 BIT_VIOLATION, BIT_FAULT = 8, 9
@@ -232,8 +240,9 @@ class URRTDEDriver(Driver):
             raise CommunicationError(f"RTDE receive interface to {self.host}:{RTDE_PORT} did not connect "
                                      "(ur-rtde returned without a connection)")
         self._recv = recv
-        if self.state().fault is None:
-            self._control()  # upload the control script now if the robot can take it
+        # ur-rtde's control script is uploaded on the first command (move, stop, payload), not
+        # here: uploading it replaces whatever program the robot runs, which a connection that
+        # only reads (`watch` polling a digital input) must never do.
 
     def _identify_dashboard(self) -> None:
         db = _Dashboard(self.host, self.connect_timeout_s)
@@ -268,6 +277,7 @@ class URRTDEDriver(Driver):
                 if not self._ctrl.reuploadScript():
                     raise CommunicationError(f"UR controller {self.host}: could not re-upload ur-rtde's control script")
                 self._wait(lambda: self._ctrl.isProgramRunning(), 5.0, "the control script to start")
+                self._wait_receive_playing()
             return self._ctrl
         flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT
         if self.upper_range_registers:
@@ -286,7 +296,15 @@ class URRTDEDriver(Driver):
         if not ctrl.isConnected():
             raise CommunicationError(f"RTDE control interface to {self.host}:{RTDE_PORT} did not connect")
         self._ctrl = ctrl
+        self._wait_receive_playing()
         return ctrl
+
+    def _wait_receive_playing(self) -> None:
+        """The receive interface's packages may predate the script start: move_joints reads the
+        runtime state from them and would take STOPPED for a dead script."""
+        r = self._receive()
+        self._wait(lambda: r.getRuntimeState() == RUNTIME_PLAYING, 2.0,
+                   "the RTDE receive interface to report the control script running")
 
     def close(self) -> None:
         self._abort.set()
@@ -362,9 +380,9 @@ class URRTDEDriver(Driver):
             raise RobotNotReadyError(f"UR controller {self.host}: {state.fault} ({state.detail})")
         self._abort.clear()
         r = self._receive()
-        t_start = time.monotonic()
         with self._cmd_lock:
-            ctrl = self._control()
+            ctrl = self._control()  # may upload the control script first (up to a few seconds)
+            t_start = time.monotonic()
             op0 = ctrl.getAsyncOperationProgressEx().operationId()
             ok = ctrl.moveJ(target.tolist(), float(speed_rad_s), float(accel_rad_s2), True)
         if not ok:
@@ -491,6 +509,25 @@ class URRTDEDriver(Driver):
             self._stream_error = CommunicationError(f"the UR sample stream from {self.host} ended: {exc}")
         except BaseException as exc:  # the sink's own error (or ours): keep it as it is
             self._stream_error = exc
+
+    # -- digital inputs ------------------------------------------------------------------------
+    def read_digital_input(self, index: int) -> bool:
+        """State of digital input ``index`` from RTDE ``actual_digital_input_bits``.
+
+        Index = bit number: 0-7 standard inputs DI0-DI7, 8-15 configurable CI0-CI7, 16-17 tool
+        inputs TI0-TI1 (UR RTDE guide). Read with ur-rtde's ``getDigitalInState`` from the
+        receive interface's latest package; needs no control script and no Remote Control.
+        """
+        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(DIGITAL_INPUT_NAMES):
+            raise ValueError(f"UR digital input index must be an integer in [0, {len(DIGITAL_INPUT_NAMES) - 1}] "
+                             f"(0-7 standard DI0-7, 8-15 configurable CI0-7, 16-17 tool TI0-1), got {index!r}")
+        r = self._receive()
+        try:
+            return bool(r.getDigitalInState(index))
+        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
+            raise CommunicationError(f"UR controller {self.host}: cannot read digital input "
+                                     f"{DIGITAL_INPUT_NAMES[index]} (bit {index} of actual_digital_input_bits): {exc}") \
+                from exc
 
     # -- payload -------------------------------------------------------------------------------
     def read_payload(self) -> PayloadSetting:

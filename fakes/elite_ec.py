@@ -17,7 +17,8 @@ used by Elite's own Python library (JunJie-zhang-o/eliterobot, ``elite/_move.py`
 ("Elite EC"). Points that public sources do not settle are marked UNVERIFIED.
 
 Test-side helpers: ``set_mode(0|1|2)``, ``press_estop()``, ``release_estop()``,
-``trigger_collision()``, ``raise_alarm()``, ``set_servo()``, ``set_garbage_reply()``.
+``trigger_collision()``, ``raise_alarm()``, ``set_servo()``, ``set_garbage_reply()``,
+``set_digital_input()``.
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ SPEED_MIN_PCT, SPEED_MAX_PCT = 0.01, 100.0
 ACC_MIN_PCT, ACC_MAX_PCT = 0.0, 100.0
 
 N_TOOLS = 8  # tool_num 0..7
+# Digital inputs X0..X63: getInput {"addr": n} -> 0 or 1 (Elite's library elite/_var.py IO.get_digital_io and its
+# docs "变量&IO": "X0~X63", "0低电平,1高电平"). Readable in every mode here (UNVERIFIED on the real controller).
+N_DIGITAL_INPUTS = 64
 
 # Methods that need remote mode.
 _REMOTE_ONLY = {
@@ -116,6 +120,7 @@ class FakeEliteController:
         self._auto_tool = 0
         self._reset_t = -1.0  # sim time of the last successful clearAlarm
         self._payloads = [{"m": 0.0, "tool_cog": [0.0, 0.0, 0.0]} for _ in range(N_TOOLS)]
+        self._inputs = [0] * N_DIGITAL_INPUTS  # X0..X63, set by tests with set_digital_input()
         self._motion: dict | None = None  # {"t0", "dur", "seen"} while robotState is "running"
         self._next_frame_t: float | None = None
         self._garbage: dict[str, str] = {}
@@ -207,6 +212,13 @@ class FakeEliteController:
             else:
                 self._garbage[method] = raw_line
 
+    def set_digital_input(self, index: int, value: bool | int) -> None:
+        """Drive the controller's digital input X<index> (0..63) high (1/True) or low (0/False)."""
+        if not isinstance(index, int) or isinstance(index, bool) or not (0 <= index < N_DIGITAL_INPUTS):
+            raise ValueError(f"digital input index must be an integer in [0, {N_DIGITAL_INPUTS - 1}], got {index!r}")
+        with self._lock:
+            self._inputs[index] = 1 if value else 0
+
     def payload_setting(self, tool_num: int = 0) -> dict:
         with self._lock:
             p = self._payloads[tool_num]
@@ -271,6 +283,7 @@ class FakeEliteController:
                 "robotMode": self._mode,
                 "collision": 1 if self._collision else 0,
                 "emergencyStopState": 1 if self._estop_pressed else 0,
+                "digital_ioInput": sum(1 << i for i, v in enumerate(self._inputs) if v),
                 "joint_speed": list(np.degrees(s.qd)) + [0.0, 0.0],
                 "jointacc": list(np.degrees(s.qdd)) + [0.0, 0.0],
                 "joint_temperature": [30.0] * 6,
@@ -454,3 +467,11 @@ class FakeEliteController:
         with self._lock:
             self._auto_tool = n
         return True
+
+    # digital IO
+    def _m_getInput(self, p: dict) -> int:
+        n = p.get("addr")
+        if not isinstance(n, int) or isinstance(n, bool) or not (0 <= n < N_DIGITAL_INPUTS):
+            raise RpcError(INVALID_PARAMS, f"Invalid params: addr must be an integer in [0, {N_DIGITAL_INPUTS - 1}]")
+        with self._lock:
+            return self._inputs[n]

@@ -24,6 +24,8 @@ import struct
 import threading
 from typing import Mapping
 
+from payload_agent.fakes.tcp_server import TCPServer, shutdown_socket
+
 # (name, offset, struct type, count). Big-endian, no padding. Offsets verified by
 # ``_check_layout`` at import time.
 MONITOR_LAYOUT: tuple[tuple[str, int, str, int], ...] = (
@@ -117,28 +119,23 @@ def unpack_frame(frame: bytes) -> dict[str, object]:
 
 
 class _Client:
+    """One monitor client: frames queued by the simulation thread, sent by the connection's thread."""
+
     def __init__(self, sock: socket.socket, max_queue: int):
         self.sock = sock
         self.queue: queue.Queue[bytes | None] = queue.Queue(maxsize=max_queue)
         self.dead = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="elite-monitor-client", daemon=True)
 
-    def _run(self) -> None:
+    def run(self) -> None:
+        """The sender loop (runs on the TCP server's connection thread until dropped)."""
         try:
             while not self.dead.is_set():
                 frame = self.queue.get()
                 if frame is None:
                     break
                 self.sock.sendall(frame)
-        except OSError:
-            pass
         finally:
             self.dead.set()
-            try:
-                self.sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            self.sock.close()
 
     def offer(self, frame: bytes) -> bool:
         """Queue a frame; False when the client fell too far behind (it is then dropped)."""
@@ -153,51 +150,42 @@ class _Client:
 
     def drop(self) -> None:
         self.dead.set()
+        shutdown_socket(self.sock)  # wakes a sender blocked in sendall
         try:
-            self.sock.shutdown(socket.SHUT_RDWR)  # wakes a sender blocked in sendall
-        except OSError:
-            pass
-        try:
-            self.queue.put_nowait(None)
+            self.queue.put_nowait(None)  # wakes a sender waiting for a frame
         except queue.Full:
             pass
 
 
 class MonitorServer:
-    """Accepts clients on the monitor port and fans frames out to them."""
+    """Accepts clients on the monitor port (``fakes.tcp_server``) and fans frames out to them."""
 
     def __init__(self, host: str, port: int, max_queue: int = 1000):
         # max_queue frames (8 s of simulated time) queued behind a full socket buffer before a
         # client is dropped
         self.max_queue = max_queue
-        self._listener = socket.create_server((host, port), reuse_port=False)
-        self._listener.settimeout(0.2)
-        self.port = self._listener.getsockname()[1]
         self._clients: list[_Client] = []
         self._lock = threading.Lock()
-        self._closed = threading.Event()
-        self._thread = threading.Thread(target=self._accept_loop, name="elite-monitor-accept", daemon=True)
         self.dropped_clients = 0
+        self._closed = False
+        self._server = TCPServer(host, port, self._serve, name="elite-monitor")
+        self.port = self._server.port
 
     def start(self) -> None:
-        self._thread.start()
+        self._server.start()
 
-    def _accept_loop(self) -> None:
-        while not self._closed.is_set():
-            try:
-                sock, _ = self._listener.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                break
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            client = _Client(sock, self.max_queue)
+    def _serve(self, sock: socket.socket, addr) -> None:
+        client = _Client(sock, self.max_queue)
+        with self._lock:
+            if self._closed:
+                return
+            self._clients.append(client)
+        try:
+            client.run()
+        finally:
             with self._lock:
-                if self._closed.is_set():
-                    sock.close()
-                    break
-                self._clients.append(client)
-            client.thread.start()
+                if client in self._clients:
+                    self._clients.remove(client)
 
     def has_clients(self) -> bool:
         with self._lock:
@@ -219,17 +207,9 @@ class MonitorServer:
                         self.dropped_clients += 1
 
     def close(self) -> None:
-        self._closed.set()
-        try:
-            self._listener.close()
-        except OSError:
-            pass
         with self._lock:
+            self._closed = True
             clients, self._clients = self._clients, []
         for c in clients:
             c.drop()
-        if self._thread.is_alive() and threading.current_thread() is not self._thread:
-            self._thread.join(timeout=2.0)
-        for c in clients:
-            if c.thread.is_alive():
-                c.thread.join(timeout=2.0)
+        self._server.close()

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 from typing import Any, Callable
+
+from payload_agent.fakes.tcp_server import TCPServer
 
 PARSE_ERROR = -32700
 INVALID_REQUEST = -32600
@@ -45,71 +46,32 @@ Handler = Callable[[str, Any], Any]  # (method, params) -> python value to JSON-
 
 
 class LineJsonRpcServer:
-    """Threaded TCP server; ``handler(method, params)`` returns a value or raises RpcError."""
+    """TCP server (``fakes.tcp_server``); ``handler(method, params)`` returns a value or raises RpcError."""
 
     def __init__(self, host: str, port: int, handler: Handler, name: str = "elite-rpc",
                  raw_override: Callable[[str], str | None] | None = None):
         self._handler = handler
         self._raw_override = raw_override  # test hook: answer a method with a raw (broken) line
-        self._name = name
-        self._listener = socket.create_server((host, port))
-        self._listener.settimeout(0.2)
-        self.port = self._listener.getsockname()[1]
-        self._closed = threading.Event()
-        self._conns: list[socket.socket] = []
-        self._threads: list[threading.Thread] = []
-        self._lock = threading.Lock()
-        self._accept_thread = threading.Thread(target=self._accept_loop, name=f"{name}-accept", daemon=True)
+        self._server = TCPServer(host, port, self._serve, name=name)
+        self.port = self._server.port
 
     def start(self) -> None:
-        self._accept_thread.start()
+        self._server.start()
 
-    def _accept_loop(self) -> None:
-        while not self._closed.is_set():
-            try:
-                sock, _ = self._listener.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                break
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            t = threading.Thread(target=self._serve, args=(sock,), name=f"{self._name}-conn", daemon=True)
-            with self._lock:
-                if self._closed.is_set():
-                    sock.close()
-                    break
-                self._conns.append(sock)
-                self._threads.append(t)
-            t.start()
-
-    def _serve(self, sock: socket.socket) -> None:
+    def _serve(self, sock: socket.socket, addr) -> None:
         buf = b""
-        try:
-            while not self._closed.is_set():
-                try:
-                    chunk = sock.recv(65536)
-                except OSError:
-                    break
-                if not chunk:
-                    break
-                buf += chunk
-                while b"\n" in buf:
-                    line, buf = buf.split(b"\n", 1)
-                    reply = self._handle_line(line)
-                    if reply is not None:
-                        sock.sendall(reply)
-                if len(buf) > MAX_LINE:
-                    break  # a line that never ends: drop the client
-        except OSError:
-            pass
-        finally:
-            with self._lock:
-                if sock in self._conns:
-                    self._conns.remove(sock)
-            try:
-                sock.close()
-            except OSError:
-                pass
+        while not self._server.closing:
+            chunk = sock.recv(65536)
+            if not chunk:
+                return
+            buf += chunk
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                reply = self._handle_line(line)
+                if reply is not None:
+                    sock.sendall(reply)
+            if len(buf) > MAX_LINE:
+                return  # a line that never ends: drop the client
 
     def _handle_line(self, line: bytes) -> bytes | None:
         text = line.strip()
@@ -148,28 +110,7 @@ class LineJsonRpcServer:
                             "id": req_id})
 
     def close(self) -> None:
-        self._closed.set()
-        try:
-            self._listener.close()
-        except OSError:
-            pass
-        with self._lock:
-            conns = list(self._conns)
-            threads = list(self._threads)
-        for s in conns:
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            try:
-                s.close()
-            except OSError:
-                pass
-        if self._accept_thread.is_alive():
-            self._accept_thread.join(timeout=2.0)
-        for t in threads:
-            if t.is_alive() and t is not threading.current_thread():
-                t.join(timeout=2.0)
+        self._server.close()
 
 
 def _encode(obj: dict) -> bytes:

@@ -163,6 +163,30 @@ class SimRobot:
             self._move_id += 1
             return self._path.t_end - self._t
 
+    def follow_path(self, make_path: Callable[[float, np.ndarray], object]) -> float:
+        """Start a continuous joint trajectory instead of a PTP move (e.g. an excitation trajectory).
+
+        ``make_path(t0, q0)`` gets the current simulated time and angles and returns an object
+        with ``at(t) -> (q, q̇, q̈)``, ``t_end`` and ``stop_at(t, decel)``, like ``JointPath``;
+        ``step()`` then follows it tick by tick exactly as it follows a PTP profile. Same
+        refusals as ``move_joints``. Returns the trajectory's duration (s).
+        """
+        with self._lock:
+            if self._estop:
+                raise SimRefused("emergency stop is active")
+            if self._protective:
+                raise SimRefused("protective stop is active")
+            if not self._servo:
+                raise SimRefused("servos are off")
+            if self._path is not None:
+                raise SimRefused("robot is moving")
+            path = make_path(self._t, self._state.q.copy())
+            if np.max(np.abs(np.asarray(path.at(self._t)[0]) - self._state.q)) > 1e-6:
+                raise SimRefused("trajectory does not start at the current joint angles")
+            self._path = path
+            self._move_id += 1
+            return path.t_end - self._t
+
     def stop(self, decel_rad_s2: float | None = None) -> None:
         with self._lock:
             if self._path is not None:

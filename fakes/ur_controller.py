@@ -26,6 +26,7 @@ Test-side API::
         ur.host
         ur.robot                      # proxy of the SimRobot: snapshot(), set_payload(), set_friction_scale(), ...
         ur.trigger_protective_stop(); ur.trigger_estop(); ur.reset_safety(); ur.set_remote_control(False)
+        ur.set_digital_input(3, True)  # bit 3 of actual_digital_input_bits (DI3)
         ur.controller_payload         # (mass, cog) the controller was told via set_payload
         ur.script_errors, ur.rtde_errors, ur.log, ur.programs_run   # what happened, for assertions
 
@@ -58,6 +59,7 @@ import numpy as np
 from payload_agent.fakes import ur_rtde_protocol as rp
 from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRefused, SimRobot, SimState
+from payload_agent.fakes.tcp_server import TCPServer, shutdown_socket
 
 # -- constants ---------------------------------------------------------------------------------
 
@@ -96,6 +98,7 @@ CMD_SET_PAYLOAD, CMD_IS_STEADY, CMD_SET_TARGET_PAYLOAD, CMD_STOP_SCRIPT = 17, 47
 REALTIME_CMDS = frozenset({24, 11, 9, 10, 6, 25, 26, 27, 38, 58})
 
 UNLOCK_PROTECTIVE_STOP_DELAY_S = 5.0  # PolyScope refuses to unlock earlier
+N_DIGITAL_INPUTS = 18  # actual_digital_input_bits: 8 standard + 8 configurable + 2 tool inputs (RTDE guide)
 
 
 def pick_loopback_host(rng: random.Random | None = None, attempts: int = 50) -> str:
@@ -125,7 +128,7 @@ class _Snap:
 
     __slots__ = ("ctrl", "t", "q", "qd", "qdd", "tau", "current", "moving", "robot_mode", "safety_mode",
                  "safety_bits", "runtime_state", "robot_status_bits", "out_int", "out_dbl", "in_int", "in_dbl",
-                 "out_bits", "in_bits", "payload_mass", "payload_cog", "payload_inertia", "_cache")
+                 "out_bits", "in_bits", "digital_in", "payload_mass", "payload_cog", "payload_inertia", "_cache")
 
     def lazy(self, key: str, fn: Callable[[], Any]) -> Any:
         if self._cache is None:
@@ -196,6 +199,7 @@ def _build_getters() -> dict[str, Callable[[_Snap], Any]]:
         "output_bit_registers32_to_63": lambda s: (s.out_bits >> 32) & 0xFFFFFFFF,
         "input_bit_registers0_to_31": lambda s: s.in_bits & 0xFFFFFFFF,
         "input_bit_registers32_to_63": lambda s: (s.in_bits >> 32) & 0xFFFFFFFF,
+        "actual_digital_input_bits": lambda s: s.digital_in,
         "payload": lambda s: s.payload_mass,
         "payload_cog": lambda s: s.payload_cog,
         "payload_inertia": lambda s: s.payload_inertia,
@@ -284,6 +288,7 @@ class URControllerCore:
         self.in_dbl = [0.0] * 48
         self.out_bits = 0
         self.in_bits = 0
+        self.digital_in = 0  # actual_digital_input_bits: 0-7 DI, 8-15 CI, 16-17 tool inputs (RTDE guide)
         self.inputs_misc: dict[str, Any] = {}
         self._input_owner: dict[str, object] = {}
         self.robot_mode = ROBOT_MODE_RUNNING
@@ -309,9 +314,7 @@ class URControllerCore:
         self._last_safety = (False, False)
         self._protective_since: float | None = None
         self._sub_token: int | None = None
-        self._listeners: list[socket.socket] = []
-        self._threads: list[threading.Thread] = []
-        self._conns: set[socket.socket] = set()
+        self._servers: list[TCPServer] = []
         self._closing = threading.Event()
         self._started = False
 
@@ -345,14 +348,9 @@ class URControllerCore:
         if self._sub_token is not None:
             self.robot.unsubscribe(self._sub_token)
             self._sub_token = None
-        self._close_listeners()
-        for s in list(self._conns):
-            _shutdown(s)
         for sess in list(self.rtde_sessions):
             sess.close()
-        for th in self._threads:
-            th.join(timeout=2.0)
-        self._threads.clear()
+        self._close_listeners()
         if self._own_sim:
             self.robot.close()
         self._started = False
@@ -364,52 +362,13 @@ class URControllerCore:
         self.close()
 
     def _listen(self, host: str, port: int, handler: Callable[[socket.socket, tuple], None]) -> None:
-        ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            ls.bind((host, port))
-        except OSError as exc:
-            ls.close()
-            raise OSError(f"fake UR controller cannot bind {host}:{port}: {exc}") from exc
-        ls.listen(8)
-        ls.settimeout(0.2)
-        self._listeners.append(ls)
-        th = threading.Thread(target=self._accept_loop, args=(ls, handler), daemon=True,
-                              name=f"ur-fake-accept-{port}")
-        th.start()
-        self._threads.append(th)
-
-    def _accept_loop(self, ls: socket.socket, handler) -> None:
-        while not self._closing.is_set():
-            try:
-                conn, addr = ls.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            conn.settimeout(None)
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._conns.add(conn)
-            th = threading.Thread(target=self._run_conn, args=(handler, conn, addr), daemon=True,
-                                  name=f"ur-fake-conn-{ls.getsockname()[1]}")
-            th.start()
-
-    def _run_conn(self, handler, conn: socket.socket, addr) -> None:
-        try:
-            handler(conn, addr)
-        except (ConnectionError, OSError):
-            pass
-        finally:
-            self._conns.discard(conn)
-            _shutdown(conn)
+        server = TCPServer(host, port, handler, name=f"ur-fake-{port}", on_error=self._note)
+        self._servers.append(server.start())
 
     def _close_listeners(self) -> None:
-        for ls in self._listeners:
-            try:
-                ls.close()
-            except OSError:
-                pass
-        self._listeners.clear()
+        servers, self._servers = self._servers, []
+        for server in servers:  # stops accepting, shuts every connection down, joins the handlers
+            server.close()
 
     def _note(self, text: str) -> None:
         self.log.append(f"{self.robot.now():10.3f} {text}")
@@ -439,6 +398,14 @@ class URControllerCore:
 
     def set_remote_control(self, on: bool) -> None:
         self.remote_control = bool(on)
+
+    def set_digital_input(self, index: int, value: bool) -> None:
+        """Drive digital input ``index`` (bit of actual_digital_input_bits: 0-7 DI0-7, 8-15 CI0-7,
+        16-17 tool TI0-1) high or low; RTDE shows it from the next control cycle on."""
+        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < N_DIGITAL_INPUTS:
+            raise ValueError(f"digital input index must be an integer in [0, {N_DIGITAL_INPUTS - 1}], got {index!r}")
+        with self._lock:
+            self.digital_in = (self.digital_in | (1 << index)) if value else (self.digital_in & ~(1 << index))
 
     @property
     def controller_payload(self) -> tuple[float, tuple[float, float, float]]:
@@ -494,7 +461,7 @@ class URControllerCore:
                 ((1 << RSB_PROGRAM_RUNNING) if self.runtime_state == RUNTIME_PLAYING else 0)
             s.out_int, s.out_dbl = tuple(self.out_int), tuple(self.out_dbl)
             s.in_int, s.in_dbl = tuple(self.in_int), tuple(self.in_dbl)
-            s.out_bits, s.in_bits = self.out_bits, self.in_bits
+            s.out_bits, s.in_bits, s.digital_in = self.out_bits, self.in_bits, self.digital_in
             s.payload_mass, s.payload_cog, s.payload_inertia = self.payload_mass, self.payload_cog, self.payload_inertia
             sessions = list(self.rtde_sessions)
         for sess in sessions:
@@ -730,15 +697,7 @@ class URControllerCore:
             self._script_error(f"port {port} secondary program: {exc}")
 
 
-def _shutdown(s: socket.socket) -> None:
-    try:
-        s.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
-    try:
-        s.close()
-    except OSError:
-        pass
+_shutdown = shutdown_socket
 
 
 # -- RTDE sessions -----------------------------------------------------------------------------------
@@ -1422,10 +1381,10 @@ def _compile_program(ctrl: URControllerCore, text: str, secondary: bool = False)
 _ROBOT_METHODS = {"now", "snapshot", "set_payload", "set_friction_scale", "set_servo", "trigger_protective_stop",
                   "trigger_estop", "reset_safety", "stop", "move_joints"}
 _CTRL_METHODS = {"trigger_protective_stop", "trigger_estop", "release_estop", "reset_safety", "set_remote_control",
-                 "run_script", "wait_ticks"}
+                 "set_digital_input", "run_script", "wait_ticks"}
 _CTRL_ATTRS = {"last_script", "gain_error", "controller_payload", "script_errors", "rtde_errors", "programs_run", "log", "runtime_state",
                "robot_mode", "gains", "current_noise_a", "controller_version", "serial_number", "host",
-               "out_int", "out_dbl", "in_int", "in_dbl"}
+               "out_int", "out_dbl", "in_int", "in_dbl", "digital_in"}
 
 
 def _child_main(conn) -> None:  # runs in the child process
@@ -1647,6 +1606,9 @@ class FakeURController:
 
     def set_remote_control(self, on: bool) -> None:
         self._request(("call", "ctrl", "set_remote_control", (on,), {}))
+
+    def set_digital_input(self, index: int, value: bool) -> None:
+        self._request(("call", "ctrl", "set_digital_input", (index, value), {}))
 
     def run_script(self, text: str, source: str = "test") -> None:
         self._request(("call", "ctrl", "run_script", (text, source), {}))

@@ -207,13 +207,56 @@ def test_speed_above_the_configured_cap_is_refused(healthy):
 
 
 def test_not_ready_when_remote_control_is_off():
+    """Reading works in Local mode; the first command (which needs the control script) is refused."""
     with FakeURController(remote_control=False) as fake:
         d = make_driver(fake.host)
         try:
+            d.connect()
+            assert d.state().mode == "local" and d.read_digital_input(0) is False
             with pytest.raises(RobotNotReadyError, match="Remote Control"):
-                d.connect()
+                d.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
+            assert "rtde_control" not in fake.programs_run
         finally:
             d.close()
+
+
+def test_connect_does_not_take_over_the_robot_program(ur):
+    """connect() + reads upload nothing: a `watch` connection must not replace the robot's program."""
+    before = ur.programs_run.count("rtde_control")
+    d = make_driver(ur.host)
+    try:
+        d.connect()
+        d.state()
+        d.read_digital_input(3)
+        assert ur.programs_run.count("rtde_control") == before
+    finally:
+        d.close()
+
+
+def test_read_digital_input_follows_the_controller(ur, healthy):
+    """Bit i of RTDE actual_digital_input_bits: DI0-7, CI0-7 (8-15), tool inputs TI0-1 (16-17)."""
+    def settled(index, value):  # the receive interface sees the change from the next package on
+        deadline = time.monotonic() + 2.0
+        while healthy.read_digital_input(index) is not value:
+            assert time.monotonic() < deadline, f"input {index} did not become {value}"
+            time.sleep(0.005)
+
+    try:
+        for index in (0, 3, 7, 8, 15, 16, 17):
+            assert healthy.read_digital_input(index) is False
+            ur.set_digital_input(index, True)
+            settled(index, True)
+            others = [i for i in range(18) if i != index]
+            assert not any(healthy.read_digital_input(i) for i in others)
+            ur.set_digital_input(index, False)
+            settled(index, False)
+        assert ur.digital_in == 0
+    finally:
+        for index in range(18):
+            ur.set_digital_input(index, False)
+    for bad in (-1, 18, 64, True, 2.0):
+        with pytest.raises(ValueError, match="0-7 standard"):
+            healthy.read_digital_input(bad)
 
 
 def test_long_move_fast_sim_with_payload():
@@ -251,6 +294,23 @@ def test_lost_connection_ends_the_stream_with_an_error():
     finally:
         d.close()
         fake.close()
+
+
+def test_missing_wheel_fails_only_this_driver(monkeypatch):
+    """Without the ur-rtde wheel (Python 3.13+) the UR driver names the problem; Elite still loads."""
+    import sys
+
+    from payload_agent.drivers import registry
+
+    monkeypatch.setitem(sys.modules, "rtde_control", None)  # "import rtde_control" now raises ImportError
+    monkeypatch.delitem(sys.modules, "payload_agent.drivers.ur_rtde")
+    monkeypatch.setattr(registry, "_REGISTERED", {})
+    with pytest.raises(ConfigError) as err:
+        driver_class("ur_rtde")
+    assert err.value.key_path == "driver.type"
+    assert "ur-rtde" in str(err.value) and "CPython 3.11 and 3.12" in str(err.value)
+    assert "payload-agent[ur]" in str(err.value)
+    assert driver_class("elite_ec").name == "elite_ec"
 
 
 def test_missing_wheel_is_a_config_error_naming_the_python_versions():

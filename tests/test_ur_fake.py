@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import threading
 import time
 
 import numpy as np
@@ -350,3 +351,62 @@ def test_upper_range_registers(clean):
     finally:
         c.stopScript()
         c.disconnect()
+
+
+# -- the shared loopback TCP server (fakes/tcp_server.py: UR and Elite fakes) -------------------------
+
+def test_tcp_server_ephemeral_port_and_close_unblocks_handlers():
+
+    from payload_agent.fakes.tcp_server import TCPServer
+
+    entered = threading.Event()
+
+    def echo(conn, addr):
+        entered.set()
+        while True:
+            data = conn.recv(100)  # blocks until the peer writes or close() shuts the socket down
+            if not data:
+                return
+            conn.sendall(data.upper())
+
+    server = TCPServer("127.0.0.1", 0, echo, name="test-echo").start()
+    assert server.port > 0
+    clients = [socket.create_connection(("127.0.0.1", server.port), timeout=2.0) for _ in range(3)]
+    clients[0].sendall(b"abc")
+    assert clients[0].recv(10) == b"ABC"
+    assert entered.wait(2.0)
+    deadline = time.monotonic() + 2.0
+    while server.connection_count < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert server.connection_count == 3
+    t0 = time.monotonic()
+    server.close()  # every handler is blocked in recv(): close must wake them all
+    assert time.monotonic() - t0 < 1.0 and server.connection_count == 0
+    assert all(c.recv(10) == b"" for c in clients)  # the peers see the connection closed
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", server.port), timeout=0.5)
+    for c in clients:
+        c.close()
+
+
+def test_tcp_server_reports_handler_bugs_and_names_a_busy_port():
+
+    from payload_agent.fakes.tcp_server import TCPServer
+
+    seen = []
+
+    def broken(conn, addr):
+        raise KeyError("bug")
+
+    server = TCPServer("127.0.0.1", 0, broken, name="test-broken", on_error=seen.append).start()
+    try:
+        with socket.create_connection(("127.0.0.1", server.port), timeout=2.0) as c:
+            assert c.recv(10) == b""  # the connection is closed after the handler failed
+        deadline = time.monotonic() + 2.0
+        while not seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert seen and "KeyError" in seen[0] and f"127.0.0.1:{server.port}" in seen[0]
+        with pytest.raises(OSError, match=f"test-other: cannot listen on 127.0.0.1:{server.port}"):
+            TCPServer("127.0.0.1", server.port, broken, name="test-other")
+    finally:
+        server.close()

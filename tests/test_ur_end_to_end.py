@@ -1,0 +1,88 @@
+"""The whole product against the simulated UR5e: real ur_rtde client, fake UR controller, loopback.
+
+The fake UR controller runs in a child process (ur_rtde's constructors hold the GIL) on a
+127.0.0.x address of its own: ur_rtde's ports are fixed, so each fake needs its own
+address. ``pick_loopback_host`` picks one whose UR ports are free right now (the same way
+as the other UR tests), so parallel test runs and the other UR tests never collide.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("rtde_control", reason="ur-rtde wheel not installed (CPython 3.11/3.12)")
+
+from conftest import ROOT, tweak  # noqa: E402
+from payload_agent.cli import main  # noqa: E402
+from payload_agent.config import parse_config  # noqa: E402
+from payload_agent.errors import MotionAbortedError  # noqa: E402
+from payload_agent.fakes.ur_controller import pick_loopback_host  # noqa: E402
+from payload_agent.rundata import load_manifest  # noqa: E402
+from payload_agent.runner import RunOptions, run_identification  # noqa: E402
+
+
+@pytest.fixture
+def sim_ur5e_data():
+    return yaml.safe_load((ROOT / "configs" / "sim-ur5e.yaml").read_text())
+
+
+def _data(sim_ur5e_data, tmp_path: Path, **changes):
+    data = tweak(sim_ur5e_data, "driver.host", pick_loopback_host())
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    for path, value in changes.items():
+        data = tweak(data, path.replace("__", "."), value)
+    return data
+
+
+def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
+    """`payload-agent run --robot sim-ur5e.yaml --yes` as shipped (only host and folders changed)."""
+    cfg_path = tmp_path / "sim-ur5e.yaml"
+    cfg_path.write_text(yaml.safe_dump(_data(sim_ur5e_data, tmp_path)))
+    truth = sim_ur5e_data["simulation"]["payload"]
+    rc = main(["run", "--robot", str(cfg_path), "--yes", "--result", str(tmp_path / "r.json")])
+    assert rc == 0
+    result = json.loads((tmp_path / "r.json").read_text())
+    err_mass = result["mass_kg"] - truth["mass_kg"]
+    err_cog = np.array(result["cog_mm"]) - truth["cog_mm"]
+    print(f"\nsim-ur5e ({result['solver']}): mass error {1000 * err_mass:+.1f} g, "
+          f"CoG error {np.round(err_cog, 2).tolist()} mm")
+    assert result["solver"] == sim_ur5e_data["procedure"]["solver"]
+    assert abs(err_mass) < 0.03, result
+    assert np.max(np.abs(err_cog)) < 5.0, result
+    run_dir = next((tmp_path / "runs").iterdir())
+    manifest = load_manifest(run_dir)
+    assert manifest["effort_unit"] == "A"
+    assert manifest["controller"]["model"] == "UR5e"
+    assert manifest["simulation_truth"]["mass_kg"] == truth["mass_kg"]
+    for phase in ("empty", "loaded"):
+        sweeps = manifest["phases"][phase]["sweeps"]
+        assert [s["name"] for s in sweeps] == ["b-j2-up", "b-j3-up", "d-j2-up", "d-j3-up"]
+        # 500 Hz stream: several hundred samples per second of sweep even when packages are missed
+        assert all(s["status"] == "complete" and s["samples"] > 1000 for s in sweeps), sweeps
+
+
+def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_data, tmp_path):
+    cfg = parse_config(_data(sim_ur5e_data, tmp_path), source="test")
+    cells = []
+
+    def out(line):
+        if "[empty] 2/8" in line:  # the first sweep has just been commanded
+            threading.Timer(0.4, cells[0].controller.trigger_protective_stop).start()
+
+    with pytest.raises(MotionAbortedError, match="protective stop"):
+        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append))
+    run_dir = next((tmp_path / "runs").iterdir())
+    manifest = load_manifest(run_dir)
+    phase = manifest["phases"]["empty"]
+    assert phase["status"].startswith("aborted") and "protective stop" in phase["status"]
+    sweep = phase["sweeps"][0]
+    assert sweep["name"] == "b-j2-up" and sweep["status"] == "aborted" and sweep["samples"] > 100
+    lines = (run_dir / sweep["file"]).read_text().splitlines()
+    assert len(lines) - 1 == sweep["samples"]
+    assert "loaded" not in manifest["phases"] or not manifest["phases"]["loaded"].get("sweeps")
