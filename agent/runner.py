@@ -42,6 +42,7 @@ SETTLED_RAD = math.radians(0.05)
 READBACK_TOL_KG = 0.001  # the controllers store mass to 1 g or better
 READBACK_TOL_M = 0.0005  # and the centre of mass to 0.5 mm or better
 MODES = ("identify", "baseline", "calibrate")
+NOT_REMOTE_MODES = ("local", "teach", "play")  # ControllerState.mode values in which motion commands are refused
 
 
 @dataclass
@@ -246,6 +247,9 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}; mode {ctl_state.mode}")
         if ctl_state.fault:
             raise RobotNotReadyError(f"the robot is not ready: {ctl_state.fault}. Clear it on the pendant and retry.")
+        if ctl_state.mode in NOT_REMOTE_MODES:  # refuse before the plan is shown, not at the first move
+            raise RobotNotReadyError(f"the controller is in {ctl_state.mode} mode: an external program cannot move "
+                                     "the robot. Switch it to remote control on the teach pendant and retry.")
         current = baselines.describe_for(config, plan, info, source_run=Path("."))
         phases, baseline_dir, store_empty = _phases_for(config, opts, state, current, out)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")

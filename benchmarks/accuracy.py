@@ -1,28 +1,38 @@
-"""Accuracy benchmark: simulated EC66, seeded payloads, three methods, two scenarios, four speeds.
+"""Accuracy benchmark: simulated EC66, seeded payloads, five methods, two scenarios, four speeds.
 
-Not a test. Run ``.venv/bin/python -m benchmarks.accuracy [--quick] [--json PATH]``.
+Not a test: it prints numbers. Run ``.venv/bin/python -m benchmarks.accuracy [--quick] [--json PATH]
+[--plot PATH] [--default-procedure SPEC]``; ``--help`` lists every option.
 
 For speed the simulated robot is driven directly (no sockets, no clock thread): the
 planner's moves go to ``SimRobot.move_joints`` and ``SimRobot.step()`` is called until
-each move ends; the states of every sweep become ``SweepData`` exactly as the recorder's
-CSV would after unit conversion. Then the agent's own pipeline runs:
-``delta.subtract_all`` -> ``combine.add_combined`` -> solvers.
+each move ends (``fakes.offline.record_plan``); the states of every sweep become
+``SweepData`` exactly as the recorder's CSV would after unit conversion. Then the agent's
+own pipeline runs: ``delta.subtract_all`` -> ``combine.add_combined`` -> solvers.
 
-Each case simulates the bidirectional plan once (empty and loaded run). The unidirectional
-methods use only its "up" sweeps, which are sampled exactly as the unidirectional plan
-would sample them (each up sweep starts from standstill at the same start pose); the
-motion time reported for them is the unidirectional plan's.
+Each case is one payload on one simulated robot (its DH errors, drive-gain errors and
+friction drifts are drawn from the payload index and scenario, so every procedure sees the
+same robot). It records the bidirectional plan for the empty flange, for the tool and, for
+``general-bi-cal``, for the calibration reference payload (3.0 kg at (0, 0, 80) mm, its own
+friction drift draw, the same empty-flange baseline). The unidirectional methods use only
+the "up" sweeps, which are sampled exactly as the unidirectional plan would sample them
+(each up sweep starts from standstill at the same start pose); the motion time reported for
+them is the unidirectional plan's.
 
 Scenarios
   ideal      sensor noise 0.3 N·m, constant Coulomb + viscous friction, exact gains and DH.
   realistic  ideal + load-dependent Coulomb (5 % of the load torque), friction scale drift
-             ±10 % between the empty and the loaded run, drive gains off by up to ±3 % per
+             ±10 % between the empty and each loaded run, drive gains off by up to ±3 % per
              joint (the measured torque is multiplied), the simulated arm's DH lengths off by
              up to 0.5 mm (ArmSpec.with_dh_errors) while the agent uses the nominal ones.
 Methods
-  three-step   the paper's solver, "up" sweeps only
-  general-up   weighted least squares, "up" sweeps only
-  general-bi   weighted least squares on up/down sweeps combined at matching angles
+  three-step      the paper's solver, "up" sweeps only (as published)
+  general-up      weighted least squares, "up" sweeps only
+  general-bi      weighted least squares on up/down sweeps combined at matching angles
+  general-bi-cal  general-bi after a drive-gain calibration (agent/calibration.py) with the
+                  reference payload on the same robot, same procedure
+  dynamic         the paper's §3.4 baseline (eq. 29): loaded − empty along a 5th-order Fourier
+                  excitation trajectory of joints 4–6 (fakes/excitation.py, solvers/dynamic.py);
+                  speed-independent, reported once per scenario in the row "excitation"
 Ablation (``--scenarios realistic-exact-gains``): realistic with exact drive gains.
 """
 
@@ -30,6 +40,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
+import inspect
 import json
 import math
 import sys
@@ -45,11 +57,32 @@ SPEEDS = (1.0, 5.0, 10.0, 20.0)
 SCENARIOS = ("ideal", "realistic")
 # ablation, only with --scenarios: realistic but with exact drive gains (what `calibrate` would buy)
 ALL_SCENARIOS = (*SCENARIOS, "realistic-exact-gains")
-METHODS = ("three-step", "general-up", "general-bi")
+METHODS = ("three-step", "general-up", "general-bi", "general-bi-cal", "dynamic")
+PTP_METHODS = METHODS[:4]
 NOISE_NM = 0.3
 COULOMB_NM = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5)
 VISCOUS_NM_S_RAD = (8.0, 8.0, 5.0, 1.0, 1.0, 0.5)
 TICK_S = 0.008  # the Elite monitor's sample period
+REFERENCE = (3.0, (0.0, 0.0, 80.0))  # calibration payload: kg, mm in the flange frame
+CHI2_3_95 = 7.814727903251178  # 95 % quantile of χ² with 3 degrees of freedom
+EXCITATION_LABEL = "excitation"
+DEFAULT_LABEL = "default"
+
+
+@dataclasses.dataclass(frozen=True)
+class Procedure:
+    """The procedure knobs the benchmark varies (percentages of max joint speed / acceleration)."""
+
+    label: str  # row label: the speed ("5") or "default"
+    speed: float
+    travel: float
+    accel: float
+    sweep_from: float
+    sweep_to: float
+
+    def describe(self) -> str:
+        return (f"sweep {self.speed:g} %, travel {self.travel:g} %, accel {self.accel:g} %, "
+                f"range {self.sweep_from:g}–{self.sweep_to:g}°")
 
 
 def payloads(n: int, seed: int = 2025) -> list[tuple[float, tuple[float, float, float]]]:
@@ -67,37 +100,23 @@ def payloads(n: int, seed: int = 2025) -> list[tuple[float, tuple[float, float, 
     return out
 
 
-def _config(speed_percent: float, bidirectional: bool):
+def _config(proc: Procedure, bidirectional: bool):
     from payload_agent.config import load_config
 
     config = load_config(CONFIG)
-    proc = dataclasses.replace(config.procedure, speed_percent=speed_percent, bidirectional=bidirectional)
-    return dataclasses.replace(config, procedure=proc)
+    pc = dataclasses.replace(config.procedure, speed_percent=proc.speed, travel_speed_percent=proc.travel,
+                             accel_percent=proc.accel, sweep_from_deg=proc.sweep_from, sweep_to_deg=proc.sweep_to,
+                             bidirectional=bidirectional)
+    return dataclasses.replace(config, procedure=pc)
 
 
-def run_phase(robot, plan, gain: np.ndarray) -> dict:
-    """Drive every move of the plan; return SweepData per sweep (effort already in N·m)."""
-    from payload_agent.rundata import SweepData
+@functools.lru_cache(maxsize=None)
+def plans(proc: Procedure):
+    """(bidirectional plan, unidirectional plan, bidirectional config), once per worker and procedure."""
+    from payload_agent.planner import make_plan
 
-    out = {}
-    for move in plan.moves:
-        robot.move_joints(move.target_rad, move.speed_rad_s, move.accel_rad_s2)
-        rec = [] if move.sweep is not None else None
-        while True:
-            s = robot.step()
-            if rec is not None:
-                rec.append((s.t, s.q, s.torque_nm))
-            if not s.moving:
-                break
-        if rec is not None:
-            for _ in range(5):  # the stream keeps going briefly after the move, as on the robot
-                s = robot.step()
-                rec.append((s.t, s.q, s.torque_nm))
-            t = np.array([r[0] for r in rec])
-            q = np.array([r[1] for r in rec])
-            tau = np.array([r[2] for r in rec]) * gain
-            out[move.sweep] = SweepData(move.sweep, t, q, tau, f"sim:{move.sweep.name}")
-    return out
+    config_bi = _config(proc, True)
+    return make_plan(config_bi), make_plan(_config(proc, False)), config_bi
 
 
 def motion_time_s(plan) -> float:
@@ -113,84 +132,217 @@ def motion_time_s(plan) -> float:
     return total
 
 
-def run_case(args: tuple) -> list[dict]:
-    scenario, speed, index, mass, cog_mm = args
-    from payload_agent.combine import add_combined
-    from payload_agent.delta import subtract_all
-    from payload_agent.errors import DataError
-    from payload_agent.fakes.arms import SPECS
-    from payload_agent.fakes.physics import FrictionParams, PayloadTruth
-    from payload_agent.fakes.sim_robot import SimRobot
+def check_safety(proc: Procedure) -> list[str]:
+    """The safety gate's problems with this procedure's bidirectional plan (empty: it would run)."""
     from payload_agent.planner import make_plan
-    from payload_agent.solvers import general, three_step
+    from payload_agent.safety import SafetyGate
 
-    # the ablation draws the same DH errors, gains (then discarded) and drift as "realistic"
+    config = _config(proc, True)
+    plan = make_plan(config)
+    verdict = SafetyGate(config).check(plan, np.asarray(plan.moves[0].target_rad))
+    return list(verdict.problems)
+
+
+def robot_draws(scenario: str, index: int) -> dict:
+    """The simulated robot's imperfections for one case: the same for every procedure."""
+    from payload_agent.fakes.arms import SPECS
+
     seed_scenario = SCENARIOS.index("realistic" if scenario.startswith("realistic") else scenario)
-    rng = np.random.default_rng([index, int(speed * 10), seed_scenario])
-    config_bi = _config(speed, True)
-    plan_bi, plan_up = make_plan(config_bi), make_plan(_config(speed, False))
-    kin = config_bi.robot.kinematics
+    rng = np.random.default_rng([index, seed_scenario, 7])
     spec = SPECS["ec66"]()
-    realistic = scenario.startswith("realistic")
-    if realistic:
+    if scenario.startswith("realistic"):
         spec = spec.with_dh_errors(rng, 0.0005)
         gain = rng.uniform(0.97, 1.03, 6)
         if scenario == "realistic-exact-gains":
             gain = np.ones(6)
-        drift = float(rng.uniform(-0.10, 0.10))
+        drift_load, drift_ref = (float(v) for v in rng.uniform(-0.10, 0.10, 2))
         load_ratio = 0.05
     else:
-        gain, drift, load_ratio = np.ones(6), 0.0, 0.0
-    friction = FrictionParams(np.array(COULOMB_NM), np.array(VISCOUS_NM_S_RAD), np.full(6, load_ratio))
-    start = np.asarray(plan_bi.moves[0].target_rad)
-    robot = SimRobot(spec, q0_rad=start, tick_s=TICK_S, friction=friction, noise_nm=NOISE_NM,
-                     seed=int(rng.integers(2**31)), payload=None)
-    empty = run_phase(robot, plan_bi, gain)
-    robot.set_payload(PayloadTruth.point(mass, cog_mm))
-    robot.set_friction_scale(1.0 + drift)
-    loaded = run_phase(robot, plan_bi, gain)
+        gain, drift_load, drift_ref, load_ratio = np.ones(6), 0.0, 0.0, 0.0
+    return {"spec": spec, "gain": gain, "drift_load": drift_load, "drift_ref": drift_ref,
+            "load_ratio": load_ratio, "noise_seed": int(rng.integers(2**31))}
 
-    deltas = subtract_all(loaded, empty)
-    up_only = {k: d for k, d in deltas.items() if k.direction == "up"}
-    combined, _ = add_combined(deltas)
-    truth_c = np.asarray(cog_mm) / 1000.0
+
+def _robot(draws: dict, start: np.ndarray, seed_extra: int):
+    from payload_agent.fakes.physics import FrictionParams
+    from payload_agent.fakes.sim_robot import SimRobot
+
+    friction = FrictionParams(np.array(COULOMB_NM), np.array(VISCOUS_NM_S_RAD), np.full(6, draws["load_ratio"]))
+    return SimRobot(draws["spec"], q0_rad=start, tick_s=TICK_S, friction=friction, noise_nm=NOISE_NM,
+                    seed=int(np.random.default_rng([draws["noise_seed"], seed_extra]).integers(2**31)), payload=None)
+
+
+def _row(base: dict, est, mass: float, cog_mm, motion: float) -> dict:
+    """Errors, reported uncertainty and interval coverage of one estimate."""
+    from payload_agent.solvers.general import cog_with_covariance
+
+    dm = est.mass_kg - mass
+    dc = np.asarray(est.cog_m) - np.asarray(cog_mm) / 1000.0
+    row = dict(base, mass_kg=mass, cog_mm=list(cog_mm), est_mass_kg=est.mass_kg, est_cog_mm=list(est.cog_mm),
+               mass_err_g=1000 * dm, cog_err_mm=float(1000 * np.linalg.norm(dc)), motion_time_s=motion,
+               mass_std_g=None, cog_std_mm=None, z_mass=None, z_cog=None, mass_in_ci95=None, cog_in_ci95=None)
+    if est.mass_std_kg is not None and est.mass_std_kg > 0:
+        row.update(mass_std_g=1000 * est.mass_std_kg, z_mass=dm / est.mass_std_kg,
+                   mass_in_ci95=bool(abs(dm) <= 1.959964 * est.mass_std_kg))
+    if est.cog_std_m is not None and est.covariance is not None:
+        row.update(cog_std_mm=[1000 * v for v in est.cog_std_m],
+                   z_cog=(dc / np.maximum(np.asarray(est.cog_std_m), 1e-15)).tolist())
+        theta = np.array([est.mass_kg, *(est.mass_kg * np.asarray(est.cog_m))])
+        _, cov_c = cog_with_covariance(theta, np.asarray(est.covariance)[:4, :4])
+        try:
+            d2 = float(dc @ np.linalg.solve(cov_c, dc))
+            row["cog_in_ci95"] = bool(d2 <= CHI2_3_95)  # 95 % confidence ellipsoid of c
+        except np.linalg.LinAlgError:
+            pass
+    return row
+
+
+def _scaled(deltas: dict, scale: np.ndarray) -> dict:
+    from payload_agent.delta import DeltaSweep
+
+    return {k: DeltaSweep(d.key, d.q, d.dtau * scale, d.speed_rad_s) for k, d in deltas.items()}
+
+
+def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.ndarray]:
+    """Gain scale and relative gain uncertainty from the reference payload on the same robot.
+
+    agent/calibration.py fits the joints that carry enough reference torque; as in the agent's
+    own analysis (``GainCalibration.gain_rel_std``) the others keep their nominal gain with
+    ``UNFITTED_GAIN_REL_STD`` as its uncertainty.
+    """
+    from payload_agent.calibration import UNFITTED_GAIN_REL_STD, fit_gains_from_deltas
+    from payload_agent.combine import add_combined
+    from payload_agent.delta import subtract_all
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.fakes.physics import PayloadTruth
+
+    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
+    robot.set_friction_scale(1.0 + draws["drift_ref"])
+    ref, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
+    deltas, _ = add_combined(subtract_all(ref, empty))
+    scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics,
+                                                     np.asarray(config.effort.gains_nm_per_unit),
+                                                     REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
+    rel_std = np.array([scale_std[j] if j in fitted else UNFITTED_GAIN_REL_STD for j in range(len(scale))])
+    return np.asarray(scale, float), rel_std
+
+
+def run_case(args: tuple) -> list[dict]:
+    """One payload, one scenario, one procedure: every PTP method's estimate."""
+    scenario, proc, methods, index, mass, cog_mm = args
+    from payload_agent.combine import add_combined
+    from payload_agent.delta import subtract_all
+    from payload_agent.errors import DataError, PayloadAgentError
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.fakes.physics import PayloadTruth
+    from payload_agent.solvers import general, three_step
+
+    draws = robot_draws(scenario, index)
+    plan_bi, plan_up, config_bi = plans(proc)
+    kin = config_bi.robot.kinematics
+    start = np.asarray(plan_bi.moves[0].target_rad)
+    robot = _robot(draws, start, int(round(proc.speed * 100)) + 7919 * int(round(proc.travel * 100 + proc.accel)))
+    empty, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
+    robot.set_payload(PayloadTruth.point(mass, cog_mm))
+    robot.set_friction_scale(1.0 + draws["drift_load"])
+    loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
+
+    base = {"scenario": scenario, "procedure": proc.label, "procedure_settings": dataclasses.asdict(proc),
+            "payload": index}
     rows = []
-    for method in METHODS:
+    try:
+        deltas = subtract_all(loaded, empty)
+        combined, _ = add_combined(deltas)
+    except PayloadAgentError as exc:
+        return [dict(base, method=m, error=str(exc)) for m in methods]
+    up_only = {k: d for k, d in deltas.items() if k.direction == "up"}
+    for method in methods:
         try:
             if method == "three-step":
                 est, plan = three_step.solve(up_only, kin), plan_up
             elif method == "general-up":
                 est, plan = general.solve(up_only, kin), plan_up
-            else:
+            elif method == "general-bi":
                 est, plan = general.solve(combined, kin), plan_bi
-        except DataError as exc:
-            rows.append({"scenario": scenario, "speed_percent": speed, "method": method, "payload": index,
-                         "error": str(exc)})
+            elif method == "general-bi-cal":
+                try:
+                    scale, gain_rel_std = _calibrate(robot, plan_bi, empty, draws, config_bi)
+                except ImportError as exc:
+                    raise DataError(f"calibration unavailable ({exc})") from None
+                kw = {}
+                if "gain_rel_std" in inspect.signature(general.solve).parameters:
+                    kw["gain_rel_std"] = gain_rel_std
+                est, plan = general.solve(_scaled(combined, scale), kin, name="general-bi-cal", **kw), plan_bi
+            else:
+                raise ValueError(method)
+        except PayloadAgentError as exc:
+            rows.append(dict(base, method=method, error=str(exc)))
             continue
-        dm = est.mass_kg - mass
-        dc = np.asarray(est.cog_m) - truth_c
-        rows.append({
-            "scenario": scenario, "speed_percent": speed, "method": method, "payload": index,
-            "mass_kg": mass, "cog_mm": list(cog_mm),
-            "est_mass_kg": est.mass_kg, "est_cog_mm": list(est.cog_mm),
-            "mass_err_g": 1000 * dm, "cog_err_mm": float(1000 * np.linalg.norm(dc)),
-            "mass_std_g": None if est.mass_std_kg is None else 1000 * est.mass_std_kg,
-            "cog_std_mm": None if est.cog_std_m is None else [1000 * v for v in est.cog_std_m],
-            "z_mass": None if est.mass_std_kg is None else dm / est.mass_std_kg,
-            "z_cog": None if est.cog_std_m is None else (dc / np.asarray(est.cog_std_m)).tolist(),
-            "motion_time_s": motion_time_s(plan),
-        })
+        rows.append(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)))
     return rows
+
+
+@functools.lru_cache(maxsize=None)
+def _excitation_trajectory():
+    from payload_agent.fakes.arms import SPECS
+    from payload_agent.fakes.excitation import default_start, design_trajectory
+    from payload_agent.kinematics import Kinematics
+
+    kin = Kinematics(SPECS["ec66"]().dh)  # the experimenter designs on the nominal model
+    return design_trajectory(kin, default_start(kin), seed=1)
+
+
+def run_dynamic_case(args: tuple) -> list[dict]:
+    """One payload, one scenario: the dynamic baseline along the excitation trajectory."""
+    scenario, index, mass, cog_mm = args
+    from payload_agent.config import load_config
+    from payload_agent.errors import PayloadAgentError
+    from payload_agent.fakes.excitation import record_excitation
+    from payload_agent.fakes.physics import PayloadTruth
+    from payload_agent.solvers import dynamic
+
+    draws = robot_draws(scenario, index)
+    traj = _excitation_trajectory()
+    kin = load_config(CONFIG).robot.kinematics
+    robot = _robot(draws, traj.q_start, 424242)
+    empty, _ = record_excitation(robot, traj, torque_scale=draws["gain"])
+    robot.set_payload(PayloadTruth.point(mass, cog_mm))
+    robot.set_friction_scale(1.0 + draws["drift_load"])
+    loaded, motion = record_excitation(robot, traj, torque_scale=draws["gain"])
+    base = {"scenario": scenario, "procedure": EXCITATION_LABEL, "method": "dynamic", "payload": index,
+            "procedure_settings": {"trajectory_s": traj.duration_s, "period_s": traj.period_s,
+                                   "harmonics": int(traj.a.shape[1])}}
+    try:
+        est = dynamic.solve(loaded, empty, kin)
+    except PayloadAgentError as exc:
+        return [dict(base, error=str(exc))]
+    return [_row(base, est, mass, cog_mm, motion)]
+
+
+def _dispatch(case: tuple) -> list[dict]:
+    kind, args = case
+    return run_dynamic_case(args) if kind == "dynamic" else run_case(args)
+
+
+def _order_key(label: str) -> tuple:
+    if label == EXCITATION_LABEL:
+        return (2, 0.0)
+    if label == DEFAULT_LABEL:
+        return (1, 0.0)
+    return (0, float(label))
 
 
 def summarize(rows: list[dict]) -> list[dict]:
     out = []
-    keys = sorted({(r["scenario"], r["speed_percent"], r["method"]) for r in rows},
-                  key=lambda k: (ALL_SCENARIOS.index(k[0]), k[1], METHODS.index(k[2])))
-    for sc, sp, me in keys:
-        rs = [r for r in rows if (r["scenario"], r["speed_percent"], r["method"]) == (sc, sp, me)]
+    keys = sorted({(r["scenario"], r["procedure"], r["method"]) for r in rows},
+                  key=lambda k: (ALL_SCENARIOS.index(k[0]), _order_key(k[1]), METHODS.index(k[2])))
+    for sc, pr, me in keys:
+        rs = [r for r in rows if (r["scenario"], r["procedure"], r["method"]) == (sc, pr, me)]
         ok = [r for r in rs if "error" not in r]
-        s = {"scenario": sc, "speed_percent": sp, "method": me, "cases": len(rs), "failed": len(rs) - len(ok)}
+        s = {"scenario": sc, "procedure": pr, "method": me, "cases": len(rs), "failed": len(rs) - len(ok),
+             "procedure_settings": rs[0].get("procedure_settings")}
+        if pr not in (EXCITATION_LABEL, DEFAULT_LABEL):
+            s["speed_percent"] = float(pr)
         if ok:
             dm = np.abs([r["mass_err_g"] for r in ok])
             dc = np.array([r["cog_err_mm"] for r in ok])
@@ -201,22 +353,27 @@ def summarize(rows: list[dict]) -> list[dict]:
             zc = [v for r in ok if r["z_cog"] is not None for v in r["z_cog"]]
             s["z_rms_mass"] = float(np.sqrt(np.mean(np.square(zm)))) if zm else None
             s["z_rms_cog"] = float(np.sqrt(np.mean(np.square(zc)))) if zc else None
+            cm = [r["mass_in_ci95"] for r in ok if r["mass_in_ci95"] is not None]
+            cc = [r["cog_in_ci95"] for r in ok if r["cog_in_ci95"] is not None]
+            s["ci95_mass"] = float(np.mean(cm)) if cm else None
+            s["ci95_cog"] = float(np.mean(cc)) if cc else None
         out.append(s)
     return out
 
 
 def format_table(summary: list[dict]) -> str:
-    head = ["scenario", "speed %", "method", "Δm mean g", "Δm max g", "Δc mean mm", "Δc max mm",
-            "motion s", "rms(err/σ) m", "rms(err/σ) c", "failed"]
+    head = ["scenario", "procedure", "method", "Δm mean g", "Δm max g", "Δc mean mm", "Δc max mm",
+            "motion s", "rms(err/σ) m", "rms(err/σ) c", "in 95% m", "in 95% c", "failed"]
     lines = []
     for s in summary:
         def f(key, fmt="{:.1f}"):
             v = s.get(key)
             return "-" if v is None else fmt.format(v)
-        lines.append([s["scenario"], f"{s['speed_percent']:g}", s["method"], f("mass_err_mean_g"),
+        label = s["procedure"] if "speed_percent" not in s else f"{s['speed_percent']:g} %"
+        lines.append([s["scenario"], label, s["method"], f("mass_err_mean_g"),
                       f("mass_err_max_g"), f("cog_err_mean_mm", "{:.2f}"), f("cog_err_max_mm", "{:.2f}"),
                       f("motion_time_s", "{:.0f}"), f("z_rms_mass", "{:.2f}"), f("z_rms_cog", "{:.2f}"),
-                      f"{s['failed']}/{s['cases']}"])
+                      f("ci95_mass", "{:.2f}"), f("ci95_cog", "{:.2f}"), f"{s['failed']}/{s['cases']}"])
     widths = [max(len(r[i]) for r in [head, *lines]) for i in range(len(head))]
     text = ["| " + " | ".join(h.ljust(w) for h, w in zip(head, widths)) + " |",
             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
@@ -224,42 +381,150 @@ def format_table(summary: list[dict]) -> str:
     return "\n".join(text)
 
 
+def plot(summary: list[dict], path: Path, default: Procedure | None) -> None:
+    """Mean error vs sweep speed per method: mass and CoM panels, one row per scenario."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    scenarios = [sc for sc in ALL_SCENARIOS if any(s["scenario"] == sc for s in summary)]
+    fig, axes = plt.subplots(len(scenarios), 2, figsize=(11, 4 * len(scenarios)), squeeze=False)
+    colors = dict(zip(METHODS, ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:gray")))
+    for r, sc in enumerate(scenarios):
+        for c, (key, unit) in enumerate((("mass_err_mean_g", "mean |Δm| (g)"), ("cog_err_mean_mm", "mean CoM error (mm)"))):
+            ax = axes[r][c]
+            for me in METHODS:
+                pts = sorted((s["speed_percent"], s[key]) for s in summary
+                             if s["scenario"] == sc and s["method"] == me and "speed_percent" in s and key in s)
+                if pts:
+                    ax.plot(*zip(*pts), "o-", color=colors[me], label=me)
+                dyn = [s[key] for s in summary if s["scenario"] == sc and s["method"] == me
+                       and s["procedure"] == EXCITATION_LABEL and key in s]
+                if dyn:
+                    ax.axhline(dyn[0], color=colors[me], ls="--", label=f"{me} (excitation, speed-independent)")
+                dflt = [s[key] for s in summary if s["scenario"] == sc and s["method"] == me
+                        and s["procedure"] == DEFAULT_LABEL and key in s]
+                if dflt and default is not None:
+                    ax.plot([default.speed], dflt, "*", ms=14, color=colors[me], mec="k",
+                            label=f"{me} (default procedure)")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xticks([1, 2, 5, 10, 20])
+            ax.set_xticklabels(["1", "2", "5", "10", "20"])
+            ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+            ax.set_xlabel("sweep speed (% of 144 °/s)")
+            ax.set_ylabel(unit)
+            ax.set_title(f"{sc}: {unit.split(' (')[0]}")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[r][1].legend(fontsize=7, loc="best")
+    fig.suptitle("payload-agent accuracy benchmark, simulated EC66")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def parse_procedure(text: str, label: str, base: Procedure) -> Procedure:
+    """'speed=8,travel=25,accel=40,sweep=0:55' -> Procedure (unspecified fields from ``base``)."""
+    values = dataclasses.asdict(base)
+    values["label"] = label
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        key, _, val = part.partition("=")
+        if key == "sweep":
+            lo, _, hi = val.partition(":")
+            values["sweep_from"], values["sweep_to"] = float(lo), float(hi)
+        elif key in ("speed", "travel", "accel"):
+            values[key] = float(val)
+        else:
+            raise ValueError(f"unknown procedure setting {key!r} (speed, travel, accel, sweep=FROM:TO)")
+    return Procedure(**values)
+
+
 def main(argv: list[str] | None = None) -> int:
+    from payload_agent.config import load_config
+
+    pc = load_config(CONFIG).procedure
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="3 payloads at 5 %% speed (< 2 min)")
-    p.add_argument("--payloads", type=int, default=10, help="number of seeded payloads (full run)")
-    p.add_argument("--speeds", help="comma-separated speed percentages (default 1,5,10,20; quick: 5)")
+    p.add_argument("--quick", action="store_true", help="3 payloads at 5 %% speed, both scenarios (< 2 min)")
+    p.add_argument("--payloads", type=int, default=20, help="number of seeded payloads (default 20)")
+    p.add_argument("--speeds", help="comma-separated sweep speed percentages (default 1,5,10,20; quick: 5; "
+                   "'none' for no speed rows)")
+    p.add_argument("--travel", type=float, default=pc.travel_speed_percent,
+                   help=f"travel speed %% between sweeps for the speed rows (default {pc.travel_speed_percent:g})")
+    p.add_argument("--accel", type=float, default=pc.accel_percent,
+                   help=f"acceleration %% for the speed rows (default {pc.accel_percent:g})")
+    p.add_argument("--sweep-deg", default=f"{pc.sweep_from_deg:g}:{pc.sweep_to_deg:g}",
+                   help="sweep range FROM:TO in degrees of link elevation for the speed rows")
+    p.add_argument("--default-procedure", metavar="SPEC",
+                   help="add rows labelled 'default' for this procedure, e.g. 'speed=8,travel=25,accel=40,sweep=0:55'")
     p.add_argument("--scenarios", help=f"comma-separated, from {', '.join(ALL_SCENARIOS)} (default: "
                    f"{', '.join(SCENARIOS)})")
+    p.add_argument("--methods", help=f"comma-separated, from {', '.join(METHODS)} (default: all)")
     p.add_argument("--jobs", type=int, default=0, help="worker processes (default: all CPUs)")
-    p.add_argument("--json", help="write every case and the summary to this path")
+    p.add_argument("--json", help="write the summary rows and every case to this path")
+    p.add_argument("--plot", help="save the error-vs-speed figure here (e.g. docs/benchmark-error-vs-speed.png)")
     args = p.parse_args(argv)
     n = 3 if args.quick else args.payloads
-    speeds = tuple(float(v) for v in args.speeds.split(",")) if args.speeds else ((5.0,) if args.quick else SPEEDS)
+    if args.speeds == "none":
+        speeds: tuple[float, ...] = ()
+    else:
+        speeds = tuple(float(v) for v in args.speeds.split(",")) if args.speeds else ((5.0,) if args.quick else SPEEDS)
     scenarios = tuple(args.scenarios.split(",")) if args.scenarios else SCENARIOS
-    unknown = [sc for sc in scenarios if sc not in ALL_SCENARIOS]
-    if unknown:
-        p.error(f"unknown scenario(s) {', '.join(unknown)}")
-    cases = [(sc, sp, i, m, c) for sc in scenarios for sp in speeds for i, (m, c) in enumerate(payloads(n))]
+    methods = tuple(args.methods.split(",")) if args.methods else METHODS
+    for bad, allowed, what in ((scenarios, ALL_SCENARIOS, "scenario"), (methods, METHODS, "method")):
+        unknown = [v for v in bad if v not in allowed]
+        if unknown:
+            p.error(f"unknown {what}(s) {', '.join(unknown)}")
+    lo, _, hi = args.sweep_deg.partition(":")
+    procs = [Procedure(f"{s:g}", s, args.travel, args.accel, float(lo), float(hi)) for s in speeds]
+    default = None
+    if args.default_procedure:
+        default = parse_procedure(args.default_procedure, DEFAULT_LABEL,
+                                  Procedure(DEFAULT_LABEL, pc.speed_percent, pc.travel_speed_percent,
+                                            pc.accel_percent, pc.sweep_from_deg, pc.sweep_to_deg))
+        procs.append(default)
+    for proc in procs:
+        problems = check_safety(proc)
+        if problems:
+            p.error(f"procedure {proc.describe()} would be refused by the safety gate: {'; '.join(problems)}")
+    ptp_methods = tuple(m for m in methods if m in PTP_METHODS)
+    pays = payloads(n)
+    cases: list[tuple] = []
+    if ptp_methods:
+        cases += [("ptp", (sc, pr, ptp_methods, i, m, c)) for sc in scenarios for pr in procs
+                  for i, (m, c) in enumerate(pays)]
+    if "dynamic" in methods:
+        cases += [("dynamic", (sc, i, m, c)) for sc in scenarios for i, (m, c) in enumerate(pays)]
+
+    # longest first: slow sweeps take the most simulated ticks
+    def cost(case):
+        if case[0] == "dynamic":
+            return 3.0
+        return 100.0 / case[1][1].speed
+    cases.sort(key=cost, reverse=True)
     t0 = time.monotonic()
     rows: list[dict] = []
-    jobs = args.jobs or None
-    # slow speeds take longest: start them first
-    cases.sort(key=lambda c: c[1])
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for r in pool.map(run_case, cases):
+    with ProcessPoolExecutor(max_workers=args.jobs or None) as pool:
+        for r in pool.map(_dispatch, cases, chunksize=1):
             rows.extend(r)
     summary = summarize(rows)
     elapsed = time.monotonic() - t0
-    print(f"payload-agent accuracy benchmark: EC66 simulator, {n} payloads, speeds {', '.join(f'{s:g}' for s in speeds)} % "
-          f"of 144 deg/s, {len(cases)} simulated empty+loaded pairs, {elapsed:.0f} s")
+    print(f"payload-agent accuracy benchmark: EC66 simulator, {n} payloads, scenarios {', '.join(scenarios)}, "
+          f"{len(cases)} cases, {elapsed:.0f} s wall on {args.jobs or 'all'} worker(s)")
+    for proc in procs:
+        print(f"  procedure {proc.label}: {proc.describe()}")
     print(format_table(summary))
     for r in rows:
         if "error" in r:
-            print(f"  failed: {r['scenario']} {r['speed_percent']:g} % {r['method']} payload {r['payload']}: {r['error']}")
+            print(f"  failed: {r['scenario']} {r['procedure']} {r['method']} payload {r['payload']}: {r['error']}")
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "cases": rows, "elapsed_s": elapsed,
+                                               "argv": sys.argv[1:] if argv is None else argv,
                                                "quick": args.quick}, indent=1), encoding="utf-8")
+    if args.plot:
+        plot(summary, Path(args.plot), default)
     return 0
 
 

@@ -120,3 +120,47 @@ def _write(tmp_path, data) -> str:
     path = tmp_path / "robot.yaml"
     path.write_text(yaml.safe_dump(data))
     return str(path)
+
+
+def test_watch_runs_once_per_trigger_file_and_applies(sim_ec66_data, tmp_path, no_stdin):
+    trigger = tmp_path / "tool-changed"
+    data = tweak(_data(sim_ec66_data, tmp_path), "watch", {"trigger": {"type": "file", "path": str(trigger)},
+                                                          "poll_interval_s": 0.05})
+    path = _write(tmp_path, data)
+    assert main(["baseline", "--robot", path, "--unattended"]) == 0
+    trigger.write_text("")
+    assert main(["watch", "--robot", path, "--max-runs", "1", "--tool", "gripper-A"]) == 0
+    assert not trigger.exists()  # consumed: one file, one run
+    rows = history.entries(RobotState.for_config(parse_config(data, source="test")).history_db)
+    assert len(rows) == 1 and rows[0].applied and rows[0].tool == "gripper-A"
+    truth = data["simulation"]["payload"]
+    assert abs(rows[0].mass_kg - truth["mass_kg"]) < 0.03
+
+
+def test_watch_exits_cleanly_on_sigterm(sim_ec66_data, tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    data = tweak(_data(sim_ec66_data, tmp_path), "watch", {"trigger": {"type": "file",
+                                                                      "path": str(tmp_path / "never")}})
+    path = _write(tmp_path, data)
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "payload_agent.cli", "watch", "--robot", path],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        seen = ""
+        while "wait" not in seen.lower() and time.monotonic() < deadline:  # the watch loop announces itself
+            line = proc.stdout.readline()
+            if not line:
+                break
+            seen += line
+        assert "wait" in seen.lower(), seen
+        proc.send_signal(signal.SIGTERM)
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, seen + rest
