@@ -1,0 +1,230 @@
+"""Dynamic-model baseline: payload inertial parameters from an excitation trajectory (paper §3.4, eq. 29).
+
+The comparison method of Gao, Zhao and Li (2025, §3.4, after Khalil, Gautier and Lemoine
+2007): drive the arm twice along the same excitation trajectory, once with an empty flange
+and once with the payload, and solve
+
+    τ_load − τ_empty = W(q, q̇, q̈) · H_load                                     (eq. 29)
+
+by least squares. The arm's own dynamics cancel in the difference; what remains is the
+payload's contribution, which is linear in its ten inertial parameters
+
+    θ = [m, m·cx, m·cy, m·cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]
+
+(first moments and inertia tensor about the flange origin, flange axes, SI). W is the
+payload's Newton–Euler regressor on the DH chain (``payload_regressor``): the flange's
+angular velocity/acceleration and the linear acceleration of its origin (minus gravity)
+give the wrench the flange exerts on the payload, and joint j carries its component
+about the joint axis. In the static limit it reduces to ``Kinematics.payload_regressor``.
+
+Velocity and acceleration are not taken from the controller: they come from the recorded
+joint angles by Savitzky–Golay differentiation, as they would on a real robot.
+
+Friction does not cancel fully in the difference (load-dependent friction, friction that
+drifted between the runs). By default each moving joint gets two nuisance columns,
+sign(q̇) and q̇ (a change of its Coulomb and viscous coefficients between the runs), and
+samples of a moving joint near zero speed are left out of that joint's rows.
+
+This solver is not in ``SOLVERS``: it needs its own trajectory, not the point-to-point
+sweeps the rest of the pipeline records. The simulator's excitation run is
+``payload_agent.fakes.excitation``; the accuracy benchmark compares it with the PTP methods.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from payload_agent.errors import DataError
+from payload_agent.kinematics import GRAVITY_M_S2, Kinematics
+from payload_agent.results import Estimate
+from payload_agent.solvers.general import Group, cog_with_covariance, fit
+
+NAME = "dynamic"
+PARAMS = ("m", "m*cx", "m*cy", "m*cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
+SG_WINDOW_S = 0.2  # Savitzky–Golay window: the excitation's highest harmonic is ≲ 1 Hz
+SG_ORDER = 5
+MOVING_RANGE_RAD = 1e-3  # a joint whose angle spans less than this is held still
+MIN_SPEED_RAD_S = 0.02  # moving-joint samples slower than this are dropped (stick-slip, sign(q̇) unsure)
+
+
+@dataclass
+class ExcitationRecord:
+    """One run along the excitation trajectory: what the controller streamed."""
+
+    t: np.ndarray  # (n,) s since the trajectory started (both runs on the same time base)
+    q: np.ndarray  # (n, 6) rad
+    effort_nm: np.ndarray  # (n, 6) N·m at nominal gains
+    source: str = "excitation"
+
+
+def _dh_batch(theta: np.ndarray, a: float, d: float, alpha: float) -> np.ndarray:
+    """Standard-DH transforms for an array of joint angles: (n, 4, 4)."""
+    n = len(theta)
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    T = np.zeros((n, 4, 4))
+    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2], T[:, 0, 3] = ct, -st * ca, st * sa, a * ct
+    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2], T[:, 1, 3] = st, ct * ca, -ct * sa, a * st
+    T[:, 2, 1], T[:, 2, 2], T[:, 2, 3] = sa, ca, d
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) cross-product matrices."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def _inertia_map(w: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 6): I·w as a linear map of (Ixx, Ixy, Ixz, Iyy, Iyz, Izz)."""
+    L = np.zeros((len(w), 3, 6))
+    L[:, 0, 0], L[:, 0, 1], L[:, 0, 2] = w[:, 0], w[:, 1], w[:, 2]
+    L[:, 1, 1], L[:, 1, 3], L[:, 1, 4] = w[:, 0], w[:, 1], w[:, 2]
+    L[:, 2, 2], L[:, 2, 4], L[:, 2, 5] = w[:, 0], w[:, 1], w[:, 2]
+    return L
+
+
+def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                      g: float = GRAVITY_M_S2) -> np.ndarray:
+    """W with τ_payload[k, j] = W[k, j, :] · θ for every sample k and joint j: shape (n, 6, 10).
+
+    Forward Newton–Euler recursion in the base frame (joint i turns about z of DH frame
+    i−1 through its origin), then the payload's wrench at the flange origin:
+        f = m·a' + ω̇ × (m c) + ω × (ω × (m c)),   a' = a_flange − g⃗_gravity
+        n = I_O·ω̇ + ω × (I_O·ω) + (m c) × a'
+    in flange axes, and τ_j = z_j · (R n + (p − o_j) × R f).
+    """
+    q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
+    n_s, n_j = q.shape
+    frames = [np.broadcast_to(np.eye(4), (n_s, 4, 4))]
+    for i, row in enumerate(kin.rows):
+        frames.append(frames[-1] @ _dh_batch(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
+    z = np.stack([f[:, :3, 2] for f in frames[:-1]], axis=1)  # (n, 6, 3) joint axes
+    o = np.stack([f[:, :3, 3] for f in frames], axis=1)  # (n, 7, 3) frame origins
+    w = np.zeros((n_s, 3))
+    wd = np.zeros((n_s, 3))
+    acc = np.zeros((n_s, 3))
+    for i in range(n_j):
+        zi = z[:, i]
+        w_new = w + qd[:, i:i + 1] * zi
+        wd = wd + qdd[:, i:i + 1] * zi + np.cross(w, qd[:, i:i + 1] * zi)
+        w = w_new
+        r = o[:, i + 1] - o[:, i]
+        acc = acc + np.cross(wd, r) + np.cross(w, np.cross(w, r))
+    R = frames[-1][:, :3, :3]
+    Rt = np.transpose(R, (0, 2, 1))
+    w_f = np.einsum("nij,nj->ni", Rt, w)
+    wd_f = np.einsum("nij,nj->ni", Rt, wd)
+    a_f = np.einsum("nij,nj->ni", Rt, acc + np.array([0.0, 0.0, g]))
+    Sw, Swd, Sa = _skew(w_f), _skew(wd_f), _skew(a_f)
+    Yf = np.zeros((n_s, 3, 10))
+    Yf[:, :, 0] = a_f
+    Yf[:, :, 1:4] = Swd + Sw @ Sw
+    Yn = np.zeros((n_s, 3, 10))
+    Yn[:, :, 1:4] = -Sa
+    Yn[:, :, 4:10] = _inertia_map(wd_f) + Sw @ _inertia_map(w_f)
+    Yf_b = R @ Yf
+    Yn_b = R @ Yn
+    p = o[:, -1]
+    W = np.zeros((n_s, n_j, 10))
+    for j in range(n_j):
+        lever = np.cross(z[:, j], p - o[:, j])  # z·(r × F) = (z × r)·F
+        W[:, j] = np.einsum("ni,nik->nk", z[:, j], Yn_b) + np.einsum("ni,nik->nk", lever, Yf_b)
+    return W
+
+
+def derivatives(t: np.ndarray, q: np.ndarray, window_s: float = SG_WINDOW_S,
+                order: int = SG_ORDER) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smoothed q, q̇, q̈ from sampled angles (Savitzky–Golay; needs a uniform sample period)."""
+    from scipy.signal import savgol_filter
+
+    t = np.asarray(t, float)
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    if not h > 0 or np.max(np.abs(dt - h)) > 0.05 * h:
+        raise DataError("dynamic: the excitation samples are not evenly spaced in time; resample first")
+    win = max(order + 2, int(round(window_s / h)) | 1)
+    if len(t) <= win:
+        raise DataError(f"dynamic: only {len(t)} samples, fewer than the {win}-sample derivative window")
+    kw = dict(window_length=win, polyorder=order, axis=0, mode="interp")
+    return (savgol_filter(q, deriv=0, **kw), savgol_filter(q, deriv=1, delta=h, **kw),
+            savgol_filter(q, deriv=2, delta=h, **kw))
+
+
+def _align(loaded: ExcitationRecord, empty: ExcitationRecord) -> tuple[np.ndarray, np.ndarray]:
+    """Loaded samples inside the empty run's time span, and empty effort interpolated at their times."""
+    inside = (loaded.t >= empty.t[0]) & (loaded.t <= empty.t[-1])
+    if inside.sum() < 50:
+        raise DataError("dynamic: the loaded and empty excitation runs hardly overlap in time")
+    te = loaded.t[inside]
+    e = np.column_stack([np.interp(te, empty.t, empty.effort_nm[:, c]) for c in range(empty.effort_nm.shape[1])])
+    q_gap = np.max(np.abs(loaded.q[inside] - np.column_stack(
+        [np.interp(te, empty.t, empty.q[:, c]) for c in range(empty.q.shape[1])])))
+    if q_gap > 0.01:
+        raise DataError(f"dynamic: the two runs did not follow the same trajectory (angles differ by "
+                        f"{np.degrees(q_gap):.2f}°)")
+    return inside, e
+
+
+def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
+          joints: Sequence[int] | None = None, friction: bool = True, sg_window_s: float = SG_WINDOW_S,
+          sg_order: int = SG_ORDER) -> Estimate:
+    """Mass and centre of mass (and inertia, in the notes) from loaded − empty along one trajectory.
+
+    ``joints`` (0-based) whose torques enter the fit: default all six. ``friction`` adds the
+    per-moving-joint Coulomb/viscous change columns. Weighted LS with the general solver's ``fit``
+    (one pass, then weights 1/σ² per joint, autocorrelation-robust covariance per joint);
+    the covariance is of all parameters, and the mass / centre-of-mass uncertainty is its
+    marginal.
+    """
+    joints = tuple(range(loaded.q.shape[1])) if joints is None else tuple(joints)
+    inside, e_empty = _align(loaded, empty)
+    q, qd, qdd = derivatives(loaded.t, loaded.q, sg_window_s, sg_order)
+    q, qd, qdd = q[inside], qd[inside], qdd[inside]
+    dtau = loaded.effort_nm[inside] - e_empty
+    W = payload_regressor(kin, q, qd, qdd)
+    moving = [j for j in joints if np.ptp(loaded.q[:, j]) > MOVING_RANGE_RAD] if friction else []
+    n_par = 10 + 2 * len(moving)
+    groups = []
+    for j in joints:
+        Y = np.zeros((len(q), n_par))
+        Y[:, :10] = W[:, j]
+        keep = np.ones(len(q), bool)
+        if j in moving:
+            c = 10 + 2 * moving.index(j)
+            Y[:, c] = np.sign(qd[:, j])
+            Y[:, c + 1] = qd[:, j]
+            keep = np.abs(qd[:, j]) >= MIN_SPEED_RAD_S
+        if np.max(np.abs(Y[keep, :10])) < 1e-9:
+            continue
+        # one "sweep" per joint: the rows kept differ between joints (slow samples dropped)
+        groups.append(Group(f"excitation/j{j + 1}", f"excitation/j{j + 1}", Y[keep], dtau[keep, j]))
+    res = fit(groups)
+    theta, cov = res["theta"], res["cov"]
+    mass = float(theta[0])
+    if not mass > 0:
+        raise DataError(f"dynamic: identified mass {mass:.4f} kg is not positive; is a payload mounted?")
+    c, cov_c = cog_with_covariance(theta[:4], cov[:4, :4])
+    inertia = ", ".join(f"{name}={v:.4g}" for name, v in zip(PARAMS[4:], theta[4:10]))
+    notes = [f"inertia about the flange origin (kg·m², flange axes): {inertia}"]
+    if moving:
+        notes.append("friction change columns for joints " + ", ".join(str(j + 1) for j in moving))
+    return Estimate(
+        solver=NAME,
+        mass_kg=mass,
+        cog_m=(float(c[0]), float(c[1]), float(c[2])),
+        residual_rms_nm=res["rms"],
+        samples={g.label: len(g.y) for g in groups},
+        mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
+        cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)),
+        covariance=cov[:4, :4].tolist(),
+        condition_number=res["cond"],
+        notes=notes,
+    )
