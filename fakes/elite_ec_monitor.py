@@ -157,6 +157,9 @@ class _Client:
             pass
 
 
+SEND_BUFFER_BYTES = 32 * 1024
+
+
 class MonitorServer:
     """Accepts clients on the monitor port (``fakes.tcp_server``) and fans frames out to them."""
 
@@ -175,6 +178,9 @@ class MonitorServer:
         self._server.start()
 
     def _serve(self, sock: socket.socket, addr) -> None:
+        # a small kernel send buffer, as on an embedded controller: a client that stops reading
+        # backs up into the bounded queue within a second, not after megabytes of autotuned buffer
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         client = _Client(sock, self.max_queue)
         with self._lock:
             if self._closed:
