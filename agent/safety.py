@@ -28,9 +28,15 @@ class Verdict:
     checks: list[str] = field(default_factory=list)
 
     def describe(self) -> str:
-        head = "SAFE: all checks passed" if self.ok else "REFUSED"
+        approach_only = len(self.problems) == 1 and self.problems[0].startswith(APPROACH_UNKNOWN)
+        head = ("SAFE: all checks passed" if self.ok else
+                "plan OK, approach NOT CHECKED (give --from-deg or --connect; `run` checks it before moving)"
+                if approach_only else "REFUSED")
         lines = [head] + [f"  ok  {c}" for c in self.checks] + [f"  !!  {p}" for p in self.problems]
         return "\n".join(lines)
+
+
+APPROACH_UNKNOWN = "current joint angles unknown"
 
 
 class SafetyGate:
@@ -57,7 +63,7 @@ class SafetyGate:
             problems.append("the first move must be the slow approach move")
         prev = None if start_q is None else np.asarray(start_q, float)
         if prev is None:
-            problems.append("current joint angles unknown: the approach path cannot be checked")
+            problems.append(APPROACH_UNKNOWN + ": the approach path cannot be checked")
         for i, m in enumerate(plan.moves):
             tgt = np.asarray(m.target_rad, float)
             where = f"move {i + 1} ({m.label})"
