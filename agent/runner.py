@@ -250,6 +250,12 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         if ctl_state.mode in NOT_REMOTE_MODES:  # refuse before the plan is shown, not at the first move
             raise RobotNotReadyError(f"the controller is in {ctl_state.mode} mode: an external program cannot move "
                                      "the robot. Switch it to remote control on the teach pendant and retry.")
+        if opts.mode == "identify":
+            from payload_agent.calibration import effective_gains
+
+            note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
+            out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
+                "`payload-agent calibrate` with a known reference payload removes their error")
         current = baselines.describe_for(config, plan, info, source_run=Path("."))
         phases, baseline_dir, store_empty = _phases_for(config, opts, state, current, out)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")

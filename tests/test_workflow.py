@@ -16,7 +16,7 @@ from conftest import tweak
 from payload_agent import history
 from payload_agent.cli import main
 from payload_agent.config import parse_config
-from payload_agent.errors import BaselineError
+from payload_agent.errors import BaselineError, QualityGateError
 from payload_agent.runner import RunOptions, run_identification
 from payload_agent.simulation import SimulatedCell
 from payload_agent.state import RobotState
@@ -164,3 +164,40 @@ def test_watch_exits_cleanly_on_sigterm(sim_ec66_data, tmp_path):
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, seen + rest
+
+
+def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_stdin, capsys):
+    # drives that report joint 2 three per cent high and joint 3 three per cent low
+    data = tweak(_data(sim_ec66_data, tmp_path), "simulation.drive_gain_error", [1, 1.03, 0.97, 1, 1, 1])
+    cfg = parse_config(data, source="test")
+    ref_mass, ref_cog = 3.0, (0.0, 0.0, 80.0)
+    tool_mass, tool_cog = 4.2, (30.0, -60.0, 120.0)
+    cell = SimulatedCell(cfg).start()
+    lines = []
+    try:
+        # nominal gains: the mass comes out about 3 % wrong, and the quality gate notices
+        cell.change_tool(tool_mass, tool_cog)
+        with pytest.raises(QualityGateError):
+            run_identification(cfg, RunOptions(assume_yes=True, cell=cell, out=lines.append, report=False))
+        nominal = json.loads(next((tmp_path / "runs").glob("*/result.json")).read_text())
+        assert abs(nominal["mass_kg"] - tool_mass) > 0.05
+        # the reference payload, known
+        cell.change_tool(ref_mass, ref_cog)
+        from payload_agent.drivers.base import PayloadSetting
+
+        cal = run_identification(cfg, RunOptions(mode="calibrate", unattended=True, cell=cell, out=lines.append,
+                                                 report=False,
+                                                 reference=PayloadSetting(ref_mass, tuple(c / 1000 for c in ref_cog))))
+        scale = cal.calibration.scale
+        # fitted / nominal gain: the drives over-report joint 2 by 3 %, so its gain must shrink by 1/1.03
+        assert scale[1] == pytest.approx(1 / 1.03, abs=0.003) and scale[2] == pytest.approx(1 / 0.97, abs=0.003)
+        assert RobotState.for_config(cfg).gains_path.exists()
+        # the tool again: calibrated gains, and the run says so
+        cell.change_tool(tool_mass, tool_cog)
+        out = run_identification(cfg, RunOptions(unattended=True, cell=cell, out=lines.append, report=False))
+    finally:
+        cell.close()
+    assert abs(out.result.primary.mass_kg - tool_mass) < 0.015
+    assert np.max(np.abs(np.array(out.result.primary.cog_mm) - tool_cog)) < 3.0
+    assert "calibration" in out.result.extra["gains_source"]
+    assert any(line.startswith("Drive gains: drive gains from calibration") for line in lines)
