@@ -23,7 +23,7 @@ import json
 import socket
 from typing import Any, Callable
 
-from payload_agent.fakes.tcp_server import TCPServer
+from payload_agent.fakes.tcp_server import TCPServer, read_lines
 
 PARSE_ERROR = -32700
 INVALID_REQUEST = -32600
@@ -59,19 +59,11 @@ class LineJsonRpcServer:
         self._server.start()
 
     def _serve(self, sock: socket.socket, addr) -> None:
-        buf = b""
-        while not self._server.closing:
-            chunk = sock.recv(65536)
-            if not chunk:
-                return
-            buf += chunk
-            while b"\n" in buf:
-                line, buf = buf.split(b"\n", 1)
-                reply = self._handle_line(line)
-                if reply is not None:
-                    sock.sendall(reply)
-            if len(buf) > MAX_LINE:
-                return  # a line that never ends: drop the client
+        # a line that never ends (longer than MAX_LINE) drops the client
+        for line in read_lines(sock, lambda: self._server.closing, max_line=MAX_LINE):
+            reply = self._handle_line(line)
+            if reply is not None:
+                sock.sendall(reply)
 
     def _handle_line(self, line: bytes) -> bytes | None:
         text = line.strip()

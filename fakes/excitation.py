@@ -28,6 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.fakes.offline import step_until_still
 from payload_agent.kinematics import Kinematics
 from payload_agent.solvers.dynamic import ExcitationRecord, payload_regressor
 
@@ -186,14 +187,7 @@ def record_excitation(robot: SimRobot, traj: FourierTrajectory, *, torque_scale:
             pass
     t0 = robot.now()
     robot.follow_path(lambda t, q: TrajectoryPath(traj, t))
-    states = [robot.snapshot()]
-    while True:
-        s = robot.step()
-        states.append(s)
-        if not s.moving:
-            break
-    for _ in range(settle_ticks):
-        states.append(robot.step())
+    states = [robot.snapshot(), *step_until_still(robot, settle_ticks)]
     t = np.array([s.t for s in states]) - t0
     q = np.array([s.q for s in states])
     tau = np.array([s.torque_nm for s in states]) * scale

@@ -14,6 +14,19 @@ from payload_agent.planner import Plan, SweepKey
 from payload_agent.rundata import SweepData
 
 
+def step_until_still(robot: SimRobot, settle_ticks: int) -> list:
+    """Advance the clock until the current motion ends, then ``settle_ticks`` more; every state."""
+    states = []
+    while True:
+        s = robot.step()
+        states.append(s)
+        if not s.moving:
+            break
+    for _ in range(settle_ticks):
+        states.append(robot.step())
+    return states
+
+
 def record_plan(robot: SimRobot, plan: Plan, *, torque_scale: np.ndarray | None = None,
                 settle_ticks: int = 5) -> tuple[dict[SweepKey, SweepData], float]:
     """Run every move of the plan; return the sweeps (effort in N·m × torque_scale) and the motion time (s)."""
@@ -22,14 +35,7 @@ def record_plan(robot: SimRobot, plan: Plan, *, torque_scale: np.ndarray | None 
     t_start = robot.now()
     for move in plan.moves:
         robot.move_joints(move.target_rad, move.speed_rad_s, move.accel_rad_s2)
-        states = []
-        while True:
-            s = robot.step()
-            states.append(s)
-            if not s.moving:
-                break
-        for _ in range(settle_ticks):
-            states.append(robot.step())
+        states = step_until_still(robot, settle_ticks)
         if move.sweep is not None:
             t = np.array([s.t for s in states])
             q = np.array([s.q for s in states])

@@ -150,18 +150,22 @@ class SimRobot:
         if target.shape != (6,):
             raise SimRefused("target must have 6 joint values")
         with self._lock:
-            if self._estop:
-                raise SimRefused("emergency stop is active")
-            if self._protective:
-                raise SimRefused("protective stop is active")
-            if not self._servo:
-                raise SimRefused("servos are off")
-            if self._path is not None:
-                raise SimRefused("robot is moving")
+            self._refuse_unless_ready()
             self._path = JointPath(self._state.q, target, self._t, speed_rad_s, accel_rad_s2,
                                    self._max_speed, self._max_accel)
             self._move_id += 1
             return self._path.t_end - self._t
+
+    def _refuse_unless_ready(self) -> None:
+        """What a real controller checks before accepting a motion command (caller holds the lock)."""
+        if self._estop:
+            raise SimRefused("emergency stop is active")
+        if self._protective:
+            raise SimRefused("protective stop is active")
+        if not self._servo:
+            raise SimRefused("servos are off")
+        if self._path is not None:
+            raise SimRefused("robot is moving")
 
     def follow_path(self, make_path: Callable[[float, np.ndarray], object]) -> float:
         """Start a continuous joint trajectory instead of a PTP move (e.g. an excitation trajectory).
@@ -172,14 +176,7 @@ class SimRobot:
         refusals as ``move_joints``. Returns the trajectory's duration (s).
         """
         with self._lock:
-            if self._estop:
-                raise SimRefused("emergency stop is active")
-            if self._protective:
-                raise SimRefused("protective stop is active")
-            if not self._servo:
-                raise SimRefused("servos are off")
-            if self._path is not None:
-                raise SimRefused("robot is moving")
+            self._refuse_unless_ready()
             path = make_path(self._t, self._state.q.copy())
             if np.max(np.abs(np.asarray(path.at(self._t)[0]) - self._state.q)) > 1e-6:
                 raise SimRefused("trajectory does not start at the current joint angles")

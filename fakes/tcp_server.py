@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import socket
 import threading
-from typing import Callable
+from typing import Callable, Iterator
 
 Handler = Callable[[socket.socket, tuple], None]
 
@@ -124,6 +124,27 @@ class TCPServer:
         for th in conns.values():
             if th.is_alive() and th is not threading.current_thread():
                 th.join(timeout=timeout_s)
+
+
+def read_lines(sock: socket.socket, closing: Callable[[], bool], bufsize: int = 65536,
+               max_line: int | None = None) -> Iterator[bytes]:
+    """The newline-terminated lines a peer sends (without the newline), until it closes, ``closing()``,
+    or an unfinished line grows beyond ``max_line`` bytes.
+
+    Both newline-framed protocols the fakes serve (Elite JSON-RPC, UR dashboard) read this way:
+    a line may arrive in pieces, several may arrive in one chunk.
+    """
+    buf = b""
+    while not closing():
+        chunk = sock.recv(bufsize)
+        if not chunk:
+            return
+        buf += chunk
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            yield line
+        if max_line is not None and len(buf) > max_line:
+            return
 
 
 def _shutdown(s: socket.socket) -> None:

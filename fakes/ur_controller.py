@@ -27,6 +27,8 @@ Test-side API::
         ur.robot                      # proxy of the SimRobot: snapshot(), set_payload(), set_friction_scale(), ...
         ur.trigger_protective_stop(); ur.trigger_estop(); ur.reset_safety(); ur.set_remote_control(False)
         ur.set_digital_input(3, True)  # bit 3 of actual_digital_input_bits (DI3)
+        ur.set_joint_temperatures([35.0] * 6)  # RTDE joint_temperatures, °C (optional steady=[...] to drift to)
+        ur.joint_temperatures         # what RTDE reports now
         ur.controller_payload         # (mass, cog) the controller was told via set_payload
         ur.script_errors, ur.rtde_errors, ur.log, ur.programs_run   # what happened, for assertions
 
@@ -59,7 +61,7 @@ import numpy as np
 from payload_agent.fakes import ur_rtde_protocol as rp
 from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRefused, SimRobot, SimState
-from payload_agent.fakes.tcp_server import TCPServer, shutdown_socket
+from payload_agent.fakes.tcp_server import TCPServer, read_lines, shutdown_socket
 
 # -- constants ---------------------------------------------------------------------------------
 
@@ -99,6 +101,12 @@ REALTIME_CMDS = frozenset({24, 11, 9, 10, 6, 25, 26, 27, 38, 58})
 
 UNLOCK_PROTECTIVE_STOP_DELAY_S = 5.0  # PolyScope refuses to unlock earlier
 N_DIGITAL_INPUTS = 18  # actual_digital_input_bits: 8 standard + 8 configurable + 2 tool inputs (RTDE guide)
+# RTDE joint_temperatures (VECTOR6D, °C). Fake-side model, not UR data: the joints start at these values and
+# warm towards the steady state with a 30-minute time constant of simulated time; set_joint_temperatures()
+# (test side) sets them.
+DEFAULT_JOINT_TEMPS_C = (31.5, 33.0, 32.2, 35.1, 34.7, 34.9)
+DEFAULT_STEADY_JOINT_TEMPS_C = (34.5, 37.0, 36.0, 38.5, 37.5, 37.0)
+JOINT_TEMP_TAU_S = 1800.0
 
 
 def pick_loopback_host(rng: random.Random | None = None, attempts: int = 50) -> str:
@@ -128,7 +136,8 @@ class _Snap:
 
     __slots__ = ("ctrl", "t", "q", "qd", "qdd", "tau", "current", "moving", "robot_mode", "safety_mode",
                  "safety_bits", "runtime_state", "robot_status_bits", "out_int", "out_dbl", "in_int", "in_dbl",
-                 "out_bits", "in_bits", "digital_in", "payload_mass", "payload_cog", "payload_inertia", "_cache")
+                 "out_bits", "in_bits", "digital_in", "joint_temps", "payload_mass", "payload_cog", "payload_inertia",
+                 "_cache")
 
     def lazy(self, key: str, fn: Callable[[], Any]) -> Any:
         if self._cache is None:
@@ -177,7 +186,7 @@ def _build_getters() -> dict[str, Callable[[_Snap], Any]]:
         "target_TCP_speed": _const(z6),
         "actual_TCP_force": _const(z6),
         "ft_raw_wrench": _const(z6),
-        "joint_temperatures": _const((31.5, 33.0, 32.2, 35.1, 34.7, 34.9)),
+        "joint_temperatures": lambda s: s.joint_temps,
         "actual_execution_time": _const(0.3),
         "robot_mode": lambda s: s.robot_mode,
         "joint_mode": lambda s: (JOINT_MODE_RUNNING if s.robot_mode == ROBOT_MODE_RUNNING
@@ -289,6 +298,9 @@ class URControllerCore:
         self.out_bits = 0
         self.in_bits = 0
         self.digital_in = 0  # actual_digital_input_bits: 0-7 DI, 8-15 CI, 16-17 tool inputs (RTDE guide)
+        self._temps = np.asarray(DEFAULT_JOINT_TEMPS_C, float)  # joint_temperatures, °C
+        self._temps_steady = np.asarray(DEFAULT_STEADY_JOINT_TEMPS_C, float)
+        self._temps_t: float | None = None
         self.inputs_misc: dict[str, Any] = {}
         self._input_owner: dict[str, object] = {}
         self.robot_mode = ROBOT_MODE_RUNNING
@@ -407,6 +419,26 @@ class URControllerCore:
         with self._lock:
             self.digital_in = (self.digital_in | (1 << index)) if value else (self.digital_in & ~(1 << index))
 
+    def set_joint_temperatures(self, values: Sequence[float], steady: Sequence[float] | None = None) -> None:
+        """Set RTDE joint_temperatures (6 values, °C) from the next control cycle on; they then stay put,
+        or, with ``steady``, drift towards it with a 30-minute time constant (simulated time)."""
+        def check(v, what):
+            v = list(v)
+            if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                                      and -40.0 <= x <= 200.0 for x in v):
+                raise ValueError(f"{what} must be 6 numbers in [-40, 200] °C, got {v!r}")
+            return np.asarray(v, float)
+
+        temps = check(values, "joint temperatures")
+        target = temps.copy() if steady is None else check(steady, "steady joint temperatures")
+        with self._lock:
+            self._temps, self._temps_steady = temps, target
+
+    @property
+    def joint_temperatures(self) -> tuple[float, ...]:
+        with self._lock:
+            return tuple(float(v) for v in self._temps)
+
     @property
     def controller_payload(self) -> tuple[float, tuple[float, float, float]]:
         with self._lock:
@@ -462,6 +494,11 @@ class URControllerCore:
             s.out_int, s.out_dbl = tuple(self.out_int), tuple(self.out_dbl)
             s.in_int, s.in_dbl = tuple(self.in_int), tuple(self.in_dbl)
             s.out_bits, s.in_bits, s.digital_in = self.out_bits, self.in_bits, self.digital_in
+            if self._temps_t is not None and st.t > self._temps_t:
+                self._temps = self._temps + (self._temps_steady - self._temps) * \
+                    (1.0 - math.exp(-(st.t - self._temps_t) / JOINT_TEMP_TAU_S))
+            self._temps_t = st.t
+            s.joint_temps = tuple(float(v) for v in self._temps)
             s.payload_mass, s.payload_cog, s.payload_inertia = self.payload_mass, self.payload_cog, self.payload_inertia
             sessions = list(self.rtde_sessions)
         for sess in sessions:
@@ -581,18 +618,11 @@ class URControllerCore:
 
     def _serve_dashboard(self, conn: socket.socket, addr) -> None:
         conn.sendall(b"Connected: Universal Robots Dashboard Server\n")
-        buf = b""
-        while not self._closing.is_set():
-            data = conn.recv(4096)
-            if not data:
+        for line in read_lines(conn, self._closing.is_set, 4096):
+            reply, close = self._dashboard(line.decode(errors="replace").rstrip("\r"))
+            conn.sendall((reply + "\n").encode())
+            if close:
                 return
-            buf += data
-            while b"\n" in buf:
-                line, buf = buf.split(b"\n", 1)
-                reply, close = self._dashboard(line.decode(errors="replace").rstrip("\r"))
-                conn.sendall((reply + "\n").encode())
-                if close:
-                    return
 
     def _dashboard(self, cmd: str) -> tuple[str, bool]:
         """One dashboard command -> (reply line, close connection). Replies as PolyScope 5."""
@@ -1381,10 +1411,10 @@ def _compile_program(ctrl: URControllerCore, text: str, secondary: bool = False)
 _ROBOT_METHODS = {"now", "snapshot", "set_payload", "set_friction_scale", "set_servo", "trigger_protective_stop",
                   "trigger_estop", "reset_safety", "stop", "move_joints"}
 _CTRL_METHODS = {"trigger_protective_stop", "trigger_estop", "release_estop", "reset_safety", "set_remote_control",
-                 "set_digital_input", "run_script", "wait_ticks"}
+                 "set_digital_input", "set_joint_temperatures", "run_script", "wait_ticks"}
 _CTRL_ATTRS = {"last_script", "gain_error", "controller_payload", "script_errors", "rtde_errors", "programs_run", "log", "runtime_state",
                "robot_mode", "gains", "current_noise_a", "controller_version", "serial_number", "host",
-               "out_int", "out_dbl", "in_int", "in_dbl", "digital_in"}
+               "out_int", "out_dbl", "in_int", "in_dbl", "digital_in", "joint_temperatures"}
 
 
 def _child_main(conn) -> None:  # runs in the child process
@@ -1609,6 +1639,10 @@ class FakeURController:
 
     def set_digital_input(self, index: int, value: bool) -> None:
         self._request(("call", "ctrl", "set_digital_input", (index, value), {}))
+
+    def set_joint_temperatures(self, values: Sequence[float], steady: Sequence[float] | None = None) -> None:
+        self._request(("call", "ctrl", "set_joint_temperatures",
+                       ([float(v) for v in values], None if steady is None else [float(v) for v in steady]), {}))
 
     def run_script(self, text: str, source: str = "test") -> None:
         self._request(("call", "ctrl", "run_script", (text, source), {}))
