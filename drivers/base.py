@@ -142,6 +142,10 @@ class Driver(abc.ABC):
 
         raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
 
+    def joint_temperatures_c(self) -> tuple[float, ...] | None:
+        """Per-joint temperatures in °C as the controller reports them, or None if it does not."""
+        return None
+
     # -- context manager --------------------------------------------------------------------
     def __enter__(self) -> "Driver":
         self.connect()

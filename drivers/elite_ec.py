@@ -38,6 +38,11 @@ Unit mapping of ``move_joints``:
   want: the plan chose the acceleration).
 * ``targetPos``: 8 values in degrees (joints 7 and 8 = 0); Elite's library notes that
   some firmware rejects 6.
+
+``joint_temperatures_c()``: the newest monitor frame's ``joint_temperature`` (6 doubles, °C, offset 607).
+None with ``sample_source: poll`` (no 8055 method for joint temperatures was found in the public sources),
+before the first frame (it waits up to 0.5 s for one), after the monitor stream failed, for a frame too
+short to hold the field, or for all-zero / non-finite values (a firmware that leaves that part unfilled).
 """
 
 from __future__ import annotations
@@ -85,6 +90,11 @@ _MON_ROBOT_MODE = (281, "!i")
 _MON_COLLISION = (365, "!B")
 _MON_ESTOP = (462, "!B")
 _MON_MIN_SIZE = 463  # everything above lies before this offset
+# joint_temperature, 6 doubles in °C: in the 1024-byte frame's tail (after jointacc), which Elite's own library
+# does not decode; read only from frames long enough to hold it (docs/sources.md, "Elite EC").
+_MON_JOINT_TEMP = (607, "!6d")
+_MON_JOINT_TEMP_END = 607 + 48
+_FIRST_FRAME_WAIT_S = 0.5  # joint_temperatures_c() right after connect(): wait this long for the first frame
 _MON_MAX_SIZE = 1 << 16
 
 _DEFAULTS = {
@@ -217,6 +227,7 @@ class EliteECDriver(Driver):
         self._stream_error: BaseException | None = None
         self._latest: dict[str, Any] | None = None
         self._frames = 0
+        self._first_frame = threading.Event()
 
     # -- options ----------------------------------------------------------------------------
     def _validate(self, opts: dict[str, Any]) -> dict[str, Any]:
@@ -265,6 +276,8 @@ class EliteECDriver(Driver):
             return
         self._stop_evt.clear()
         self._stream_error = None
+        self._latest = None
+        self._first_frame.clear()
         self._rpc = _RpcClient(self.host, self._cfg["rpc_port"], self._cfg["connect_timeout_s"],
                                self._cfg["reply_timeout_s"])
         if self._cfg["sample_source"] == "monitor":
@@ -539,13 +552,15 @@ class EliteECDriver(Driver):
         ts_ms = get(_MON_TIMESTAMP)[0]
         pos = get(_MON_MACHINE_POS)
         torque = get(_MON_TORQUE)
+        temps = get(_MON_JOINT_TEMP) if len(frame) >= _MON_JOINT_TEMP_END else None
         self._latest = {
             "TimeStamp": ts_ms, "machinePos": pos, "torque": torque,
             "robotState": get(_MON_ROBOT_STATE)[0], "servoReady": get(_MON_SERVO_READY)[0],
             "robotMode": get(_MON_ROBOT_MODE)[0], "collision": get(_MON_COLLISION)[0],
-            "emergencyStopState": get(_MON_ESTOP)[0],
+            "emergencyStopState": get(_MON_ESTOP)[0], "joint_temperature": temps,
         }
         self._frames += 1
+        self._first_frame.set()
         sample = Sample(t_ctrl=ts_ms / 1000.0, t_recv=t_recv,
                         q=tuple(math.radians(v) for v in pos[:6]), effort=tuple(float(v) for v in torque[:6]))
         self._deliver(sample)
@@ -573,6 +588,31 @@ class EliteECDriver(Driver):
         except Exception as e:
             if not self._stop_evt.is_set():
                 self._stream_error = e
+
+    # -- joint temperatures -----------------------------------------------------------------
+    def joint_temperatures_c(self) -> tuple[float, ...] | None:
+        """Joint 1..6 temperatures in °C from the newest 8056 monitor frame (``joint_temperature``).
+
+        None when the driver polls over 8055 (``sample_source: poll``: no JSON-RPC method for joint
+        temperatures was found in the public sources), when no frame arrived within 0.5 s of asking,
+        when the monitor stream has failed (the last frame is stale), when the frame is too short to
+        hold the field, or when it holds no plausible reading (all zero or not finite).
+        """
+        if self._cfg["sample_source"] != "monitor" or self._rpc is None or self._stream_error is not None:
+            return None
+        if not self._first_frame.is_set():
+            reader = self._reader
+            if reader is None or not reader.is_alive():
+                return None
+            self._first_frame.wait(_FIRST_FRAME_WAIT_S)
+        latest = self._latest
+        temps = None if latest is None else latest.get("joint_temperature")
+        if temps is None:
+            return None
+        values = tuple(float(v) for v in temps)
+        if not all(math.isfinite(v) for v in values) or not any(values):
+            return None
+        return values
 
     # -- digital inputs ---------------------------------------------------------------------
     def read_digital_input(self, index: int) -> bool:

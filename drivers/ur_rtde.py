@@ -39,6 +39,7 @@ Design notes:
   Control is therefore checked by ur-rtde at the first command (RobotNotReadyError).
 * ``read_digital_input(i)``: bit i of RTDE ``actual_digital_input_bits`` (0-7 DI, 8-15 CI,
   16-17 tool inputs) through ``getDigitalInState``.
+* ``joint_temperatures_c()``: RTDE ``joint_temperatures`` (°C) through ``getJointTemperatures``.
 * ur-rtde's constructors return even when the connection failed; ``isConnected()``
   is checked after each of them.
 """
@@ -88,8 +89,9 @@ DASHBOARD_PORT = 29999
 
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the
 # payload fields exist from PolyScope 5.5.1 / 3.11 on and are added only there).
+# joint_temperatures (VECTOR6D, °C) feeds getJointTemperatures() (ur_rtde robot_state.cpp: vector<double>).
 RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "target_moment", "robot_mode", "safety_mode",
-          "safety_status_bits", "runtime_state", "actual_digital_input_bits"]
+          "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
 
 ROBOT_MODE_RUNNING = 7
@@ -528,6 +530,24 @@ class URRTDEDriver(Driver):
             raise CommunicationError(f"UR controller {self.host}: cannot read digital input "
                                      f"{DIGITAL_INPUT_NAMES[index]} (bit {index} of actual_digital_input_bits): {exc}") \
                 from exc
+
+    # -- joint temperatures ----------------------------------------------------------------------
+    def joint_temperatures_c(self) -> tuple[float, ...]:
+        """Joint temperatures in °C: RTDE ``joint_temperatures`` of the receive interface's latest package.
+
+        Through ur-rtde's ``getJointTemperatures`` (the field is in ``RECIPE``); needs no control
+        script and no Remote Control.
+        """
+        r = self._receive()
+        try:
+            temps = r.getJointTemperatures()
+        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
+            raise CommunicationError(f"UR controller {self.host}: cannot read joint_temperatures: {exc}") from exc
+        values = tuple(float(v) for v in temps)
+        if len(values) != 6:
+            raise CommunicationError(f"UR controller {self.host}: joint_temperatures has {len(values)} values, "
+                                     "expected 6")
+        return values
 
     # -- payload -------------------------------------------------------------------------------
     def read_payload(self) -> PayloadSetting:

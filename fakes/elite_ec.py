@@ -18,7 +18,7 @@ used by Elite's own Python library (JunJie-zhang-o/eliterobot, ``elite/_move.py`
 
 Test-side helpers: ``set_mode(0|1|2)``, ``press_estop()``, ``release_estop()``,
 ``trigger_collision()``, ``raise_alarm()``, ``set_servo()``, ``set_garbage_reply()``,
-``set_digital_input()``.
+``set_digital_input()``, ``set_joint_temperatures()`` / ``joint_temperatures()``.
 """
 
 from __future__ import annotations
@@ -68,6 +68,14 @@ N_TOOLS = 8  # tool_num 0..7
 # docs "变量&IO": "X0~X63", "0低电平,1高电平"). Readable in every mode here (UNVERIFIED on the real controller).
 N_DIGITAL_INPUTS = 64
 
+# Joint temperatures (°C) served in the monitor frame's joint_temperature (6 doubles at offset 607). Fake-side
+# model, not Elite data: the joints start at these values and warm towards the steady state with a 30-minute
+# time constant of simulated time, so values vary slowly over a session. No 8055 method is served for them:
+# no public source names one (docs/sources.md, "Elite EC").
+DEFAULT_JOINT_TEMPS_C = (31.0, 32.5, 32.0, 34.5, 34.0, 33.5)
+DEFAULT_STEADY_JOINT_TEMPS_C = (34.0, 36.5, 35.5, 38.0, 37.0, 36.0)
+JOINT_TEMP_TAU_S = 1800.0
+
 # Methods that need remote mode.
 _REMOTE_ONLY = {
     "moveByJoint", "cmd_set_payload", "set_servo_status", "syncMotorStatus", "clearAlarm",
@@ -88,6 +96,32 @@ def lead_joint_caps(q_from: np.ndarray, q_to: np.ndarray, max_speed: np.ndarray,
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))
+
+
+def _joint_temps(values: Sequence[float], what: str) -> np.ndarray:
+    vals = list(values)
+    if len(vals) != 6 or not all(_is_number(v) and -40.0 <= float(v) <= 200.0 for v in vals):
+        raise ValueError(f"{what} must be 6 numbers in [-40, 200] °C, got {values!r}")
+    return np.asarray(vals, float)
+
+
+class JointThermal:
+    """Per-joint temperatures: a first-order lag towards ``steady`` in simulated time (tau ``JOINT_TEMP_TAU_S``)."""
+
+    def __init__(self, start: Sequence[float], steady: Sequence[float], tau_s: float = JOINT_TEMP_TAU_S):
+        self.value = np.asarray(start, float).copy()
+        self.steady = np.asarray(steady, float).copy()
+        self.tau_s = float(tau_s)
+        self._t: float | None = None
+
+    def set(self, values: Sequence[float], steady: Sequence[float] | None = None) -> None:
+        self.value = _joint_temps(values, "joint temperatures")
+        self.steady = self.value.copy() if steady is None else _joint_temps(steady, "steady joint temperatures")
+
+    def advance(self, t: float) -> None:
+        if self._t is not None and t > self._t:
+            self.value = self.value + (self.steady - self.value) * (1.0 - math.exp(-(t - self._t) / self.tau_s))
+        self._t = t
 
 
 class FakeEliteController:
@@ -121,6 +155,7 @@ class FakeEliteController:
         self._reset_t = -1.0  # sim time of the last successful clearAlarm
         self._payloads = [{"m": 0.0, "tool_cog": [0.0, 0.0, 0.0]} for _ in range(N_TOOLS)]
         self._inputs = [0] * N_DIGITAL_INPUTS  # X0..X63, set by tests with set_digital_input()
+        self._thermal = JointThermal(DEFAULT_JOINT_TEMPS_C, DEFAULT_STEADY_JOINT_TEMPS_C)
         self._motion: dict | None = None  # {"t0", "dur", "seen"} while robotState is "running"
         self._next_frame_t: float | None = None
         self._garbage: dict[str, str] = {}
@@ -219,6 +254,20 @@ class FakeEliteController:
         with self._lock:
             self._inputs[index] = 1 if value else 0
 
+    def set_joint_temperatures(self, values: Sequence[float], steady: Sequence[float] | None = None) -> None:
+        """Set the joints' temperatures (6 values, °C), shown from the next monitor frame on.
+
+        They then stay put, or, with ``steady``, drift towards it with the fake's 30-minute time constant
+        (simulated time).
+        """
+        with self._lock:
+            self._thermal.set(values, steady)
+
+    def joint_temperatures(self) -> tuple[float, ...]:
+        """The joints' temperatures (°C) the controller reports now."""
+        with self._lock:
+            return tuple(float(v) for v in self._thermal.value)
+
     def payload_setting(self, tool_num: int = 0) -> dict:
         with self._lock:
             p = self._payloads[tool_num]
@@ -252,6 +301,7 @@ class FakeEliteController:
 
     def _on_tick(self, s) -> None:
         with self._lock:
+            self._thermal.advance(s.t)
             m = self._motion
             if m is not None:
                 if s.moving:
@@ -286,7 +336,7 @@ class FakeEliteController:
                 "digital_ioInput": sum(1 << i for i, v in enumerate(self._inputs) if v),
                 "joint_speed": list(np.degrees(s.qd)) + [0.0, 0.0],
                 "jointacc": list(np.degrees(s.qdd)) + [0.0, 0.0],
-                "joint_temperature": [30.0] * 6,
+                "joint_temperature": [float(v) for v in self._thermal.value],
                 "jointTorque": list(np.asarray(s.torque_nm, float)),
             }
         return pack_frame(values)

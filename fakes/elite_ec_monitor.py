@@ -125,6 +125,8 @@ class _Client:
         self.sock = sock
         self.queue: queue.Queue[bytes | None] = queue.Queue(maxsize=max_queue)
         self.dead = threading.Event()
+        self.lagged = False  # dropped because it fell too far behind
+        self.counted = False  # counted in MonitorServer.dropped_clients
 
     def run(self) -> None:
         """The sender loop (runs on the TCP server's connection thread until dropped)."""
@@ -145,6 +147,7 @@ class _Client:
             self.queue.put_nowait(frame)
             return True
         except queue.Full:
+            self.lagged = True
             self.drop()
             return False
 
@@ -210,6 +213,10 @@ class MonitorServer:
                 for c in gone:
                     if c in self._clients:
                         self._clients.remove(c)
+                    # counted here even when its connection thread already removed it (it wakes
+                    # as soon as drop() shuts the socket down, and may get there first)
+                    if c.lagged and not c.counted:
+                        c.counted = True
                         self.dropped_clients += 1
 
     def close(self) -> None:

@@ -301,3 +301,76 @@ def test_driver_frames_monitor_on_message_size(ctrl):
         assert s.t_ctrl == pytest.approx(1.0 + 0.008 * k)
         assert s.q[0] == pytest.approx(math.radians(k)) and s.q[1] == pytest.approx(-math.pi / 2)
         assert s.effort[1] == pytest.approx(10 + k)
+
+
+# -- joint temperatures ---------------------------------------------------------------------------
+
+def _wait_temps(d, want, timeout=5.0, tol=1e-9):
+    deadline = time.monotonic() + timeout
+    got = d.joint_temperatures_c()
+    while (got is None or not np.allclose(got, want, atol=tol, rtol=0)) and time.monotonic() < deadline:
+        time.sleep(0.005)
+        got = d.joint_temperatures_c()
+    return got
+
+
+def test_joint_temperatures_from_monitor_frame(drv, ctrl):
+    t = drv.joint_temperatures_c()  # right after connect: waits for the first frame
+    assert t is not None and len(t) == 6 and all(25.0 <= v <= 45.0 for v in t)
+    want = [36.25, 41.5, 39.0, 44.75, 43.0, 38.5]
+    ctrl.set_joint_temperatures(want)
+    got = _wait_temps(drv, want)
+    assert got == pytest.approx(want) and all(isinstance(v, float) for v in got)
+    assert drv.latest_monitor["joint_temperature"] == pytest.approx(want)
+    assert ctrl.joint_temperatures() == pytest.approx(want)  # without steady= they stay put
+    with pytest.raises(ValueError):
+        ctrl.set_joint_temperatures([30.0] * 5)
+
+
+def test_joint_temperatures_drift_slowly_towards_steady(drv, ctrl, sim):
+    ctrl.set_joint_temperatures([30.0] * 6, steady=[40.0] * 6)
+    first = _wait_temps(drv, [30.0] * 6, tol=0.05)
+    assert first == pytest.approx([30.0] * 6, abs=0.05)
+    t0 = sim.now()
+    while sim.now() - t0 < 30.0:  # 30 s of simulated time (< 1 s of wall time)
+        time.sleep(0.01)
+    later = drv.joint_temperatures_c()
+    dt = sim.now() - t0
+    # first-order lag, 30-minute time constant: about 10 °C x (1 - exp(-dt / 1800 s))
+    expected = 30.0 + 10.0 * (1.0 - math.exp(-dt / 1800.0))
+    assert all(30.05 < v < 31.5 for v in later)
+    assert later == pytest.approx([expected] * 6, abs=0.1)
+
+
+def test_joint_temperatures_none_when_polling(ctrl):
+    d = make_driver(ctrl, sample_source="poll")
+    d.connect()
+    try:
+        assert d.joint_temperatures_c() is None
+    finally:
+        d.close()
+    assert make_driver(ctrl).joint_temperatures_c() is None  # not connected
+
+
+@pytest.mark.parametrize("kind", ["full", "short", "zeros"])
+def test_joint_temperatures_decoded_at_offset_607(ctrl, kind):
+    """Independent of the fake: a frame built with the public layout, a short (older) frame, an unfilled one."""
+    temps = [0.0] * 6 if kind == "zeros" else [33.5, 34.25, 35.0, 36.75, 37.5, 38.125]
+    frame = pack_frame({"TimeStamp": 5000, "machinePos": [0] * 8, "robotMode": 2, "joint_temperature": temps})
+    if kind == "short":  # a firmware whose frame ends before joint_temperature
+        frame = struct.pack("!I", 607) + frame[4:607]
+    mon = _ChunkedMonitor([frame, frame])
+    d = make_driver(ctrl, monitor_port=mon.port)
+    d.connect()
+    try:
+        deadline = time.monotonic() + 5
+        while d._frames < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert d._frames == 2
+        got = d.joint_temperatures_c()
+    finally:
+        d.close()
+    if kind == "full":
+        assert got == pytest.approx(temps)
+    else:
+        assert got is None

@@ -259,6 +259,36 @@ def test_read_digital_input_follows_the_controller(ur, healthy):
             healthy.read_digital_input(bad)
 
 
+def test_joint_temperatures_follow_the_controller(ur, healthy):
+    """RTDE joint_temperatures (in the driver's recipe) through ur-rtde's getJointTemperatures, in °C."""
+    def settled(want):  # the receive interface sees the change from the next package on
+        deadline = time.monotonic() + 2.0
+        while True:
+            got = healthy.joint_temperatures_c()
+            if np.allclose(got, want, atol=1e-9, rtol=0):
+                return got
+            assert time.monotonic() < deadline, f"joint temperatures stayed {got}, expected {want}"
+            time.sleep(0.005)
+
+    first = healthy.joint_temperatures_c()
+    assert len(first) == 6 and all(isinstance(v, float) and 25.0 <= v <= 45.0 for v in first)
+    try:
+        for want in ([36.5, 41.25, 39.0, 44.75, 43.5, 38.0], [30.0, 30.5, 31.0, 31.5, 32.0, 32.5]):
+            ur.set_joint_temperatures(want)
+            assert settled(want) == pytest.approx(want)
+            assert ur.joint_temperatures == pytest.approx(want)  # without steady= they stay put
+        ur.set_joint_temperatures([30.0] * 6, steady=[40.0] * 6)  # warming up: slow, monotonic
+        time.sleep(0.5)
+        a = healthy.joint_temperatures_c()
+        time.sleep(0.5)
+        b = healthy.joint_temperatures_c()
+        assert all(30.0 < x < y < 30.1 for x, y in zip(a, b))  # tau 30 min: ~0.006 °C/s at 10 °C below
+        with pytest.raises(ValueError, match="6 numbers"):
+            ur.set_joint_temperatures([30.0] * 5)
+    finally:
+        ur.set_joint_temperatures(first)
+
+
 def test_long_move_fast_sim_with_payload():
     """A long move at time_scale 10: the move still ends on target, the tool shows in the current."""
     with FakeURController(time_scale=10.0, payload=PayloadTruth(3.0, (0.0, 0.0, 0.08))) as fake:
