@@ -66,14 +66,16 @@ def controller_identity(info: ControllerInfo) -> dict[str, str]:
 
 
 def describe_for(config: Config, plan: Plan, info: ControllerInfo, source_run: Path,
-                 recorded_utc: str | None = None) -> BaselineInfo:
+                 recorded_utc: str | None = None,
+                 joint_temperatures_c: list[float] | None = None) -> BaselineInfo:
     return BaselineInfo(
         robot=config.robot.name, controller=controller_identity(info),
         kinematics_fingerprint=kinematics_fingerprint(config), plan_fingerprint=plan.fingerprint(),
         procedure=plan.procedure.name, speed_percent=config.procedure.speed_percent,
         bidirectional=config.procedure.bidirectional,
         recorded_utc=recorded_utc or datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        source_run=str(source_run), software_version=__version__)
+        source_run=str(source_run), software_version=__version__,
+        joint_temperatures_c=None if joint_temperatures_c is None else [float(t) for t in joint_temperatures_c])
 
 
 def load_baseline(state: RobotState) -> BaselineInfo | None:
@@ -92,7 +94,7 @@ def load_baseline(state: RobotState) -> BaselineInfo | None:
 
 
 def mismatches(stored: BaselineInfo, current: BaselineInfo, max_age_days: float,
-               now: datetime | None = None) -> list[str]:
+               now: datetime | None = None, max_temperature_delta_c: float | None = None) -> list[str]:
     """Every reason the stored baseline does not fit the run about to start (empty: it fits)."""
     reasons = []
     if stored.robot != current.robot:
@@ -116,19 +118,28 @@ def mismatches(stored: BaselineInfo, current: BaselineInfo, max_age_days: float,
             what.append(f"bidirectional {stored.bidirectional} → {current.bidirectional}")
         detail = ", ".join(what) if what else "poses, sweep range or speeds differ"
         reasons.append(f"the procedure changed since it was recorded ({detail})")
+    if (max_temperature_delta_c is not None and stored.joint_temperatures_c is not None
+            and current.joint_temperatures_c is not None):
+        deltas = [b - a for a, b in zip(stored.joint_temperatures_c, current.joint_temperatures_c)]
+        worst = max(range(len(deltas)), key=lambda i: abs(deltas[i]))
+        if abs(deltas[worst]) > max_temperature_delta_c:
+            reasons.append(f"joint {worst + 1} is {deltas[worst]:+.1f} °C from its temperature when the baseline was "
+                           f"recorded (limit ±{max_temperature_delta_c:g} °C, storage.baseline_max_temperature_delta_c): "
+                           "friction differs; record the baseline at working temperature")
     age = stored.age_days(now)
     if age > max_age_days:
         reasons.append(f"it is {age:.1f} days old, older than storage.baseline_max_age_days = {max_age_days:g}")
     return reasons
 
 
-def require_valid(state: RobotState, current: BaselineInfo, max_age_days: float) -> BaselineInfo:
+def require_valid(state: RobotState, current: BaselineInfo, max_age_days: float,
+                  max_temperature_delta_c: float | None = None) -> BaselineInfo:
     """The stored baseline if it fits the run about to start; BaselineError saying why not otherwise."""
     stored = load_baseline(state)
     if stored is None:
         raise BaselineError(f"no stored empty-flange baseline for robot {current.robot!r} in {state.baseline_dir}; "
                             "record one with `payload-agent baseline --robot ...` (tool removed)")
-    reasons = mismatches(stored, current, max_age_days)
+    reasons = mismatches(stored, current, max_age_days, max_temperature_delta_c=max_temperature_delta_c)
     if reasons:
         raise BaselineError(f"the stored baseline ({state.baseline_dir}, recorded {stored.recorded_utc}) "
                             "no longer matches: " + "; ".join(reasons)

@@ -22,6 +22,12 @@ from payload_agent.yamlcheck import Node
 N_JOINTS = 6
 EFFORT_UNITS = ("percent_rated", "permille_rated", "A", "Nm")
 DEFAULT_BASELINE_MAX_AGE_DAYS = 7.0  # friction changes with temperature and wear; re-record weekly
+# DH lengths of a production arm are known to a fraction of a mm (machining and assembly
+# tolerances); an arm with a measured (calibrated) kinematic model can declare less
+DEFAULT_LENGTH_UNCERTAINTY_MM = 0.5
+# Gearbox friction falls markedly as the joints warm up from cold; a baseline recorded on a cold
+# robot does not describe a warm one. 10 °C is roughly cold start vs. after an hour of work.
+DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C = 10.0
 
 
 @dataclass(frozen=True)
@@ -32,6 +38,9 @@ class RobotConfig:
     joint_limits_rad: tuple[tuple[float, float], ...]
     max_joint_speed_rad_s: float
     max_joint_accel_rad_s2: float
+    # standard uncertainty of every non-zero DH length (a_i, d_i), independent per length; the
+    # general solver propagates it into the reported covariance (robot.kinematics.length_uncertainty_mm)
+    length_uncertainty_m: float = DEFAULT_LENGTH_UNCERTAINTY_MM / 1000.0
 
     @property
     def kinematics(self) -> Kinematics:
@@ -72,6 +81,7 @@ class StorageConfig:
     runs_dir: Path
     state_dir: Path  # per-robot state lives in state_dir/<robot.name>/ (see payload_agent.state)
     baseline_max_age_days: float  # a stored empty-flange baseline older than this is refused
+    baseline_max_temperature_delta_c: float  # ... and one recorded this much colder/warmer (any joint)
 
 
 WATCH_TRIGGERS = ("file", "digital_input")
@@ -194,7 +204,8 @@ def _robot(node: Node) -> RobotConfig:
             offset_rad=math.radians(r.number("offset_deg", 0.0, min=-360, max=360)),
         ))
         r.reject_unknown(["a_mm", "d_mm", "alpha_deg", "offset_deg"])
-    kin.reject_unknown(["convention", "dh"])
+    length_std_mm = kin.number("length_uncertainty_mm", DEFAULT_LENGTH_UNCERTAINTY_MM, min=0, max=50)
+    kin.reject_unknown(["convention", "dh", "length_uncertainty_mm"])
     limits_raw = node.raw("joint_limits_deg")
     if not isinstance(limits_raw, list) or len(limits_raw) != N_JOINTS:
         raise node.error("joint_limits_deg", f"expected {N_JOINTS} [min, max] pairs, got {limits_raw!r:.60}")
@@ -210,7 +221,8 @@ def _robot(node: Node) -> RobotConfig:
     accel = node.number("max_joint_accel_deg_s2", gt=0, max=10000)
     node.reject_unknown(["name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s",
                          "max_joint_accel_deg_s2"])
-    return RobotConfig(name, model, tuple(rows), tuple(limits), math.radians(speed), math.radians(accel))
+    return RobotConfig(name, model, tuple(rows), tuple(limits), math.radians(speed), math.radians(accel),
+                       length_std_mm / 1000.0)
 
 
 def _effort(node: Node) -> EffortConfig:
@@ -264,12 +276,14 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
 
 def _storage(node: Node | None, base_dir: Path | None) -> StorageConfig:
     if node is None:
-        return StorageConfig(Path("runs"), Path("state"), DEFAULT_BASELINE_MAX_AGE_DAYS)
+        return StorageConfig(Path("runs"), Path("state"), DEFAULT_BASELINE_MAX_AGE_DAYS,
+                             DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C)
     runs = Path(node.string("runs_dir", "runs"))
     state = Path(node.string("state_dir", "state"))
     age = node.number("baseline_max_age_days", DEFAULT_BASELINE_MAX_AGE_DAYS, gt=0, max=3650)
-    node.reject_unknown(["runs_dir", "state_dir", "baseline_max_age_days"])
-    return StorageConfig(runs, state, age)
+    dtemp = node.number("baseline_max_temperature_delta_c", DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C, gt=0, max=100)
+    node.reject_unknown(["runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c"])
+    return StorageConfig(runs, state, age, dtemp)
 
 
 def _watch(node: Node, base_dir: Path | None) -> WatchConfig:

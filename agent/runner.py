@@ -154,7 +154,7 @@ class _Session:
     def run_phase(self, name: str, plan: Plan) -> None:
         start_q = self.current_q()
         self.gate.approve(plan, start_q)  # the approach path starts wherever the robot stands now
-        self.recorder.begin_phase(name)
+        self.recorder.begin_phase(name, joint_temperatures_c={"start": _temperatures(self.driver)})
         if self.progress is not None:
             self.progress.begin_phase(name)
         n = len(plan.moves)
@@ -183,6 +183,7 @@ class _Session:
                 raise MotionAbortedError("interrupted by the operator (Ctrl-C); the robot was stopped, "
                                          f"recorded data kept in {self.recorder.run_dir}") from None
             raise
+        self.recorder.manifest["phases"][name]["joint_temperatures_c"]["end"] = _temperatures(self.driver)
         self.recorder.end_phase("complete")
 
     def stop_robot(self) -> None:
@@ -190,6 +191,15 @@ class _Session:
             self.driver.stop()
         except Exception:
             pass
+
+
+def _temperatures(driver: Driver) -> list[float] | None:
+    """Joint temperatures, °C, where the controller reports them (friction depends on them)."""
+    try:
+        temps = driver.joint_temperatures_c()
+    except PayloadAgentError:
+        return None
+    return None if temps is None else [round(float(t), 2) for t in temps]
 
 
 def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: baselines.BaselineInfo,
@@ -203,13 +213,18 @@ def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: ba
                                      "which an unattended run cannot ask for")
         return [("empty", False), ("loaded", True)], None, True
     try:
-        stored = baselines.require_valid(state, current, config.storage.baseline_max_age_days)
+        stored = baselines.require_valid(state, current, config.storage.baseline_max_age_days,
+                                         config.storage.baseline_max_temperature_delta_c)
     except BaselineError as exc:
         if opts.unattended:
             raise
         out(f"{exc}\nThis session records the empty-flange run first and stores it as the new baseline.")
         return [("empty", False), ("loaded", True)], None, True
-    out(f"Using the stored empty-flange baseline of {stored.recorded_utc} ({state.baseline_dir}); "
+    temps = ""
+    if stored.joint_temperatures_c and current.joint_temperatures_c:
+        worst = max(abs(b - a) for a, b in zip(stored.joint_temperatures_c, current.joint_temperatures_c))
+        temps = f", joint temperatures within {worst:.1f} °C of then"
+    out(f"Using the stored empty-flange baseline of {stored.recorded_utc} ({state.baseline_dir}{temps}); "
         "only the loaded run is recorded.")
     return [("loaded", True)], state.baseline_dir, False
 
@@ -256,7 +271,8 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
             note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
             out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
                 "`payload-agent calibrate` with a known reference payload removes their error")
-        current = baselines.describe_for(config, plan, info, source_run=Path("."))
+        current = baselines.describe_for(config, plan, info, source_run=Path("."),
+                                         joint_temperatures_c=_temperatures(driver))
         phases, baseline_dir, store_empty = _phases_for(config, opts, state, current, out)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         suffix = {"identify": "", "baseline": "-baseline", "calibrate": "-calibration"}[opts.mode]
@@ -304,8 +320,10 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
             session.progress.close()
         t_motion = time.monotonic() - t0
         if store_empty:
+            temps = recorder.manifest["phases"]["empty"].get("joint_temperatures_c", {}).get("end")
             stored = baselines.store_baseline(state, recorder.run_dir,
-                                              baselines.describe_for(config, plan, info, recorder.run_dir))
+                                              baselines.describe_for(config, plan, info, recorder.run_dir,
+                                                                     joint_temperatures_c=temps))
             out(f"Empty-flange baseline stored in {stored}")
         if opts.mode == "baseline":
             driver.stop_stream()

@@ -59,6 +59,8 @@ def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(s
                 assert list(manifest["phases"]) == ["empty", "loaded"]
                 assert (state.baseline_dir / "baseline.json").exists()
                 assert (state.baseline_dir / "empty").is_dir()
+                stored = json.loads((state.baseline_dir / "baseline.json").read_text())
+                assert len(stored["joint_temperatures_c"]) == 6  # the EC monitor reports them
             else:  # the stored baseline replaced the empty run; the run folder keeps a copy of it
                 assert manifest["phases"]["empty"]["from_baseline"]["dir"] == str(state.baseline_dir)
                 assert manifest["baseline"]["plan_fingerprint"]
@@ -99,6 +101,13 @@ def test_changed_procedure_invalidates_baseline(sim_ec66_data, tmp_path, no_stdi
             run_identification(changed, RunOptions(unattended=True, cell=cell, ask=_never_ask,
                                                    out=lambda s: None, report=False))
         assert cell.robot.snapshot().move_id == moves  # refused before anything moved
+        # the same baseline on a robot that has warmed up by 15 °C on joint 3
+        warm = [t + (15.0 if j == 2 else 0.0) for j, t in enumerate(cell.controller.joint_temperatures())]
+        cell.controller.set_joint_temperatures(warm)
+        with pytest.raises(BaselineError, match="joint 3 is \\+1[45].* °C"):
+            run_identification(cfg, RunOptions(unattended=True, cell=cell, ask=_never_ask,
+                                               out=lambda s: None, report=False))
+        assert cell.robot.snapshot().move_id == moves
     finally:
         cell.close()
     # the same through the command line: exit code 3 (not ready) and the reason on stderr
