@@ -15,7 +15,7 @@ from payload_agent.safety import SafetyGate
 
 
 def test_sweeps_follow_the_paper(sim_ec66_data):
-    cfg = parse_config(sim_ec66_data)
+    cfg = parse_config(tweak(sim_ec66_data, "procedure.bidirectional", False))  # as published: one way
     plan = make_plan(cfg)
     kin = cfg.robot.kinematics
     geo = ArmGeometry(kin, 0.0)
