@@ -49,18 +49,23 @@ def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
 
 
 def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
-              gain_rel_std: Sequence[float] | None = None) -> tuple[Estimate, list[Estimate]]:
+              gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
+              gain_reference: tuple[Sequence[float], Sequence[int]] | None = None
+              ) -> tuple[Estimate, list[Estimate]]:
     """The primary solver's estimate, plus every other solver's that can be computed on the same data.
 
-    ``gain_rel_std`` (relative drive-gain uncertainty per joint, from a calibration) goes into the
-    general solver's covariance; solvers without a covariance ignore it.
+    ``gain_rel_std`` (relative drive-gain uncertainty per joint, from a calibration) and
+    ``length_std_m`` (standard uncertainty of the DH lengths; ``gain_reference``: the calibration's
+    reference θ and fitted joints, see ``general.kinematic_covariance``) go into the general
+    solver's covariance; solvers without a covariance ignore them.
     """
     if primary not in SOLVERS:
         raise DataError(f"unknown solver {primary!r}; available: {', '.join(SOLVERS)}")
 
     def run(name: str) -> Estimate:
-        if name == general.NAME and gain_rel_std is not None:
-            return general.solve(deltas, kin, gain_rel_std=gain_rel_std)
+        if name == general.NAME and (gain_rel_std is not None or length_std_m):
+            return general.solve(deltas, kin, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
+                                 gain_reference=gain_reference)
         return SOLVERS[name](deltas, kin)
 
     main = run(primary)
@@ -89,8 +94,9 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     (``gains_nm_per_unit``, ``gains_source``) and the primary estimate's notes. With a
     calibration, its per-joint uncertainty is part of the general solver's covariance; with
     nominal gains the reported uncertainty cannot include the gain error, and a note says so.
+    The DH lengths' uncertainty (``robot.kinematics.length_uncertainty_mm``) is always part of it.
     """
-    gain_rel_std = None
+    gain_rel_std = gain_reference = None
     if gains is not None:
         gains_arr, source = np.asarray(gains, float), "given by the caller"
         note = None
@@ -99,6 +105,8 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
         cal = effective_calibration(config) if note is not None else None
         if cal is not None:
             gain_rel_std = cal.gain_rel_std()
+            m_ref = cal.reference_mass_kg
+            gain_reference = ([m_ref, *(m_ref * np.asarray(cal.reference_cog_m))], cal.fitted_joints)
             source = note
         else:
             source = "nominal (effort.gains_nm_per_unit of the config)"
@@ -107,7 +115,8 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     notes: list[str] = []
     deltas = deltas_for(run_dir, gains_arr, baseline_dir, notes=notes)
     kin = config.robot.kinematics
-    primary, others = solve_all(deltas, kin, solver or config.procedure.solver, gain_rel_std)
+    primary, others = solve_all(deltas, kin, solver or config.procedure.solver, gain_rel_std,
+                                config.robot.length_uncertainty_m, gain_reference)
     primary.notes.extend(notes)
     if note:
         primary.notes.append(note)

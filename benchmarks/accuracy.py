@@ -23,7 +23,11 @@ Scenarios
   realistic  ideal + load-dependent Coulomb (5 % of the load torque), friction scale drift
              ±10 % between the empty and each loaded run, drive gains off by up to ±3 % per
              joint (the measured torque is multiplied), the simulated arm's DH lengths off by
-             up to 0.5 mm (ArmSpec.with_dh_errors) while the agent uses the nominal ones.
+             up to 0.5 mm (ArmSpec.with_dh_errors, uniform) while the agent uses the nominal ones.
+Declared kinematic uncertainty (``--length-uncertainty-mm``): what the agent is told about its DH
+lengths, propagated into the general solver's σ. By default it matches each scenario's simulated
+arm, as a correctly configured agent would: 0 in "ideal" (exact lengths), 0.5/√3 ≈ 0.29 mm in the
+realistic scenarios (the standard deviation of a uniform ±0.5 mm error).
 Methods
   three-step      the paper's solver, "up" sweeps only (as published)
   general-up      weighted least squares, "up" sweeps only
@@ -45,7 +49,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import inspect
 import json
 import math
 import sys
@@ -67,6 +70,7 @@ NOISE_NM = 0.3
 COULOMB_NM = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5)
 VISCOUS_NM_S_RAD = (8.0, 8.0, 5.0, 1.0, 1.0, 0.5)
 TICK_S = 0.008  # the Elite monitor's sample period
+DH_ERROR_MM = 0.5  # realistic scenarios: every non-zero DH length off by uniform ±this
 REFERENCE = (3.0, (0.0, 0.0, 80.0))  # calibration payload: kg, mm in the flange frame
 CHI2_3_95 = 7.814727903251178  # 95 % quantile of χ² with 3 degrees of freedom
 EXCITATION_LABEL = "excitation"
@@ -160,7 +164,7 @@ def robot_draws(scenario: str, index: int) -> dict:
     rng = np.random.default_rng([index, seed_scenario, 7])
     spec = SPECS["ec66"]()
     if scenario.startswith("realistic"):
-        spec = spec.with_dh_errors(rng, 0.0005)
+        spec = spec.with_dh_errors(rng, DH_ERROR_MM / 1000.0)
         gain = rng.uniform(0.97, 1.03, 6)
         if scenario == "realistic-exact-gains":
             gain = np.ones(6)
@@ -170,6 +174,17 @@ def robot_draws(scenario: str, index: int) -> dict:
         gain, drift_load, drift_ref, load_ratio = np.ones(6), 0.0, 0.0, 0.0
     return {"spec": spec, "gain": gain, "drift_load": drift_load, "drift_ref": drift_ref,
             "load_ratio": load_ratio, "noise_seed": int(rng.integers(2**31))}
+
+
+def declared_length_std_mm(scenario: str, override: float | None = None) -> float:
+    """The DH-length standard uncertainty the agent is configured with (``--length-uncertainty-mm``).
+
+    Default: the simulated arm's own, i.e. the standard deviation of its uniform ±DH_ERROR_MM
+    length errors in the realistic scenarios and 0 in "ideal" (exact lengths).
+    """
+    if override is not None:
+        return float(override)
+    return DH_ERROR_MM / math.sqrt(3.0) if scenario.startswith("realistic") else 0.0
 
 
 def _robot(draws: dict, start: np.ndarray, seed_extra: int):
@@ -212,8 +227,8 @@ def _scaled(deltas: dict, scale: np.ndarray) -> dict:
     return {k: DeltaSweep(d.key, d.q, d.dtau * scale, d.speed_rad_s) for k, d in deltas.items()}
 
 
-def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.ndarray]:
-    """Gain scale and relative gain uncertainty from the reference payload on the same robot.
+def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+    """Gain scale, relative gain uncertainty and fitted joints from the reference payload on the same robot.
 
     agent/calibration.py fits the joints that carry enough reference torque; as in the agent's
     own analysis (``GainCalibration.gain_rel_std``) the others keep their nominal gain with
@@ -233,12 +248,14 @@ def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.nda
                                                      np.asarray(config.effort.gains_nm_per_unit),
                                                      REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
     rel_std = np.array([scale_std[j] if j in fitted else UNFITTED_GAIN_REL_STD for j in range(len(scale))])
-    return np.asarray(scale, float), rel_std
+    return np.asarray(scale, float), rel_std, tuple(fitted)
 
 
 def run_case(args: tuple) -> list[dict]:
     """One payload, one scenario, one procedure: every PTP method's estimate."""
-    scenario, proc, methods, index, mass, cog_mm = args
+    scenario, proc, methods, index, mass, cog_mm, *rest = args
+    length_std_mm = declared_length_std_mm(scenario, rest[0] if rest else None)
+    kin_kw = {"length_std_m": length_std_mm / 1000.0}
     from payload_agent.combine import add_combined
     from payload_agent.delta import subtract_all
     from payload_agent.errors import DataError, PayloadAgentError
@@ -257,7 +274,7 @@ def run_case(args: tuple) -> list[dict]:
     loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
 
     base = {"scenario": scenario, "procedure": proc.label, "procedure_settings": dataclasses.asdict(proc),
-            "payload": index}
+            "payload": index, "length_std_mm": length_std_mm}
     rows = []
     try:
         deltas = subtract_all(loaded, empty)
@@ -270,18 +287,19 @@ def run_case(args: tuple) -> list[dict]:
             if method == "three-step":
                 est, plan = three_step.solve(up_only, kin), plan_up
             elif method == "general-up":
-                est, plan = general.solve(up_only, kin), plan_up
+                est, plan = general.solve(up_only, kin, **kin_kw), plan_up
             elif method == "general-bi":
-                est, plan = general.solve(combined, kin), plan_bi
+                est, plan = general.solve(combined, kin, **kin_kw), plan_bi
             elif method == "general-bi-cal":
                 try:
-                    scale, gain_rel_std = _calibrate(robot, plan_bi, empty, draws, config_bi)
+                    scale, gain_rel_std, fitted = _calibrate(robot, plan_bi, empty, draws, config_bi)
                 except ImportError as exc:
                     raise DataError(f"calibration unavailable ({exc})") from None
-                kw = {}
-                if "gain_rel_std" in inspect.signature(general.solve).parameters:
-                    kw["gain_rel_std"] = gain_rel_std
-                est, plan = general.solve(_scaled(combined, scale), kin, name="general-bi-cal", **kw), plan_bi
+                m_ref = REFERENCE[0]
+                theta_ref = [m_ref, *(m_ref * np.asarray(REFERENCE[1]) / 1000.0)]
+                est, plan = general.solve(_scaled(combined, scale), kin, name="general-bi-cal",
+                                          gain_rel_std=gain_rel_std, gain_reference=(theta_ref, fitted),
+                                          **kin_kw), plan_bi
             else:
                 raise ValueError(method)
         except PayloadAgentError as exc:
@@ -469,6 +487,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenarios", help=f"comma-separated, from {', '.join(ALL_SCENARIOS)} (default: "
                    f"{', '.join(SCENARIOS)})")
     p.add_argument("--methods", help=f"comma-separated, from {', '.join(METHODS)} (default: all)")
+    p.add_argument("--length-uncertainty-mm", type=float, default=None, metavar="MM",
+                   help="DH-length standard uncertainty the agent declares, every scenario (default: the "
+                   f"simulated arm's own: 0 ideal, {DH_ERROR_MM:g}/√3 mm realistic)")
     p.add_argument("--jobs", type=int, default=0, help="worker processes (default: all CPUs)")
     p.add_argument("--json", help="write the summary rows and every case to this path")
     p.add_argument("--plot", help="save the error-vs-speed figure here (e.g. docs/benchmark-error-vs-speed.png)")
@@ -503,8 +524,8 @@ def main(argv: list[str] | None = None) -> int:
     pays = payloads(n)
     cases: list[tuple] = []
     if ptp_methods:
-        cases += [("ptp", (sc, pr, ptp_methods, i, m, c)) for sc in scenarios for pr in procs
-                  for i, (m, c) in enumerate(pays)]
+        cases += [("ptp", (sc, pr, ptp_methods, i, m, c, args.length_uncertainty_mm)) for sc in scenarios
+                  for pr in procs for i, (m, c) in enumerate(pays)]
     if "dynamic" in methods:
         cases += [("dynamic", (sc, i, m, c)) for sc in scenarios for i, (m, c) in enumerate(pays)]
 
@@ -525,6 +546,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{len(cases)} cases, {elapsed:.0f} s wall on {args.jobs or 'all'} worker(s)")
     for proc in procs:
         print(f"  procedure {proc.label}: {proc.describe()}")
+    print("  declared DH-length standard uncertainty: " + ", ".join(
+        f"{sc} {declared_length_std_mm(sc, args.length_uncertainty_mm):.3g} mm" for sc in scenarios))
     print(format_table(summary))
     for r in rows:
         if "error" in r:

@@ -122,3 +122,72 @@ def test_single_pose_restriction(setup):
     for pose in ("b", "d"):
         est = general.solve(clean, kin, poses=[pose])
         assert abs(est.mass_kg - TRUTH_M) < 1e-9
+
+
+def _with_length(kin, row: int, which: str, delta_m: float):
+    from payload_agent.kinematics import Kinematics
+
+    rows = list(kin.rows)
+    rows[row] = dataclasses.replace(rows[row], **{f"{which}_m": getattr(rows[row], f"{which}_m") + delta_m})
+    return Kinematics(tuple(rows))
+
+
+def test_kinematic_uncertainty_term(setup):
+    kin, clean = setup
+    deltas = synthetic(planned_sweeps()[1], kin, noise=0.3, rng=np.random.default_rng(3))
+    base = general.solve(deltas, kin)
+    # zero uncertainty: the covariance is exactly the noise (and gain) covariance
+    assert general.solve(deltas, kin, length_std_m=0.0).covariance == base.covariance
+    small = general.solve(deltas, kin, length_std_m=0.0002)
+    large = general.solve(deltas, kin, length_std_m=0.001)
+    cov0, cov_s, cov_l = (np.asarray(e.covariance) for e in (base, small, large))
+    # the added term is σ²·SᵀS: positive semi-definite and quadratic in the declared σ
+    assert np.all(np.linalg.eigvalsh(cov_s - cov0) > -1e-18)
+    assert np.allclose(cov_l - cov0, 25.0 * (cov_s - cov0), rtol=1e-9, atol=1e-20)
+    assert np.all(np.asarray(large.cog_std_m) > np.asarray(small.cog_std_m))
+    assert np.all(np.asarray(small.cog_std_m) > np.asarray(base.cog_std_m))
+    assert large.mass_std_kg > base.mass_std_kg
+    assert (large.mass_kg, large.cog_m) == (base.mass_kg, base.cog_m)  # the estimate itself is unchanged
+
+
+def test_kinematic_sensitivity_predicts_length_error(setup):
+    """Data from an arm whose a2 is 0.5 mm longer, solved with the nominal lengths: the first-order
+    sensitivity the covariance is built from predicts the resulting error of θ̂."""
+    kin, clean = setup
+    config, sweeps = planned_sweeps()
+    params = general.length_parameters(kin)
+    assert (1, "a") in params and (0, "a") not in params  # a1 = 0 on the EC66: structural, exact
+    k = params.index((1, "a"))
+    true_kin = _with_length(kin, 1, "a", 0.0005)
+    deltas = synthetic(sweeps, true_kin)
+    sel = general.select_sweeps(deltas)
+    groups = general.build_groups(sel, kin)
+    res = general.fit(groups)
+    S = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"])
+    err = res["theta"] - THETA
+    assert np.max(np.abs(err)) > 1e-4  # the length error matters ...
+    assert np.allclose(err, S[k] * 0.0005, rtol=0.02, atol=2e-6)  # ... and is predicted to first order
+
+
+def test_kinematic_sensitivity_after_gain_calibration(setup):
+    """A gain calibration on the same (wrong-length) arm absorbs part of the length error; with the
+    calibration's reference the sensitivity predicts what is left."""
+    from payload_agent.calibration import fit_gains_from_deltas
+
+    kin, _ = setup
+    _, sweeps = planned_sweeps()
+    true_kin = _with_length(kin, 1, "a", 0.0005)
+    ref_m, ref_c = 3.0, np.array([0.0, 0.0, 0.080])
+    theta_ref = np.concatenate(([ref_m], ref_m * ref_c))
+    scale, _, fitted = fit_gains_from_deltas(synthetic(sweeps, true_kin, theta=theta_ref), kin, np.ones(6),
+                                             ref_m, ref_c)
+    tool = {k: DeltaSweep(k, d.q, d.dtau * scale, d.speed_rad_s) for k, d in synthetic(sweeps, true_kin).items()}
+    sel = general.select_sweeps(tool)
+    groups = general.build_groups(sel, kin)
+    res = general.fit(groups)
+    k = general.length_parameters(kin).index((1, "a"))
+    S_cal = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"], (theta_ref, fitted))
+    S_raw = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"])
+    err = res["theta"] - THETA
+    assert np.allclose(err, S_cal[k] * 0.0005, rtol=0.05, atol=5e-6)
+    assert abs(S_cal[k][0]) < abs(S_raw[k][0])  # the calibration took out part of the mass error

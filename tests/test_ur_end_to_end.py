@@ -62,7 +62,7 @@ def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
     assert manifest["simulation_truth"]["mass_kg"] == truth["mass_kg"]
     for phase in ("empty", "loaded"):
         sweeps = manifest["phases"][phase]["sweeps"]
-        assert [s["name"] for s in sweeps] == ["b-j2-up", "b-j3-up", "d-j2-up", "d-j3-up"]
+        assert [s["name"] for s in sweeps] == [f"{p}-j{j}-{d}" for p in "bd" for j in (2, 3) for d in ("up", "down")]
         # 500 Hz stream: several hundred samples per second of sweep even when packages are missed
         assert all(s["status"] == "complete" and s["samples"] > 1000 for s in sweeps), sweeps
 
@@ -72,7 +72,7 @@ def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_da
     cells = []
 
     def out(line):
-        if "[empty] 2/8" in line:  # the first sweep has just been commanded
+        if "[empty] 2/12" in line:  # the first sweep has just been commanded
             threading.Timer(0.4, cells[0].controller.trigger_protective_stop).start()
 
     with pytest.raises(MotionAbortedError, match="protective stop"):

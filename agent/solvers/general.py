@@ -21,14 +21,20 @@ A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance of the weighted sc
 sweep by sweep with a Bartlett (Newey–West) kernel whose bandwidth follows the residuals'
 own autocorrelation length; it never goes below the independent-noise covariance. An
 optional relative drive-gain uncertainty per joint (from ``payload-agent calibrate``) is
-propagated on top.
+propagated on top, and so is an optional standard uncertainty of the DH lengths
+(``robot.kinematics.length_uncertainty_mm``): the regressor is built from the nominal
+lengths, the arm's torques follow its true ones, and that systematic error does not
+average out however many samples are taken (``kinematic_covariance``: first-order
+sensitivity of θ̂ to every non-zero a_i and d_i, which is exact for Y since positions are
+linear in the lengths; with a gain calibration, the part of the error its fit absorbed is
+taken out).
 
 The centre of mass c = (m·c)/m gets its covariance from the delta method.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable
 
 import numpy as np
@@ -180,7 +186,8 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> dic
 
     ``cov`` is the autocorrelation-robust covariance (see the module docstring), ``cov_iid`` the
     textbook one for independent noise, ``inflation`` the largest ratio of their diagonals and
-    ``tau`` each sweep's autocorrelation time. ``gain_rel_std`` (per joint, 0-based, relative):
+    ``tau`` each sweep's autocorrelation time, ``w`` the row weights and ``inv`` (YᵀWY)⁻¹ (for
+    ``kinematic_covariance``). ``gain_rel_std`` (per joint, 0-based, relative):
     the standard uncertainty of each drive gain, added to ``cov`` through ∂θ/∂gain.
     """
     if not groups:
@@ -231,7 +238,7 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> dic
     cond = float(np.linalg.cond(normal * np.outer(d, d)))
     rms = {g.label: float(np.sqrt(np.mean(r[idx == i] ** 2))) for i, g in enumerate(groups)}
     return {"theta": theta, "cov": cov, "cov_iid": cov_iid, "sigma": dict(zip([g.label for g in groups], sigma.tolist())),
-            "rms": rms, "cond": cond, "s2": s2, "n": n, "tau": tau,
+            "w": w, "inv": inv, "rms": rms, "cond": cond, "s2": s2, "n": n, "tau": tau,
             "inflation": float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300))))}
 
 
@@ -258,6 +265,92 @@ def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.n
     return cov
 
 
+def length_parameters(kin: Kinematics) -> list[tuple[int, str]]:
+    """The DH lengths whose uncertainty is propagated: every non-zero a_i and d_i, as (row, "a"|"d").
+
+    Zero entries are structural (intersecting or coplanar axes by design) and taken as exact.
+    """
+    out = []
+    for i, row in enumerate(kin.rows):
+        if abs(row.a_m) > 0:
+            out.append((i, "a"))
+        if abs(row.d_m) > 0:
+            out.append((i, "d"))
+    return out
+
+
+def _perturbed(kin: Kinematics, row: int, which: str, h: float) -> Kinematics:
+    rows = list(kin.rows)
+    r = rows[row]
+    rows[row] = replace(r, a_m=r.a_m + h) if which == "a" else replace(r, d_m=r.d_m + h)
+    return Kinematics(tuple(rows))
+
+
+def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], w: np.ndarray,
+                            inv: np.ndarray, theta: np.ndarray,
+                            reference: tuple[Iterable[float], Iterable[int]] | None = None) -> np.ndarray:
+    """∂θ̂/∂p_k for every DH length of ``length_parameters(kin)``: shape (K, 4), per metre.
+
+    The regressor is evaluated with the nominal lengths p; the arm's torques follow the true ones,
+    y = Y(p + δp)·θ. For fixed joint angles every position, hence every row of Y, is linear in
+    the lengths, so ∂Y/∂p_k is exact from one finite difference, and to first order
+    δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂)·δp_k.
+
+    ``reference`` = (θ_ref, fitted joints) of a drive-gain calibration made with the same
+    kinematics on the same procedure, whose scales were applied to the data: its gain fit absorbed
+    part of the same length error (joint j's scale became 1/(1 + Σ_k ε_jk·δp_k), with
+    ε_jk = ⟨Y_j θ_ref, ∂Y_j/∂p_k θ_ref⟩ / ⟨Y_j θ_ref, Y_j θ_ref⟩ over joint j's rows, each
+    group's mean removed from Y_j θ_ref where the calibration fits it an offset), so
+    δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂ − ε_·k ∘ Y·θ̂)·δp_k. The tool run's sweeps stand in for
+    the calibration's (same procedure).
+    """
+    Y = np.vstack([g.Y for g in groups])
+    pred = Y @ theta
+    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+    joints = tuple(sorted({g.joint for g in groups}))
+    fitted: list[int] = []
+    if reference is not None:
+        theta_ref = np.asarray(list(reference[0]), float)
+        fitted = sorted(int(j) for j in reference[1])
+        pred_ref = Y @ theta_ref
+        # the calibration fits an offset to the moving joint of a one-direction sweep (friction the
+        # baseline left): its scale is then the regression on the prediction with that group's mean removed
+        one_way = {d.key.name: d.moving for d in sweeps if d.key.direction != "both"}
+        centred_ref = pred_ref.copy()
+        start = 0
+        for g in groups:
+            sl = slice(start, start + len(g.y))
+            if one_way.get(g.sweep, -1) == g.joint:
+                centred_ref[sl] -= np.mean(pred_ref[sl])
+            start = sl.stop
+    h = 1e-3  # Y is linear in the lengths: any step is exact up to rounding
+    out = []
+    for row, which in length_parameters(kin):
+        by_label = {g.label: g.Y for g in build_groups(sweeps, _perturbed(kin, row, which, h), joints)}
+        dY = np.vstack([(by_label[g.label] - g.Y) / h if g.label in by_label else -g.Y / h for g in groups])
+        v = dY @ theta
+        if fitted:
+            dref = dY @ theta_ref
+            for j in fitted:
+                rows = joint_of_row == j
+                den = float(centred_ref[rows] @ centred_ref[rows]) if rows.any() else 0.0
+                if den > 0:
+                    v[rows] -= float(centred_ref[rows] @ dref[rows]) / den * pred[rows]
+        out.append(inv @ (Y.T @ (w * v)))
+    return np.array(out).reshape(-1, len(theta))
+
+
+def kinematic_covariance(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], w: np.ndarray,
+                         inv: np.ndarray, theta: np.ndarray, length_std_m: float,
+                         reference: tuple[Iterable[float], Iterable[int]] | None = None) -> np.ndarray:
+    """Covariance of θ from independent errors, standard uncertainty ``length_std_m`` each, of the
+    non-zero DH lengths (``kinematic_sensitivities``): σ²·SᵀS."""
+    if not length_std_m > 0:
+        return np.zeros((len(theta), len(theta)))
+    S = kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, reference)
+    return float(length_std_m) ** 2 * (S.T @ S)
+
+
 def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """c = θ[1:]/θ[0] and its 3×3 covariance (delta method)."""
     m = theta[0]
@@ -269,11 +362,16 @@ def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray,
 
 
 def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterable[str] | None = None,
-          use_combined: bool = True, name: str = NAME, gain_rel_std: Iterable[float] | None = None) -> Estimate:
+          use_combined: bool = True, name: str = NAME, gain_rel_std: Iterable[float] | None = None,
+          length_std_m: float | None = None,
+          gain_reference: tuple[Iterable[float], Iterable[int]] | None = None) -> Estimate:
     """Weighted LS estimate of mass and centre of mass with its covariance (see the module docstring).
 
     ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), e.g.
     a calibration's ``scale_std``; included in the reported uncertainty when given.
+    ``length_std_m``: standard uncertainty of every non-zero DH length (``kinematic_covariance``);
+    ``gain_reference``: (θ_ref = [m, m·cx, m·cy, m·cz], fitted joints) of the drive-gain calibration
+    the data were scaled with, whose fit absorbed part of the length errors.
     """
     sweeps = select_sweeps(deltas, poses=poses, use_combined=use_combined)
     if not sweeps:
@@ -282,6 +380,9 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterabl
     groups = build_groups(sweeps, kin)
     res = fit(groups, gain_rel_std)
     theta, cov = res["theta"], res["cov"]
+    if length_std_m:
+        cov = cov + kinematic_covariance(sweeps, kin, groups, res["w"], res["inv"], theta, length_std_m,
+                                         gain_reference)
     mass = float(theta[0])
     if not mass > 0:
         raise DataError(f"general: identified mass {mass:.4f} kg is not positive; is a payload mounted?")
