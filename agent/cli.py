@@ -13,7 +13,7 @@ from pathlib import Path
 
 from payload_agent import __version__
 from payload_agent.config import load_config
-from payload_agent.errors import ConfigError, PayloadAgentError
+from payload_agent.errors import ConfigError, PayloadAgentError, QualityGateError
 
 
 def _run_options(args, mode: str, **extra):
@@ -163,7 +163,7 @@ def _cmd_solve(args) -> int:
     print(format_table(result, manifest.get("simulation_truth")))
     if args.result:
         result.write(Path(args.result))
-    return 0
+    return 0 if result.quality.get("passed", False) else QualityGateError.exit_code
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -186,8 +186,10 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
     try:
         # nominal gains: the mass comes out about 3 % wrong, and the quality gate notices
         cell.change_tool(tool_mass, tool_cog)
-        with pytest.raises(QualityGateError):
-            run_identification(cfg, RunOptions(assume_yes=True, cell=cell, out=lines.append, report=False))
+        with pytest.raises(QualityGateError):  # ... and nothing is written to the controller, though asked
+            run_identification(cfg, RunOptions(assume_yes=True, apply=True, cell=cell, out=lines.append, report=False))
+        assert cell.controller.payload_setting(0)["m"] == 0.0
+        assert "Not applied: the quality checks failed" in "\n".join(lines)
         nominal = json.loads(next((tmp_path / "runs").glob("*/result.json")).read_text())
         assert abs(nominal["mass_kg"] - tool_mass) > 0.05
         # the reference payload, known
