@@ -80,9 +80,16 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
     return main, others
 
 
-def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate) -> dict[str, Any]:
-    """Redundant checks recorded beside the result; ``payload_agent.quality.require_passed`` enforces them."""
-    return quality.evaluate(deltas, kin, primary)
+def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate,
+                   gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
+                   gain_reference: tuple[Sequence[float], Sequence[int]] | None = None) -> dict[str, Any]:
+    """Redundant checks recorded beside the result; ``payload_agent.quality.require_passed`` enforces them.
+
+    The uncertainty terms are those the primary estimate was solved with (see ``solve_all``): the
+    pose-agreement check propagates the same drive-gain and DH-length uncertainty through both poses.
+    """
+    return quality.evaluate(deltas, kin, primary, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
+                            gain_reference=gain_reference)
 
 
 def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
@@ -120,7 +127,8 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     primary.notes.extend(notes)
     if note:
         primary.notes.append(note)
-    quality_result = quality_checks(deltas, kin, primary)
+    quality_result = quality_checks(deltas, kin, primary, gain_rel_std, config.robot.length_uncertainty_m,
+                                    gain_reference)
     extra = {"gains_nm_per_unit": [float(g) for g in gains_arr], "gains_source": source}
     if gain_rel_std is not None:
         extra["gains_rel_std"] = list(gain_rel_std)

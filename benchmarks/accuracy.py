@@ -7,7 +7,9 @@ For speed the simulated robot is driven directly (no sockets, no clock thread): 
 planner's moves go to ``SimRobot.move_joints`` and ``SimRobot.step()`` is called until
 each move ends (``fakes.offline.record_plan``); the states of every sweep become
 ``SweepData`` exactly as the recorder's CSV would after unit conversion. Then the agent's
-own pipeline runs: ``delta.subtract_all`` -> ``combine.add_combined`` -> solvers.
+own pipeline runs: ``delta.subtract_all`` -> ``combine.add_combined`` -> solvers, and the quality
+gate (``quality.evaluate``) on each PTP method's result: column "gate pass", the fraction of cases
+it would let through to the controller (``gate_failures`` in --json: which checks refused).
 
 Each case is one payload on one simulated robot (its DH errors, drive-gain errors and
 friction drifts are drawn from the payload index and scenario, so every procedure sees the
@@ -251,6 +253,26 @@ def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.nda
     return np.asarray(scale, float), rel_std, tuple(fitted)
 
 
+def _gate(deltas: dict, kin, est, **kw) -> dict:
+    """The agent's own quality gate (``quality.evaluate``) on the deltas and uncertainty terms a method used.
+
+    ``kw``: ``gain_rel_std``, ``length_std_m``, ``gain_reference``, passed as ``analysis.analyse_run``
+    passes them. Returns whether it passed and the names of what failed (checks, and reasons that
+    belong to no check, such as a pose that cannot be solved on its own).
+    """
+    from payload_agent import quality
+
+    try:
+        q = quality.evaluate(deltas, kin, est, **kw)
+    except Exception as exc:  # noqa: BLE001 - a crash of the gate is a refusal, reported by name
+        return {"gate_passed": False, "gate_failed": [f"gate raised {type(exc).__name__}: {exc}"]}
+    failed = [c["check"] for c in q.get("checks", []) if not c.get("passed")]
+    listed = {c.get("reason") for c in q.get("checks", []) if not c.get("passed")}
+    failed += [r.split(" (")[0] for r in q.get("reasons", []) if r not in listed]  # without the numbers
+    return {"gate_passed": bool(q.get("passed")), "gate_failed": failed,
+            "gate_values": {c["check"]: c["value"] for c in q.get("checks", [])}}
+
+
 def run_case(args: tuple) -> list[dict]:
     """One payload, one scenario, one procedure: every PTP method's estimate."""
     scenario, proc, methods, index, mass, cog_mm, *rest = args
@@ -283,6 +305,9 @@ def run_case(args: tuple) -> list[dict]:
         return [dict(base, method=m, error=str(exc)) for m in methods]
     up_only = {k: d for k, d in deltas.items() if k.direction == "up"}
     for method in methods:
+        # the quality gate sees what the agent's analysis would: the method's deltas, the declared DH-length
+        # uncertainty and, after a calibration, the calibrated gains, their uncertainty and the reference
+        gate_deltas, gate_kw = (combined if method in ("general-bi", "general-bi-cal") else up_only), dict(kin_kw)
         try:
             if method == "three-step":
                 est, plan = three_step.solve(up_only, kin), plan_up
@@ -297,15 +322,16 @@ def run_case(args: tuple) -> list[dict]:
                     raise DataError(f"calibration unavailable ({exc})") from None
                 m_ref = REFERENCE[0]
                 theta_ref = [m_ref, *(m_ref * np.asarray(REFERENCE[1]) / 1000.0)]
-                est, plan = general.solve(_scaled(combined, scale), kin, name="general-bi-cal",
-                                          gain_rel_std=gain_rel_std, gain_reference=(theta_ref, fitted),
-                                          **kin_kw), plan_bi
+                gate_deltas = _scaled(combined, scale)
+                gate_kw.update(gain_rel_std=list(gain_rel_std), gain_reference=(theta_ref, fitted))
+                est, plan = general.solve(gate_deltas, kin, name="general-bi-cal", **gate_kw), plan_bi
             else:
                 raise ValueError(method)
         except PayloadAgentError as exc:
             rows.append(dict(base, method=method, error=str(exc)))
             continue
-        rows.append(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)))
+        rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)),
+                         **_gate(gate_deltas, kin, est, **gate_kw)))
     return rows
 
 
@@ -384,13 +410,21 @@ def summarize(rows: list[dict]) -> list[dict]:
             cc = [r["cog_in_ci95"] for r in ok if r["cog_in_ci95"] is not None]
             s["ci95_mass"] = float(np.mean(cm)) if cm else None
             s["ci95_cog"] = float(np.mean(cc)) if cc else None
+            gated = [r for r in ok if "gate_passed" in r]
+            if gated:  # a method that refused counts as neither pass nor fail of the gate
+                s["gate_pass_rate"] = float(np.mean([r["gate_passed"] for r in gated]))
+                counts: dict[str, int] = {}
+                for r in gated:
+                    for name in r["gate_failed"]:
+                        counts[name] = counts.get(name, 0) + 1
+                s["gate_failures"] = dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
         out.append(s)
     return out
 
 
 def format_table(summary: list[dict]) -> str:
     head = ["scenario", "procedure", "method", "Δm mean g", "Δm max g", "Δc mean mm", "Δc max mm",
-            "motion s", "rms(err/σ) m", "rms(err/σ) c", "in 95% m", "in 95% c", "failed"]
+            "motion s", "rms(err/σ) m", "rms(err/σ) c", "in 95% m", "in 95% c", "gate pass", "failed"]
     lines = []
     for s in summary:
         def f(key, fmt="{:.1f}"):
@@ -400,7 +434,8 @@ def format_table(summary: list[dict]) -> str:
         lines.append([s["scenario"], label, s["method"], f("mass_err_mean_g"),
                       f("mass_err_max_g"), f("cog_err_mean_mm", "{:.2f}"), f("cog_err_max_mm", "{:.2f}"),
                       f("motion_time_s", "{:.0f}"), f("z_rms_mass", "{:.2f}"), f("z_rms_cog", "{:.2f}"),
-                      f("ci95_mass", "{:.2f}"), f("ci95_cog", "{:.2f}"), f"{s['failed']}/{s['cases']}"])
+                      f("ci95_mass", "{:.2f}"), f("ci95_cog", "{:.2f}"), f("gate_pass_rate", "{:.2f}"),
+                      f"{s['failed']}/{s['cases']}"])
     widths = [max(len(r[i]) for r in [head, *lines]) for i in range(len(head))]
     text = ["| " + " | ".join(h.ljust(w) for h, w in zip(head, widths)) + " |",
             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
@@ -549,6 +584,11 @@ def main(argv: list[str] | None = None) -> int:
     print("  declared DH-length standard uncertainty: " + ", ".join(
         f"{sc} {declared_length_std_mm(sc, args.length_uncertainty_mm):.3g} mm" for sc in scenarios))
     print(format_table(summary))
+    for s in summary:
+        if s.get("gate_failures"):
+            label = s["procedure"] if "speed_percent" not in s else f"{s['speed_percent']:g} %"
+            print(f"  gate failures {s['scenario']} {label} {s['method']}: "
+                  + ", ".join(f"{name} ×{n}" for name, n in s["gate_failures"].items()))
     for r in rows:
         if "error" in r:
             print(f"  failed: {r['scenario']} {r['procedure']} {r['method']} payload {r['payload']}: {r['error']}")

@@ -108,3 +108,81 @@ def test_too_few_samples_fails(base):
 def test_missing_quality_refused():
     with pytest.raises(QualityGateError):
         require_passed({"mass_kg": 1.0})
+
+
+# --- the pose-agreement check with the primary solve's uncertainty terms -------------------------------
+
+CAL_GAIN_REL_STD = [0.03, 0.005, 0.005, 0.03, 0.03, 0.03]  # a calibration: joints 2-3 fitted, others nominal
+LENGTH_STD_M = 0.0005  # robot.kinematics.length_uncertainty_mm default
+
+
+def _arm_with_length_errors(kin, seed, size_m=LENGTH_STD_M):
+    """The nominal kinematics with every non-zero DH length off by ±size_m (random signs)."""
+    params = general.length_parameters(kin)
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], len(params))
+    for (row, which), s in zip(params, signs):
+        kin = general._perturbed(kin, row, which, s * size_m)
+    return kin
+
+
+def gate_with_terms(kin, deltas, **kw):
+    est = general.solve(deltas, kin, **kw)
+    q = evaluate(deltas, kin, est, **kw)
+    return q, RunResult("sim-ec66", "runs/x", est, quality=q)
+
+
+def test_pose_agreement_includes_dh_length_uncertainty():
+    """An arm whose DH lengths are off by 0.5 mm, measured with little noise: the two poses disagree by
+    more than their noise allows (a false alarm of a noise-only comparison) but not by more than the declared
+    length uncertainty allows. The length error is common to both poses, so the difference's σ (mass) is
+    well below the quadrature sum of the per-pose σ."""
+    config, sweeps = planned_sweeps(n=150)
+    kin = config.robot.kinematics
+    noise_only_failed = 0
+    for seed in range(2):
+        deltas = noisy(synthetic(sweeps, _arm_with_length_errors(kin, seed)), seed, noise=0.03)
+        q0, _ = gate(kin, deltas)
+        noise_only_failed += any(c.startswith("cog") and "pose" in c for c in failed(q0))
+        q, result = gate_with_terms(kin, deltas, length_std_m=LENGTH_STD_M)
+        assert q["passed"], (seed, q["reasons"])
+        require_passed(result)
+        mass = next(c for c in q["checks"] if c["check"] == "mass pose b vs pose d")
+        pb, pd = q["per_pose"]["b"], q["per_pose"]["d"]
+        assert mass["sigma_kg"] < 0.5 * np.hypot(pb["mass_std_kg"], pd["mass_std_kg"])
+        assert "DH-length" in q["pose_agreement_sigma"]
+    assert noise_only_failed  # what the terms are for
+
+
+@pytest.mark.parametrize("case", ["gain 10 % joint 3", "tool missing", "pose d +5 %", "too few samples"])
+def test_gross_faults_still_fail_with_uncertainty_terms(base, case):
+    """With a calibration's gain uncertainty and 0.5 mm length uncertainty in the checks, what must fail still does."""
+    kin, clean = base
+    kw = {"gain_rel_std": CAL_GAIN_REL_STD, "length_std_m": LENGTH_STD_M}
+    if case == "gain 10 % joint 3":
+        q, result = gate_with_terms(kin, noisy(clean, 1, joint_scale=np.array([1, 1, 1.10, 1, 1, 1.0])), **kw)
+        assert "drive gain consistency joint 3" in failed(q)
+    elif case == "tool missing":
+        deltas = noisy(clean, 0, drop_payload=True)
+        try:
+            q, result = gate_with_terms(kin, deltas, **kw)
+        except DataError as exc:
+            assert "not positive" in str(exc)
+            return
+        assert "mass significance" in failed(q)
+    elif case == "pose d +5 %":
+        q, result = gate_with_terms(kin, noisy(clean, 4, shift_pose="d"), **kw)
+        assert "mass pose b vs pose d" in failed(q)
+    else:
+        short = {k: dataclasses.replace(d, q=d.q[:40], dtau=d.dtau[:40]) for k, d in noisy(clean, 5).items()}
+        q, result = gate_with_terms(kin, short, **kw)
+        assert "samples per sweep (fewest)" in failed(q)
+    assert not q["passed"]
+    with pytest.raises(QualityGateError):
+        require_passed(result)
+
+
+def test_clean_runs_pass_with_uncertainty_terms(base):
+    kin, clean = base
+    for seed in range(3):
+        q, _ = gate_with_terms(kin, noisy(clean, seed), gain_rel_std=CAL_GAIN_REL_STD, length_std_m=LENGTH_STD_M)
+        assert q["passed"], (seed, q["reasons"])

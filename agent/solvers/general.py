@@ -286,6 +286,52 @@ def _perturbed(kin: Kinematics, row: int, which: str, h: float) -> Kinematics:
     return Kinematics(tuple(rows))
 
 
+def length_derivatives(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group]) -> list[np.ndarray]:
+    """∂Y/∂p_k for every DH length of ``length_parameters(kin)``, rows stacked as in ``groups``.
+
+    For fixed joint angles every position, hence every row of Y, is linear in the lengths, so one
+    finite difference is exact up to rounding.
+    """
+    joints = tuple(sorted({g.joint for g in groups}))
+    h = 1e-3
+    out = []
+    for row, which in length_parameters(kin):
+        by_label = {g.label: g.Y for g in build_groups(sweeps, _perturbed(kin, row, which, h), joints)}
+        out.append(np.vstack([(by_label[g.label] - g.Y) / h if g.label in by_label else -g.Y / h for g in groups]))
+    return out
+
+
+def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: list[np.ndarray],
+                          reference: tuple[Iterable[float], Iterable[int]]) -> dict[int, np.ndarray]:
+    """Per calibrated joint j: ε_j·k, the relative gain change a calibration's fit made per unit error of length k.
+
+    ε_jk = ⟨Y_j θ_ref, ∂Y_j/∂p_k θ_ref⟩ / ⟨Y_j θ_ref, Y_j θ_ref⟩ over joint j's rows of every sweep,
+    each one-direction moving-joint group's mean removed from Y_j θ_ref (the calibration fits it an
+    offset: friction the baseline left). The tool run's sweeps stand in for the calibration's
+    (same procedure).
+    """
+    theta_ref = np.asarray(list(reference[0]), float)
+    fitted = sorted(int(j) for j in reference[1])
+    Y = np.vstack([g.Y for g in groups])
+    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+    pred_ref = Y @ theta_ref
+    one_way = {d.key.name: d.moving for d in sweeps if d.key.direction != "both"}
+    centred = pred_ref.copy()
+    start = 0
+    for g in groups:
+        sl = slice(start, start + len(g.y))
+        if one_way.get(g.sweep, -1) == g.joint:
+            centred[sl] -= np.mean(pred_ref[sl])
+        start = sl.stop
+    eps: dict[int, np.ndarray] = {}
+    for j in fitted:
+        rows = joint_of_row == j
+        den = float(centred[rows] @ centred[rows]) if rows.any() else 0.0
+        if den > 0:
+            eps[j] = np.array([float(centred[rows] @ (d[rows] @ theta_ref)) / den for d in dY])
+    return eps
+
+
 def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], w: np.ndarray,
                             inv: np.ndarray, theta: np.ndarray,
                             reference: tuple[Iterable[float], Iterable[int]] | None = None) -> np.ndarray:
@@ -307,35 +353,14 @@ def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: l
     Y = np.vstack([g.Y for g in groups])
     pred = Y @ theta
     joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
-    joints = tuple(sorted({g.joint for g in groups}))
-    fitted: list[int] = []
-    if reference is not None:
-        theta_ref = np.asarray(list(reference[0]), float)
-        fitted = sorted(int(j) for j in reference[1])
-        pred_ref = Y @ theta_ref
-        # the calibration fits an offset to the moving joint of a one-direction sweep (friction the
-        # baseline left): its scale is then the regression on the prediction with that group's mean removed
-        one_way = {d.key.name: d.moving for d in sweeps if d.key.direction != "both"}
-        centred_ref = pred_ref.copy()
-        start = 0
-        for g in groups:
-            sl = slice(start, start + len(g.y))
-            if one_way.get(g.sweep, -1) == g.joint:
-                centred_ref[sl] -= np.mean(pred_ref[sl])
-            start = sl.stop
-    h = 1e-3  # Y is linear in the lengths: any step is exact up to rounding
+    dY = length_derivatives(sweeps, kin, groups)
+    eps = absorbed_length_error(sweeps, groups, dY, reference) if reference is not None else {}
     out = []
-    for row, which in length_parameters(kin):
-        by_label = {g.label: g.Y for g in build_groups(sweeps, _perturbed(kin, row, which, h), joints)}
-        dY = np.vstack([(by_label[g.label] - g.Y) / h if g.label in by_label else -g.Y / h for g in groups])
-        v = dY @ theta
-        if fitted:
-            dref = dY @ theta_ref
-            for j in fitted:
-                rows = joint_of_row == j
-                den = float(centred_ref[rows] @ centred_ref[rows]) if rows.any() else 0.0
-                if den > 0:
-                    v[rows] -= float(centred_ref[rows] @ dref[rows]) / den * pred[rows]
+    for k, d in enumerate(dY):
+        v = d @ theta
+        for j, e in eps.items():
+            rows = joint_of_row == j
+            v[rows] -= e[k] * pred[rows]
         out.append(inv @ (Y.T @ (w * v)))
     return np.array(out).reshape(-1, len(theta))
 
