@@ -91,8 +91,11 @@ def write_report(run_dir: Path, config: Config, history_db: Path | None = None, 
         notes.append(f"no empty-flange sweeps to plot: {exc}")
 
     figures: list[_Figure] = []
-    for key in sorted(loaded, key=lambda k: (k.pose, k.joint, k.direction)):
-        fig = _sweep_figure(key, loaded[key], empty.get(key), kin, theta, theta_from)
+    sweeps: dict[tuple, list] = {}  # both directions of one sweep share a figure
+    for key in sorted(loaded, key=lambda k: (k.pose, k.joint, k.speed_percent, k.direction != "up")):
+        sweeps.setdefault((key.pose, key.joint, key.speed_percent), []).append((key, loaded[key], empty.get(key)))
+    for legs in sweeps.values():
+        fig = _sweep_figure(legs, kin, theta, theta_from)
         if fig is not None:
             figures.append(fig)
     residual_fig = None
@@ -152,54 +155,64 @@ def _empty_at(empty: SweepData, x: np.ndarray, j: int, joints: Sequence[int]) ->
     return out
 
 
-def _sweep_figure(key: SweepKey, loaded: SweepData, empty: SweepData | None, kin, theta: np.ndarray | None,
+def _sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, theta: np.ndarray | None,
                   theta_from: str) -> _Figure | None:
+    """One figure per sweep: both directions on the same axes (their gap is the friction the
+    bidirectional combination cancels), each with its own model line."""
     from matplotlib.figure import Figure
 
-    j = key.joint - 1
+    from payload_agent.delta import window_of
+
+    key0, loaded0, _ = legs[0]
+    j = key0.joint - 1
     all_joints = list(range(6))
     if theta is not None:
-        step = max(1, len(loaded.q) // 30)  # the model is smooth: a coarse grid decides which joints matter
-        amp = np.max(np.abs(_model_torque(kin, loaded.q[::step], theta, all_joints)), axis=0)
+        step = max(1, len(loaded0.q) // 30)  # the model is smooth: a coarse grid decides which joints matter
+        amp = np.max(np.abs(_model_torque(kin, loaded0.q[::step], theta, all_joints)), axis=0)
         joints = [c for c in all_joints if amp[c] >= JOINT_SHARE * amp.max()] if amp.max() > 0 else [j]
     else:
         joints = [j]
     joints = joints[:3]
-    x_deg = np.degrees(loaded.q[:, j])
     fig = Figure(figsize=(10.5, 3.0), dpi=100, layout="constrained")
     axes = fig.subplots(1, len(joints), squeeze=False)[0]
-    model_q = model_x = model_y = None
-    if theta is not None and empty is not None:
-        from payload_agent.delta import window_of
-
-        w = window_of(loaded)
-        q_w = loaded.q[w.slice]
-        step = max(1, len(q_w) // 120)
-        q_w = q_w[::step]
-        base = _empty_at(empty, q_w[:, j], j, joints)
-        ok = ~np.isnan(base[:, 0])
-        model_q = q_w[ok]
-        model_x = np.degrees(model_q[:, j])
-        model_y = base[ok] + _model_torque(kin, model_q, theta, joints)
+    two_way = len(legs) > 1
+    for n, (key, loaded, empty) in enumerate(legs):
+        tag = f" ({key.direction})" if two_way else ""
+        alpha = 0.8 if n == 0 else 0.45
+        model_x = model_y = None
+        if theta is not None and empty is not None:
+            w = window_of(loaded)
+            q_w = loaded.q[w.slice]
+            q_w = q_w[::max(1, len(q_w) // 120)]
+            base = _empty_at(empty, q_w[:, j], j, joints)
+            ok = ~np.isnan(base[:, 0])
+            model_x = np.degrees(q_w[ok][:, j])
+            model_y = base[ok] + _model_torque(kin, q_w[ok], theta, joints)
+        for ax, c in zip(axes, joints):
+            if empty is not None:
+                ax.plot(np.degrees(empty.q[:, j]), empty.effort_nm[:, c], color=COLORS["empty"], lw=0.6,
+                        alpha=alpha, label="empty flange" + tag)
+            ax.plot(np.degrees(loaded.q[:, j]), loaded.effort_nm[:, c], color=COLORS["loaded"], lw=0.6,
+                    alpha=alpha, label="with tool" + tag)
+            if model_y is not None and len(model_x):
+                ax.plot(model_x, model_y[:, joints.index(c)], color=COLORS["model"], lw=1.6,
+                        ls="--" if n == 0 else ":", label=f"empty (smoothed) + model ({theta_from}){tag}")
     for ax, c in zip(axes, joints):
-        if empty is not None:
-            ax.plot(np.degrees(empty.q[:, j]), empty.effort_nm[:, c], color=COLORS["empty"], lw=0.6, alpha=0.8,
-                    label="empty flange")
-        ax.plot(x_deg, loaded.effort_nm[:, c], color=COLORS["loaded"], lw=0.6, alpha=0.8, label="with tool")
-        if model_y is not None and len(model_x):
-            ax.plot(model_x, model_y[:, joints.index(c)], color=COLORS["model"], lw=1.6, ls="--",
-                    label=f"empty (smoothed) + model ({theta_from})")
         ax.set_title(f"joint {c + 1}", fontsize=10)
-        ax.set_xlabel(f"joint {key.joint} angle [deg]")
+        ax.set_xlabel(f"joint {key0.joint} angle [deg]")
         ax.set_ylabel("effort [N·m]")
         ax.grid(alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside upper right", ncols=len(labels), fontsize=8, frameon=False)
-    fig.suptitle(f"sweep {key.name} ({key.speed_percent:g} % speed)", fontsize=11, x=0.02, ha="left")
+    fig.legend(handles, labels, loc="outside upper right", ncols=3 if two_way else len(labels), fontsize=8,
+               frameon=False)
+    name = key0.name.rsplit("-", 1)[0] + (" up and down" if two_way else f" {key0.direction}")
+    fig.suptitle(f"sweep {name} ({key0.speed_percent:g} % speed)", fontsize=11, x=0.02, ha="left")
     caption = ("Raw effort × gain over the whole move (standstill, ramps and constant speed). The model is the "
                f"empty-flange effort smoothed by a degree-{EMPTY_FIT_DEGREE} polynomial in the angle plus Y(q)·θ̂, "
-               "drawn over the constant-speed window only.")
-    return _Figure(f"Sweep {key.name}", _png(fig), caption)
+               "drawn over the constant-speed window only."
+               + (" Up and down legs differ by the friction that the bidirectional combination cancels."
+                  if two_way else ""))
+    return _Figure(f"Sweep {name}", _png(fig), caption)
 
 
 def _residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, SweepData], kin,

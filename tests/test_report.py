@@ -102,6 +102,10 @@ def run_dir(cfg, tmp_path_factory):
     return make_run(tmp_path_factory.mktemp("report"), cfg)
 
 
+def _n_sweep_figures(cfg) -> int:
+    return len({(m.sweep.pose, m.sweep.joint) for m in make_plan(cfg).sweeps})
+
+
 class _Collect(HTMLParser):
     def __init__(self):
         super().__init__()
@@ -145,8 +149,8 @@ def test_report_is_self_contained_html_with_png_plots(report_with_history, run_d
     parser = _Collect()
     parser.feed(text)
     assert parser.errors == [] and parser.stack == []  # every tag closed, properly nested
-    # one figure per sweep + residuals + history trend, each an inline PNG
-    assert len(parser.imgs) == len(make_plan(cfg).sweeps) + 2
+    # one figure per sweep (both directions together) + residuals + history trend, each an inline PNG
+    assert len(parser.imgs) == _n_sweep_figures(cfg) + 2
     for src in parser.imgs:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1]).startswith(PNG_SIGNATURE)
@@ -161,7 +165,7 @@ def test_report_without_history_and_custom_path(run_dir, cfg, tmp_path):
     out = write_report(run_dir, cfg, out_path=tmp_path / "sub" / "r.html")
     assert out == tmp_path / "sub" / "r.html"
     text = out.read_text(encoding="utf-8")
-    assert len(re.findall(r'<img [^>]*src="data:image/png;base64,', text)) == len(make_plan(cfg).sweeps) + 1
+    assert len(re.findall(r'<img [^>]*src="data:image/png;base64,', text)) == _n_sweep_figures(cfg) + 1
     assert "<h2>History</h2>" not in text
 
 
