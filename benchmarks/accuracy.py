@@ -30,6 +30,11 @@ Declared kinematic uncertainty (``--length-uncertainty-mm``): what the agent is 
 lengths, propagated into the general solver's σ. By default it matches each scenario's simulated
 arm, as a correctly configured agent would: 0 in "ideal" (exact lengths), 0.5/√3 ≈ 0.29 mm in the
 realistic scenarios (the standard deviation of a uniform ±0.5 mm error).
+Declared drive-gain uncertainty of the joints the calibration does not fit
+(``--unfitted-gain-uncertainty-percent``; ``general-bi-cal`` only): the agent's
+``GainCalibration.gain_rel_std(unfitted=...)``, whose default is ``UNFITTED_GAIN_REL_STD`` (3 %).
+Like the DH lengths, by default it matches each scenario's simulated arm: 0 in "ideal" and
+"realistic-exact-gains" (exact gains), 3/√3 ≈ 1.73 % in "realistic" (uniform ±3 %).
 Methods
   three-step      the paper's solver, "up" sweeps only (as published)
   general-up      weighted least squares, "up" sweeps only
@@ -73,6 +78,7 @@ COULOMB_NM = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5)
 VISCOUS_NM_S_RAD = (8.0, 8.0, 5.0, 1.0, 1.0, 0.5)
 TICK_S = 0.008  # the Elite monitor's sample period
 DH_ERROR_MM = 0.5  # realistic scenarios: every non-zero DH length off by uniform ±this
+GAIN_ERROR = 0.03  # realistic scenario: every drive gain off by uniform ±this (relative)
 REFERENCE = (3.0, (0.0, 0.0, 80.0))  # calibration payload: kg, mm in the flange frame
 CHI2_3_95 = 7.814727903251178  # 95 % quantile of χ² with 3 degrees of freedom
 EXCITATION_LABEL = "excitation"
@@ -167,7 +173,7 @@ def robot_draws(scenario: str, index: int) -> dict:
     spec = SPECS["ec66"]()
     if scenario.startswith("realistic"):
         spec = spec.with_dh_errors(rng, DH_ERROR_MM / 1000.0)
-        gain = rng.uniform(0.97, 1.03, 6)
+        gain = rng.uniform(1.0 - GAIN_ERROR, 1.0 + GAIN_ERROR, 6)
         if scenario == "realistic-exact-gains":
             gain = np.ones(6)
         drift_load, drift_ref = (float(v) for v in rng.uniform(-0.10, 0.10, 2))
@@ -187,6 +193,18 @@ def declared_length_std_mm(scenario: str, override: float | None = None) -> floa
     if override is not None:
         return float(override)
     return DH_ERROR_MM / math.sqrt(3.0) if scenario.startswith("realistic") else 0.0
+
+
+def declared_unfitted_gain_std(scenario: str, override_percent: float | None = None) -> float:
+    """Relative gain uncertainty the agent declares for joints its calibration does not fit.
+
+    Default: the simulated arm's own, the standard deviation of its uniform ±GAIN_ERROR gain errors
+    in "realistic" and 0 where the gains are exact ("ideal", "realistic-exact-gains"), as the
+    DH-length term (``declared_length_std_mm``). The agent's own default is ``UNFITTED_GAIN_REL_STD``.
+    """
+    if override_percent is not None:
+        return float(override_percent) / 100.0
+    return GAIN_ERROR / math.sqrt(3.0) if scenario == "realistic" else 0.0
 
 
 def _robot(draws: dict, start: np.ndarray, seed_extra: int):
@@ -229,14 +247,15 @@ def _scaled(deltas: dict, scale: np.ndarray) -> dict:
     return {k: DeltaSweep(d.key, d.q, d.dtau * scale, d.speed_rad_s) for k, d in deltas.items()}
 
 
-def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+def _calibrate(robot, plan_bi, empty, draws, config, unfitted_std: float
+               ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
     """Gain scale, relative gain uncertainty and fitted joints from the reference payload on the same robot.
 
     agent/calibration.py fits the joints that carry enough reference torque; as in the agent's
-    own analysis (``GainCalibration.gain_rel_std``) the others keep their nominal gain with
-    ``UNFITTED_GAIN_REL_STD`` as its uncertainty.
+    own analysis (``GainCalibration.gain_rel_std(unfitted=...)``) the others keep their nominal
+    gain with ``unfitted_std`` (``declared_unfitted_gain_std``) as its uncertainty.
     """
-    from payload_agent.calibration import UNFITTED_GAIN_REL_STD, fit_gains_from_deltas
+    from payload_agent.calibration import fit_gains_from_deltas
     from payload_agent.combine import add_combined
     from payload_agent.delta import subtract_all
     from payload_agent.fakes.offline import record_plan
@@ -249,7 +268,7 @@ def _calibrate(robot, plan_bi, empty, draws, config) -> tuple[np.ndarray, np.nda
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics,
                                                      np.asarray(config.effort.gains_nm_per_unit),
                                                      REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
-    rel_std = np.array([scale_std[j] if j in fitted else UNFITTED_GAIN_REL_STD for j in range(len(scale))])
+    rel_std = np.array([scale_std[j] if j in fitted else unfitted_std for j in range(len(scale))])
     return np.asarray(scale, float), rel_std, tuple(fitted)
 
 
@@ -277,6 +296,7 @@ def run_case(args: tuple) -> list[dict]:
     """One payload, one scenario, one procedure: every PTP method's estimate."""
     scenario, proc, methods, index, mass, cog_mm, *rest = args
     length_std_mm = declared_length_std_mm(scenario, rest[0] if rest else None)
+    unfitted_std = declared_unfitted_gain_std(scenario, rest[1] if len(rest) > 1 else None)
     kin_kw = {"length_std_m": length_std_mm / 1000.0}
     from payload_agent.combine import add_combined
     from payload_agent.delta import subtract_all
@@ -297,6 +317,8 @@ def run_case(args: tuple) -> list[dict]:
 
     base = {"scenario": scenario, "procedure": proc.label, "procedure_settings": dataclasses.asdict(proc),
             "payload": index, "length_std_mm": length_std_mm}
+    if "general-bi-cal" in methods:
+        base["unfitted_gain_std_percent"] = 100.0 * unfitted_std
     rows = []
     try:
         deltas = subtract_all(loaded, empty)
@@ -317,7 +339,8 @@ def run_case(args: tuple) -> list[dict]:
                 est, plan = general.solve(combined, kin, **kin_kw), plan_bi
             elif method == "general-bi-cal":
                 try:
-                    scale, gain_rel_std, fitted = _calibrate(robot, plan_bi, empty, draws, config_bi)
+                    scale, gain_rel_std, fitted = _calibrate(robot, plan_bi, empty, draws, config_bi,
+                                                                 unfitted_std)
                 except ImportError as exc:
                     raise DataError(f"calibration unavailable ({exc})") from None
                 m_ref = REFERENCE[0]
@@ -525,6 +548,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--length-uncertainty-mm", type=float, default=None, metavar="MM",
                    help="DH-length standard uncertainty the agent declares, every scenario (default: the "
                    f"simulated arm's own: 0 ideal, {DH_ERROR_MM:g}/√3 mm realistic)")
+    p.add_argument("--unfitted-gain-uncertainty-percent", type=float, default=None, metavar="PCT",
+                   help="relative drive-gain standard uncertainty general-bi-cal declares for the joints its "
+                   "calibration does not fit, every scenario (default: the simulated arm's own: 0 ideal and "
+                   f"realistic-exact-gains, {100 * GAIN_ERROR:g}/√3 %% realistic; the agent's default is 3 %%)")
     p.add_argument("--jobs", type=int, default=0, help="worker processes (default: all CPUs)")
     p.add_argument("--json", help="write the summary rows and every case to this path")
     p.add_argument("--plot", help="save the error-vs-speed figure here (e.g. docs/benchmark-error-vs-speed.png)")
@@ -559,7 +586,8 @@ def main(argv: list[str] | None = None) -> int:
     pays = payloads(n)
     cases: list[tuple] = []
     if ptp_methods:
-        cases += [("ptp", (sc, pr, ptp_methods, i, m, c, args.length_uncertainty_mm)) for sc in scenarios
+        cases += [("ptp", (sc, pr, ptp_methods, i, m, c, args.length_uncertainty_mm,
+                           args.unfitted_gain_uncertainty_percent)) for sc in scenarios
                   for pr in procs for i, (m, c) in enumerate(pays)]
     if "dynamic" in methods:
         cases += [("dynamic", (sc, i, m, c)) for sc in scenarios for i, (m, c) in enumerate(pays)]
@@ -583,6 +611,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  procedure {proc.label}: {proc.describe()}")
     print("  declared DH-length standard uncertainty: " + ", ".join(
         f"{sc} {declared_length_std_mm(sc, args.length_uncertainty_mm):.3g} mm" for sc in scenarios))
+    if "general-bi-cal" in methods:
+        print("  declared gain standard uncertainty of joints the calibration does not fit: " + ", ".join(
+            f"{sc} {100 * declared_unfitted_gain_std(sc, args.unfitted_gain_uncertainty_percent):.3g} %"
+            for sc in scenarios))
     print(format_table(summary))
     for s in summary:
         if s.get("gate_failures"):
