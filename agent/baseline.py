@@ -194,7 +194,7 @@ def status_line(state: RobotState, config: Config, plan: Plan) -> str:
             f"serial {stored.controller.get('serial', '?')}; a run records only the loaded run")
 
 
-def copy_into_run(state: RobotState, run_dir: Path) -> dict[str, Any]:
+def copy_into_run(state: RobotState, info: BaselineInfo, run_dir: Path) -> dict[str, Any]:
     """Copy the stored baseline's empty phase into a run folder, so the run stays self-contained
     (``solve`` and ``report`` work on it later even after the baseline was re-recorded).
 
@@ -206,7 +206,6 @@ def copy_into_run(state: RobotState, run_dir: Path) -> dict[str, Any]:
         raise BaselineError(f"{state.baseline_dir}: the stored baseline has no complete empty phase; "
                             "record a new one with `payload-agent baseline`")
     shutil.copytree(state.baseline_dir / "empty", Path(run_dir) / "empty")
-    info = load_baseline(state)
-    phase["from_baseline"] = {"dir": str(state.baseline_dir), "recorded_utc": info.recorded_utc if info else None,
-                              "source_run": info.source_run if info else None}
+    phase["from_baseline"] = {"dir": str(state.baseline_dir), "recorded_utc": info.recorded_utc,
+                              "source_run": info.source_run}
     return phase

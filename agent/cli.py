@@ -75,15 +75,12 @@ def _cmd_history(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from payload_agent.config import parse_config
     from payload_agent.report import write_report
     from payload_agent.rundata import load_manifest
     from payload_agent.state import RobotState
 
     run_dir = Path(args.run_dir)
-    manifest = load_manifest(run_dir)
-    config = load_config(args.robot) if args.robot else parse_config(manifest["config"],
-                                                                     source=f"{run_dir}/manifest.json")
+    config = _run_config(args, run_dir, load_manifest(run_dir))
     db = RobotState.for_config(config).history_db
     path = write_report(run_dir, config, history_db=db if db.exists() else None,
                         out_path=Path(args.out) if args.out else None)
@@ -148,16 +145,23 @@ def _cmd_plan(args) -> int:
     return 0 if verdict.ok or (start is None and len(verdict.problems) == 1) else 2
 
 
+def _run_config(args, run_dir: Path, manifest: dict):
+    """The config a recorded run is analysed with: --robot if given, else the one stored in its manifest."""
+    from payload_agent.config import parse_config
+
+    if args.robot:
+        return load_config(args.robot)
+    return parse_config(manifest["config"], source=f"{run_dir}/manifest.json")
+
+
 def _cmd_solve(args) -> int:
     from payload_agent.rundata import load_manifest
-    from payload_agent.config import parse_config
     from payload_agent.results import format_table
     from payload_agent.runner import analyse
 
     run_dir = Path(args.run_dir)
     manifest = load_manifest(run_dir)
-    config = load_config(args.robot) if args.robot else parse_config(manifest["config"],
-                                                                     source=f"{run_dir}/manifest.json")
+    config = _run_config(args, run_dir, manifest)
     result = analyse(config, run_dir, solver=args.solver,
                      baseline_dir=Path(args.baseline) if args.baseline else None)
     print(format_table(result, manifest.get("simulation_truth")))

@@ -203,8 +203,8 @@ def _temperatures(driver: Driver) -> list[float] | None:
 
 
 def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: baselines.BaselineInfo,
-                out) -> tuple[list[tuple[str, bool]], Path | None, bool]:
-    """(phases to record, stored baseline folder to use or None, store this session's empty run?)."""
+                out) -> tuple[list[tuple[str, bool]], baselines.BaselineInfo | None, bool]:
+    """(phases to record, the stored baseline to use or None, store this session's empty run?)."""
     if opts.mode == "baseline":
         return [("empty", False)], None, True
     if opts.fresh_baseline:
@@ -226,7 +226,7 @@ def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: ba
         temps = f", joint temperatures within {worst:.1f} °C of then"
     out(f"Using the stored empty-flange baseline of {stored.recorded_utc} ({state.baseline_dir}{temps}); "
         "only the loaded run is recorded.")
-    return [("loaded", True)], state.baseline_dir, False
+    return [("loaded", True)], stored, False
 
 
 def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
@@ -273,7 +273,7 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
                 "`payload-agent calibrate` with a known reference payload removes their error")
         current = baselines.describe_for(config, plan, info, source_run=Path("."),
                                          joint_temperatures_c=_temperatures(driver))
-        phases, baseline_dir, store_empty = _phases_for(config, opts, state, current, out)
+        phases, stored_info, store_empty = _phases_for(config, opts, state, current, out)
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         suffix = {"identify": "", "baseline": "-baseline", "calibrate": "-calibration"}[opts.mode]
         run_dir = config.storage.runs_dir / f"{stamp}-{config.robot.name}{suffix}"
@@ -281,7 +281,6 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         while run_dir.exists():
             n += 1
             run_dir = config.storage.runs_dir / f"{stamp}-{config.robot.name}{suffix}-{n}"
-        stored_info = baselines.load_baseline(state) if baseline_dir is not None else None
         recorder = RunRecorder(run_dir, {
             "format": "payload-agent-run/1", "software_version": __version__, "robot": config.robot.name,
             "mode": opts.mode, "tool": opts.tool,
@@ -290,13 +289,13 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
             "effort_unit": driver.effort_unit, "gains_nm_per_unit": list(config.effort.gains_nm_per_unit),
             "procedure": plan.procedure.name, "plan_fingerprint": plan.fingerprint(),
             "plan": [m.to_json() for m in plan.moves],
-            "baseline": None if stored_info is None else {"dir": str(baseline_dir), **stored_info.to_json()},
+            "baseline": None if stored_info is None else {"dir": str(state.baseline_dir), **stored_info.to_json()},
             "reference_payload": None if opts.reference is None else {
                 "mass_kg": opts.reference.mass_kg, "cog_mm": [1000 * c for c in opts.reference.cog_m]},
             "simulation_truth": cell.truth_json if cell else None,
         })
-        if baseline_dir is not None:  # the run folder keeps its own copy: it stays self-contained
-            recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, recorder.run_dir)
+        if stored_info is not None:  # the run folder keeps its own copy: it stays self-contained
+            recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
             recorder.write_manifest()
         session = _Session(config, driver, gate, recorder, out)
         driver.start_stream(session.sink)
@@ -396,21 +395,16 @@ def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver,
 
 def _record_history(config: Config, opts: RunOptions, state: RobotState, result: RunResult,
                     stored: baselines.BaselineInfo | None, out) -> int | None:
+    if opts.mode == "calibrate":
+        return None  # a reference payload, not a tool: kept out of the tool history
     from payload_agent import history
 
-    est = result.primary
-    entry = history.HistoryEntry(
-        robot=config.robot.name, run_dir=str(result.run_dir), solver=est.solver, mass_kg=float(est.mass_kg),
-        cog_mm=tuple(float(c) for c in est.cog_mm), mass_std_kg=est.mass_std_kg,
-        cog_std_mm=None if est.cog_std_m is None else tuple(1000.0 * s for s in est.cog_std_m),
-        quality_passed=bool(result.quality.get("passed", False)),
-        quality_reasons=list(result.quality.get("reasons", [])), tool=opts.tool,
+    entry = history.HistoryEntry.from_result_json(
+        result.to_json(), tool=opts.tool,
         baseline_run_dir=None if stored is None else stored.source_run,
         baseline_fingerprint=None if stored is None else stored.plan_fingerprint,
         gains_note=result.extra.get("gains_source"),
         config_fingerprint=config.fingerprint("robot", "effort", "procedure"))
-    if opts.mode == "calibrate":
-        return None  # a reference payload, not a tool: kept out of the tool history
     entry_id = history.record(state.ensure().history_db, entry)
     flag = history.flag_for(state.history_db, entry_id)
     if flag is not None:

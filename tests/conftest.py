@@ -1,4 +1,5 @@
 import copy
+import math
 from pathlib import Path
 
 import pytest
@@ -36,3 +37,18 @@ def tweak(data, path, value):
 
 
 DELETE = object()
+
+EC66_Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]  # the fakes' tests start the EC66 here
+EC66_TIME_SCALE = 40.0
+
+
+@pytest.fixture
+def ec66_sim():
+    """A running simulated EC66 (no payload) at EC66_Q0, 40x faster than wall time; closed afterwards."""
+    from payload_agent.fakes.arms import ec66_spec
+    from payload_agent.fakes.sim_robot import SimRobot
+
+    robot = SimRobot(ec66_spec(), q0_rad=EC66_Q0, tick_s=0.008, time_scale=EC66_TIME_SCALE)
+    robot.start()
+    yield robot
+    robot.close()

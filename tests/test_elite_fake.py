@@ -13,21 +13,18 @@ import pytest
 
 pytest.importorskip("mujoco")
 
+from conftest import EC66_Q0, EC66_TIME_SCALE  # noqa: E402
 from payload_agent.fakes.arms import ec66_spec  # noqa: E402
 from payload_agent.fakes.elite_ec import NOT_REMOTE_CODE, FakeEliteController  # noqa: E402
 from payload_agent.fakes.elite_ec_monitor import FRAME_SIZE, MONITOR_LAYOUT, unpack_frame  # noqa: E402
-from payload_agent.fakes.sim_robot import SimRobot  # noqa: E402
 
-Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]
-TIME_SCALE = 40.0
+Q0 = EC66_Q0
+TIME_SCALE = EC66_TIME_SCALE
 
 
 @pytest.fixture
-def sim():
-    robot = SimRobot(ec66_spec(), q0_rad=Q0, tick_s=0.008, time_scale=TIME_SCALE)
-    robot.start()
-    yield robot
-    robot.close()
+def sim(ec66_sim):
+    return ec66_sim
 
 
 @pytest.fixture
