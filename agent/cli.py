@@ -12,12 +12,12 @@ import sys
 from pathlib import Path
 
 from payload_agent import __version__
-from payload_agent.config import load_config
+from payload_agent.configuration.config import load_config
 from payload_agent.errors import ConfigError, PayloadAgentError, QualityGateError
 
 
 def _run_options(args, mode: str, **extra):
-    from payload_agent.runner import RunOptions
+    from payload_agent.session.runner import RunOptions
 
     return RunOptions(mode=mode, unattended=args.unattended, assume_yes=args.yes,
                       result_path=Path(args.result) if getattr(args, "result", None) else None,
@@ -27,7 +27,7 @@ def _run_options(args, mode: str, **extra):
 
 
 def _cmd_run(args) -> int:
-    from payload_agent.runner import run_identification
+    from payload_agent.session.runner import run_identification
 
     config = load_config(args.robot)
     run_identification(config, _run_options(args, "identify", apply=args.apply))
@@ -35,7 +35,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_baseline(args) -> int:
-    from payload_agent.runner import run_identification
+    from payload_agent.session.runner import run_identification
 
     config = load_config(args.robot)
     run_identification(config, _run_options(args, "baseline"))
@@ -43,8 +43,8 @@ def _cmd_baseline(args) -> int:
 
 
 def _cmd_calibrate(args) -> int:
-    from payload_agent.drivers.base import PayloadSetting
-    from payload_agent.runner import run_identification
+    from payload_agent.types import PayloadSetting
+    from payload_agent.session.runner import run_identification
 
     config = load_config(args.robot)
     try:
@@ -61,8 +61,8 @@ def _cmd_calibrate(args) -> int:
 
 
 def _cmd_history(args) -> int:
-    from payload_agent import history
-    from payload_agent.state import RobotState
+    from payload_agent.output import history
+    from payload_agent.recording.state import RobotState
 
     config = load_config(args.robot)
     db = RobotState.for_config(config).history_db
@@ -75,9 +75,9 @@ def _cmd_history(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from payload_agent.report import write_report
-    from payload_agent.rundata import load_manifest
-    from payload_agent.state import RobotState
+    from payload_agent.output.report import write_report
+    from payload_agent.recording.rundata import load_manifest
+    from payload_agent.recording.state import RobotState
 
     run_dir = Path(args.run_dir)
     config = _run_config(args, run_dir, load_manifest(run_dir))
@@ -89,13 +89,13 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_watch(args) -> int:
-    from payload_agent.runner import RunOptions, make_driver, run_identification
-    from payload_agent.watch import watch
+    from payload_agent.session.runner import RunOptions, make_driver, run_identification
+    from payload_agent.session.watch import watch
 
     config = load_config(args.robot)
     cell = None
     if config.simulation is not None:  # one simulated cell for the whole watch: its inputs can be set
-        from payload_agent.simulation import SimulatedCell
+        from payload_agent.session.simulation import SimulatedCell
 
         cell = SimulatedCell(config).start()
 
@@ -114,11 +114,11 @@ def _cmd_watch(args) -> int:
 def _cmd_plan(args) -> int:
     import numpy as np
 
-    from payload_agent.baseline import status_line
-    from payload_agent.planner import expected_durations, make_plan
-    from payload_agent.runner import describe_plan
-    from payload_agent.state import RobotState
-    from payload_agent.safety import SafetyGate
+    from payload_agent.session.baseline import status_line
+    from payload_agent.motion.planner import expected_durations, make_plan
+    from payload_agent.session.runner import describe_plan
+    from payload_agent.recording.state import RobotState
+    from payload_agent.motion.safety import SafetyGate
 
     config = load_config(args.robot)
     plan = make_plan(config)
@@ -134,7 +134,7 @@ def _cmd_plan(args) -> int:
         if start.shape != (6,):
             raise ConfigError("--from-deg", f"expected six joint angles, got {start.size}")
     elif args.connect:
-        from payload_agent.runner import read_current_q
+        from payload_agent.session.runner import read_current_q
 
         start = read_current_q(config)
         print("Robot stands at [" + ", ".join(f"{v:.2f}" for v in np.degrees(start)) + "] deg")
@@ -147,7 +147,7 @@ def _cmd_plan(args) -> int:
 
 def _run_config(args, run_dir: Path, manifest: dict):
     """The config a recorded run is analysed with: --robot if given, else the one stored in its manifest."""
-    from payload_agent.config import parse_config
+    from payload_agent.configuration.config import parse_config
 
     if args.robot:
         return load_config(args.robot)
@@ -155,9 +155,9 @@ def _run_config(args, run_dir: Path, manifest: dict):
 
 
 def _cmd_solve(args) -> int:
-    from payload_agent.rundata import load_manifest
-    from payload_agent.results import format_table
-    from payload_agent.runner import analyse
+    from payload_agent.recording.rundata import load_manifest
+    from payload_agent.solvers.results import format_table
+    from payload_agent.session.runner import analyse
 
     run_dir = Path(args.run_dir)
     manifest = load_manifest(run_dir)

@@ -72,3 +72,15 @@ class DataError(PayloadAgentError):
     """Recorded data is missing, inconsistent or insufficient for the analysis asked for."""
 
     exit_code = 5
+
+
+class SupervisionTrip(CommunicationError):
+    """The motion supervision stopped the arm: the sample stream or the command connection failed mid-move.
+
+    ``stop_report`` (payload_agent.types.StopReport) says how fast the stop went out and whether
+    the controller acknowledged it.
+    """
+
+    def __init__(self, message: str, stop_report=None):
+        self.stop_report = stop_report
+        super().__init__(message)

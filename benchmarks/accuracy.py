@@ -122,7 +122,7 @@ def payloads(n: int, seed: int = 2025) -> list[tuple[float, tuple[float, float, 
 
 
 def _config(proc: Procedure, bidirectional: bool):
-    from payload_agent.config import load_config
+    from payload_agent.configuration.config import load_config
 
     config = load_config(CONFIG)
     pc = dataclasses.replace(config.procedure, speed_percent=proc.speed, travel_speed_percent=proc.travel,
@@ -134,7 +134,7 @@ def _config(proc: Procedure, bidirectional: bool):
 @functools.lru_cache(maxsize=None)
 def plans(proc: Procedure):
     """(bidirectional plan, unidirectional plan, bidirectional config), once per worker and procedure."""
-    from payload_agent.planner import make_plan
+    from payload_agent.motion.planner import make_plan
 
     config_bi = _config(proc, True)
     return make_plan(config_bi), make_plan(_config(proc, False)), config_bi
@@ -142,7 +142,7 @@ def plans(proc: Procedure):
 
 def motion_time_s(plan) -> float:
     """Robot time of one run without the approach move (which depends on where the robot stands)."""
-    from payload_agent.planner import move_duration_s
+    from payload_agent.motion.planner import move_duration_s
 
     total, prev = 0.0, None
     for m in plan.moves:
@@ -155,8 +155,8 @@ def motion_time_s(plan) -> float:
 
 def check_safety(proc: Procedure) -> list[str]:
     """The safety gate's problems with this procedure's bidirectional plan (empty: it would run)."""
-    from payload_agent.planner import make_plan
-    from payload_agent.safety import SafetyGate
+    from payload_agent.motion.planner import make_plan
+    from payload_agent.motion.safety import SafetyGate
 
     config = _config(proc, True)
     plan = make_plan(config)
@@ -242,7 +242,7 @@ def _row(base: dict, est, mass: float, cog_mm, motion: float) -> dict:
 
 
 def _scaled(deltas: dict, scale: np.ndarray) -> dict:
-    from payload_agent.delta import DeltaSweep
+    from payload_agent.analysis.delta import DeltaSweep
 
     return {k: DeltaSweep(d.key, d.q, d.dtau * scale, d.speed_rad_s) for k, d in deltas.items()}
 
@@ -255,9 +255,9 @@ def _calibrate(robot, plan_bi, empty, draws, config, unfitted_std: float
     own analysis (``GainCalibration.gain_rel_std(unfitted=...)``) the others keep their nominal
     gain with ``unfitted_std`` (``declared_unfitted_gain_std``) as its uncertainty.
     """
-    from payload_agent.calibration import fit_gains_from_deltas
-    from payload_agent.combine import add_combined
-    from payload_agent.delta import subtract_all
+    from payload_agent.evaluation.calibration import fit_gains_from_deltas
+    from payload_agent.analysis.combine import add_combined
+    from payload_agent.analysis.delta import subtract_all
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
 
@@ -279,7 +279,7 @@ def _gate(deltas: dict, kin, est, **kw) -> dict:
     passes them. Returns whether it passed and the names of what failed (checks, and reasons that
     belong to no check, such as a pose that cannot be solved on its own).
     """
-    from payload_agent import quality
+    from payload_agent.evaluation import quality
 
     try:
         q = quality.evaluate(deltas, kin, est, **kw)
@@ -298,8 +298,8 @@ def run_case(args: tuple) -> list[dict]:
     length_std_mm = declared_length_std_mm(scenario, rest[0] if rest else None)
     unfitted_std = declared_unfitted_gain_std(scenario, rest[1] if len(rest) > 1 else None)
     kin_kw = {"length_std_m": length_std_mm / 1000.0}
-    from payload_agent.combine import add_combined
-    from payload_agent.delta import subtract_all
+    from payload_agent.analysis.combine import add_combined
+    from payload_agent.analysis.delta import subtract_all
     from payload_agent.errors import DataError, PayloadAgentError
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
@@ -362,7 +362,7 @@ def run_case(args: tuple) -> list[dict]:
 def _excitation_trajectory():
     from payload_agent.fakes.arms import SPECS
     from payload_agent.fakes.excitation import default_start, design_trajectory
-    from payload_agent.kinematics import Kinematics
+    from payload_agent.model.kinematics import Kinematics
 
     kin = Kinematics(SPECS["ec66"]().dh)  # the experimenter designs on the nominal model
     return design_trajectory(kin, default_start(kin), seed=1)
@@ -371,7 +371,7 @@ def _excitation_trajectory():
 def run_dynamic_case(args: tuple) -> list[dict]:
     """One payload, one scenario: the dynamic baseline along the excitation trajectory."""
     scenario, index, mass, cog_mm = args
-    from payload_agent.config import load_config
+    from payload_agent.configuration.config import load_config
     from payload_agent.errors import PayloadAgentError
     from payload_agent.fakes.excitation import record_excitation
     from payload_agent.fakes.physics import PayloadTruth

@@ -1,96 +1,147 @@
 """The driver contract: the only way payload-agent talks to a controller.
 
-A driver knows one protocol family. It never sees a plan or a least-squares
-matrix; it moves, streams samples and reports state. Only the safety gate calls
-``move_joints`` (see ``payload_agent.safety``).
+A driver knows one protocol family. It never sees a plan or a least-squares matrix; it
+moves, streams samples and reports state. Only the safety gate calls ``move_joints``
+(see ``payload_agent.motion.safety``).
+
+The base class does the work every protocol needs, the way python-can's ``BusABC`` does:
+
+- the **sample stream**: a reader thread calls the driver's one hook ``_read_sample`` from
+  ``connect()`` to ``close()``, keeps the newest sample, hands every sample to the sink, and
+  keeps per-sweep statistics (``begin_stats`` / ``end_stats``);
+- **supervision** of every move: a watchdog trips when the stream stalls for longer than
+  ``gap_limit_s``, when the stream fails (garbage, NaN, closed) or when the command connection
+  dies; it then stops the arm within a fraction of a second, over the command channel if it
+  still lives and otherwise over a new connection, retries until the controller acknowledges
+  or ``stop_ack_timeout_s`` has passed, and ``move_joints`` raises ``SupervisionTrip`` with a
+  ``StopReport`` saying which happened.
+
+A driver fills the hooks: ``_open``/``_close``, ``_read_sample``, ``_move_joints`` (which
+polls ``check_supervision()`` while it waits), ``_stop_command`` and ``_stop_fresh``, and
+``identify``/``state``. Its options are a typed dataclass (``options_class``) read by the
+project's YAML validator, so ``plan`` checks them without connecting.
 """
 
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
+from payload_agent.configuration.options import option, parse_options
+from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, PayloadAgentError,
+                                  SupervisionTrip, UnsupportedCapability)
+from payload_agent.types import (ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample, StopReport,
+                                 StreamStats)
 
-@dataclass(frozen=True)
-class Sample:
-    """One reading of the robot: joint angles and the controller's effort signal."""
-
-    t_ctrl: float | None  # controller timestamp in seconds, if the protocol has one
-    t_recv: float  # time.monotonic() when the sample was received
-    q: tuple[float, ...]  # joint angles, rad, controller convention
-    effort: tuple[float, ...]  # per joint, in the controller's own unit (see Driver.effort_unit)
-
-
-@dataclass(frozen=True)
-class ControllerInfo:
-    vendor: str
-    model: str
-    firmware: str
-    serial: str = ""
-
-
-@dataclass(frozen=True)
-class ControllerState:
-    """What decides whether the robot may move now."""
-
-    mode: str  # e.g. "remote", "teach", "play", "automatic"
-    servo_on: bool
-    estop: bool
-    protective_stop: bool
-    moving: bool = False
-    detail: str = ""
-
-    @property
-    def fault(self) -> str | None:
-        """A sentence saying why the robot must not move, or None."""
-        if self.estop:
-            return "emergency stop is active"
-        if self.protective_stop:
-            return "protective stop is active"
-        if not self.servo_on:
-            return "servos are off"
-        return None
-
-
-@dataclass(frozen=True)
-class PayloadSetting:
-    """The payload the controller uses for its own dynamics model."""
-
-    mass_kg: float
-    cog_m: tuple[float, float, float]  # in the flange frame
-    tool_num: int | None = None
-
+__all__ = ["Driver", "DriverOptions", "MotionLimits", "SampleSink", "Sample", "ControllerInfo", "ControllerState",
+           "PayloadSetting", "FlangePose", "as_joint_vector", "option"]
 
 SampleSink = Callable[[Sample], None]
+
+MIN_GAP_LIMIT_S = 0.05  # the watchdog never trips on less than this (or 5 sample periods)
+WATCHDOG_TICK_S = 0.005
+READ_TIMEOUT_S = 0.05  # how long one _read_sample call may block
+
+
+@dataclass(frozen=True, kw_only=True)
+class DriverOptions:
+    """Options every driver has; each driver subclasses this with its own fields."""
+
+    type: str = option(help="the driver name (registry key)")
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """What a driver needs from the robot section to command PTP moves."""
+
+    max_joint_speed_rad_s: float
+    max_joint_accel_rad_s2: float
+    n_joints: int = 6
+
+
+@dataclass(frozen=True)
+class Supervision:
+    """Watchdog settings (the robot YAML's ``safety`` section)."""
+
+    max_stream_gap_s: float | None = None  # None: max(5 sample periods, 50 ms)
+    stop_ack_timeout_s: float = 2.0
 
 
 class Driver(abc.ABC):
     """One controller connection.
 
-    Subclasses set ``name`` (the registry key used in the YAML ``driver.type``)
-    and ``effort_unit`` (the unit of ``Sample.effort``: "percent_rated", "A", "Nm", ...).
+    Subclasses set ``name`` (the YAML ``driver.type``), ``options_class``, ``simulator``
+    ("module:Class" of the simulated controller that speaks the same protocol) and, in
+    ``__init__``, ``effort_unit`` and ``nominal_period_s``.
     """
 
     name: ClassVar[str] = ""
-    effort_unit: ClassVar[str] = ""
+    options_class: ClassVar[type[DriverOptions]] = DriverOptions
+    simulator: ClassVar[str | None] = None
+    reports_flange_pose: ClassVar[bool] = False  # can flange_pose() answer (kinematic cross-check)
 
-    def __init__(self, options: Mapping[str, Any], *, max_joint_speed_rad_s: float, key_path: str = "driver"):
-        """``options`` is the YAML ``driver`` mapping; subclasses validate it and raise ConfigError."""
-        self.options = dict(options)
-        self.max_joint_speed_rad_s = float(max_joint_speed_rad_s)
-        self.key_path = key_path
+    def __init__(self, options: DriverOptions, limits: MotionLimits, supervision: Supervision | None = None):
+        self.options = options
+        self.limits = limits
+        self.supervision = supervision or Supervision()
+        self.effort_unit: str = ""
+        self.nominal_period_s: float = 0.008
+        self._sink: SampleSink | None = None
+        self._sink_lock = threading.Lock()
+        self._latest: Sample | None = None
+        self._stream_error: BaseException | None = None
+        self._reader: threading.Thread | None = None
+        self._watchdog: threading.Thread | None = None
+        self._running = threading.Event()
+        self._stats: StreamStats | None = None
+        self._stats_lock = threading.Lock()
+        self._armed = False
+        self._armed_since = 0.0
+        self._trip_lock = threading.Lock()
+        self._tripped = threading.Event()
+        self._trip_report: StopReport | None = None
+        self._connected = False
 
-    # -- connection -------------------------------------------------------------------------
+    # -- construction ------------------------------------------------------------------------
+    @classmethod
+    def parse_options(cls, data: Any, key_path: str = "driver", source: str | None = None) -> DriverOptions:
+        """The YAML ``driver`` mapping -> this driver's options (ConfigError names the key)."""
+        return parse_options(cls.options_class, data, key_path, source)
+
+    def check_effort_unit(self, yaml_unit: str, key_path: str = "effort.unit") -> None:
+        if yaml_unit != self.effort_unit:
+            raise ConfigError(key_path, f"the {self.name} driver reports effort in {self.effort_unit!r} with these "
+                                        f"driver options, but the YAML says {yaml_unit!r}; set effort.unit to "
+                                        f"{self.effort_unit!r} (and its gains to N·m per {self.effort_unit})")
+
+    @property
+    def gap_limit_s(self) -> float:
+        if self.supervision.max_stream_gap_s is not None:
+            return self.supervision.max_stream_gap_s
+        return max(5 * self.nominal_period_s, MIN_GAP_LIMIT_S)
+
+    # -- hooks a driver fills ----------------------------------------------------------------
     @abc.abstractmethod
-    def connect(self) -> None:
-        """Open every socket the driver needs; raise CommunicationError naming host and port."""
+    def _open(self) -> None:
+        """Open every connection; raise CommunicationError naming host and port."""
 
     @abc.abstractmethod
-    def close(self) -> None:
-        """Release sockets and threads. Never raises."""
+    def _close(self) -> None:
+        """Release connections. Never raises."""
+
+    @abc.abstractmethod
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        """The next sample, or None if none arrived within ``timeout_s``.
+
+        Raise CommunicationError when the stream is broken (closed, unparsable); the base then
+        ends the stream and trips the supervision.
+        """
 
     @abc.abstractmethod
     def identify(self) -> ControllerInfo: ...
@@ -98,61 +149,292 @@ class Driver(abc.ABC):
     @abc.abstractmethod
     def state(self) -> ControllerState: ...
 
-    # -- motion -----------------------------------------------------------------------------
     @abc.abstractmethod
-    def move_joints(self, target_rad: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
-                    timeout_s: float) -> None:
-        """One PTP joint move; returns when the controller reports it finished at the target.
+    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+        """One PTP move; return when the controller reports it finished at the target.
 
-        ``speed_rad_s`` caps the leading joint's speed, ``accel_rad_s2`` its acceleration.
-        Raises MotionAbortedError on any abnormal end (stop, fault, timeout, target missed).
+        Call ``check_supervision()`` while waiting. Raise MotionAbortedError on an abnormal end.
         """
 
     @abc.abstractmethod
-    def stop(self) -> None:
-        """Halt motion now. Best effort: never raises."""
+    def _stop_command(self) -> bool:
+        """Stop the arm over the existing command channel; True if the controller acknowledged."""
 
-    # -- sampling ---------------------------------------------------------------------------
-    @abc.abstractmethod
-    def start_stream(self, sink: SampleSink) -> None:
-        """Deliver every sample at the controller's native rate to ``sink`` (from a thread)."""
+    def _stop_fresh(self) -> bool:
+        """Stop the arm over a new connection (the old one is gone); True if acknowledged."""
+        return False
 
-    @abc.abstractmethod
-    def stop_stream(self) -> None: ...
+    def _command_alive(self) -> bool:
+        """Whether the command channel still works (cheap, no round trip)."""
+        return True
 
-    @property
-    def stream_error(self) -> BaseException | None:
-        """The error that ended the sample stream, if it ended on its own."""
-        return None
+    # -- connection ---------------------------------------------------------------------------
+    def connect(self) -> None:
+        if self._connected:
+            return
+        self._stream_error = None
+        self._latest = None
+        self._open()
+        self._connected = True
+        self._running.set()
+        self._reader = threading.Thread(target=self._reader_loop, name=f"{self.name}-stream", daemon=True)
+        self._reader.start()
+        self._watchdog = threading.Thread(target=self._watchdog_loop, name=f"{self.name}-watchdog", daemon=True)
+        self._watchdog.start()
 
-    # -- optional capabilities -------------------------------------------------------------
-    def read_payload(self) -> PayloadSetting:
-        from payload_agent.errors import UnsupportedCapability
+    def close(self) -> None:
+        """Release connections and threads. Never raises."""
+        self._running.clear()
+        with self._sink_lock:
+            self._sink = None
+        for th in (self._reader, self._watchdog):
+            if th is not None and th is not threading.current_thread():
+                th.join(timeout=2.0)
+        self._reader = self._watchdog = None
+        if self._connected:
+            self._connected = False
+            try:
+                self._close()
+            except Exception:
+                pass
 
-        raise UnsupportedCapability(f"driver {self.name!r} cannot read the payload setting")
-
-    def write_payload(self, payload: PayloadSetting) -> None:
-        from payload_agent.errors import UnsupportedCapability
-
-        raise UnsupportedCapability(f"driver {self.name!r} cannot write the payload setting")
-
-    def read_digital_input(self, index: int) -> bool:
-        """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
-        from payload_agent.errors import UnsupportedCapability
-
-        raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
-
-    def joint_temperatures_c(self) -> tuple[float, ...] | None:
-        """Per-joint temperatures in °C as the controller reports them, or None if it does not."""
-        return None
-
-    # -- context manager --------------------------------------------------------------------
     def __enter__(self) -> "Driver":
         self.connect()
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    # -- sample stream ------------------------------------------------------------------------
+    def start_stream(self, sink: SampleSink) -> None:
+        """Deliver every sample from now on to ``sink`` (called from the reader thread)."""
+        if not self._connected:
+            raise CommunicationError(f"the {self.name} driver is not connected (call connect() first)")
+        if self._stream_error is not None:
+            raise CommunicationError(f"the sample stream has failed: {self._stream_error}") from self._stream_error
+        with self._sink_lock:
+            self._sink = sink
+
+    def stop_stream(self) -> None:
+        with self._sink_lock:
+            self._sink = None
+
+    @property
+    def stream_error(self) -> BaseException | None:
+        """The error that ended the sample stream, if it ended on its own."""
+        return self._stream_error
+
+    @property
+    def latest_sample(self) -> Sample | None:
+        return self._latest
+
+    def wait_sample(self, timeout_s: float, after: float | None = None) -> Sample:
+        """The newest sample (received after ``after``, monotonic, if given); CommunicationError on none."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            s = self._latest
+            if s is not None and (after is None or s.t_recv > after):
+                return s
+            if self._stream_error is not None:
+                raise CommunicationError(f"the sample stream ended: {self._stream_error}")
+            if time.monotonic() > deadline:
+                raise CommunicationError(f"no joint sample from the {self.name} controller "
+                                         f"({self.describe_endpoint()}) for {timeout_s:.1f} s")
+            time.sleep(0.002)
+
+    def describe_endpoint(self) -> str:
+        """Where the driver connects, for messages ("192.168.1.10:8055")."""
+        host = getattr(self.options, "host", None)
+        return str(host) if host else self.name
+
+    def begin_stats(self) -> None:
+        with self._stats_lock:
+            self._stats = StreamStats(nominal_period_s=self.nominal_period_s)
+
+    def end_stats(self) -> StreamStats | None:
+        with self._stats_lock:
+            stats, self._stats = self._stats, None
+        return stats
+
+    def _reader_loop(self) -> None:
+        while self._running.is_set():
+            try:
+                sample = self._read_sample(READ_TIMEOUT_S)
+                if sample is None:
+                    continue
+                _check_sample(sample, self.limits.n_joints)
+            except Exception as exc:  # the stream is broken: keep the reason, trip any armed move
+                if not self._running.is_set():
+                    return
+                self._stream_error = exc if isinstance(exc, PayloadAgentError) else CommunicationError(
+                    f"the sample stream failed: {type(exc).__name__}: {exc}")
+                self._trip(f"the sample stream failed: {self._stream_error}")
+                return
+            self._on_sample(sample)
+
+    def _on_sample(self, sample: Sample) -> None:
+        prev = self._latest
+        self._latest = sample
+        with self._stats_lock:
+            st = self._stats
+            if st is not None:
+                if st.first_t is None:
+                    st.first_t = sample.t_recv
+                elif st.last_t is not None:
+                    gap = sample.t_recv - st.last_t
+                    st.largest_gap_s = max(st.largest_gap_s, gap)
+                    if gap > self.gap_limit_s:
+                        st.gaps.append((st.last_t - st.first_t, gap))
+                st.last_t = sample.t_recv
+                st.count += 1
+        del prev
+        with self._sink_lock:
+            sink = self._sink
+            if sink is not None:
+                sink(sample)
+
+    # -- motion and supervision ---------------------------------------------------------------
+    def move_joints(self, target_rad: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
+                    timeout_s: float) -> None:
+        """One PTP joint move, supervised; returns when the controller reports it finished at the target.
+
+        ``speed_rad_s`` caps the leading joint's speed, ``accel_rad_s2`` its acceleration.
+        Raises MotionAbortedError on any abnormal end (stop, fault, timeout, target missed) and
+        SupervisionTrip when the stream or the command connection failed (the arm was stopped).
+        """
+        target = as_joint_vector(target_rad, self.limits.n_joints)
+        if not np.all(np.isfinite(target)):
+            raise MotionAbortedError(f"move target {target.tolist()} is not finite; nothing was sent")
+        for what, v in (("speed", speed_rad_s), ("acceleration", accel_rad_s2), ("timeout", timeout_s)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise MotionAbortedError(f"move {what} {v!r} is not a positive number; nothing was sent")
+        if not self._connected:
+            raise CommunicationError(f"the {self.name} driver is not connected")
+        if self._stream_error is not None:
+            raise CommunicationError(f"the sample stream has failed, refusing to move blind: {self._stream_error}")
+        self._trip_report = None
+        self._tripped.clear()
+        self._armed_since = time.monotonic()
+        self._armed = True
+        try:
+            self._move_joints(target, float(speed_rad_s), float(accel_rad_s2), float(timeout_s))
+        except SupervisionTrip:
+            raise
+        except CommunicationError as exc:  # the command connection failed mid-move: the arm may still go
+            self._trip(f"the command connection failed during the move: {exc}")
+            raise self._trip_error() from exc
+        except BaseException:
+            if self._tripped.is_set():
+                raise self._trip_error() from None
+            raise
+        finally:
+            self._armed = False
+        if self._tripped.is_set():
+            raise self._trip_error()
+
+    def check_supervision(self) -> None:
+        """Raise SupervisionTrip if the watchdog has stopped the arm (drivers call this while waiting)."""
+        if self._tripped.is_set():
+            raise self._trip_error()
+
+    @property
+    def last_stop_report(self) -> StopReport | None:
+        return self._trip_report
+
+    def _trip_error(self) -> SupervisionTrip:
+        self._tripped.wait(self.supervision.stop_ack_timeout_s + 1.0)
+        report = self._trip_report
+        text = report.describe() if report is not None else "the motion supervision tripped"
+        return SupervisionTrip(f"motion stopped by the supervision: {text}", report)
+
+    def _watchdog_loop(self) -> None:
+        while self._running.is_set():
+            time.sleep(WATCHDOG_TICK_S)
+            if not self._armed or self._tripped.is_set():
+                continue
+            now = time.monotonic()
+            latest = self._latest
+            last = max(latest.t_recv if latest is not None else 0.0, self._armed_since)
+            if now - last > self.gap_limit_s:
+                self._trip(f"the sample stream stalled: no sample for {1000 * (now - last):.0f} ms "
+                           f"(limit {1000 * self.gap_limit_s:.0f} ms)", fault_t=last + self.gap_limit_s)
+            elif not self._command_alive():
+                self._trip("the command connection to the controller was lost")
+
+    def _trip(self, reason: str, fault_t: float | None = None) -> None:
+        """Stop the arm now; only the first trip of a move acts. Safe from any thread."""
+        if not self._armed:
+            return
+        with self._trip_lock:
+            if self._tripped.is_set():
+                return
+            t_fault = fault_t if fault_t is not None else time.monotonic()
+            sent_t: float | None = None
+            ack = False
+            via = "none"
+            attempts = 0
+            if self._command_alive():
+                sent_t, via, attempts = time.monotonic(), "command channel", 1
+                try:
+                    ack = bool(self._stop_command())
+                except Exception:
+                    ack = False
+            deadline = time.monotonic() + self.supervision.stop_ack_timeout_s
+            while not ack and time.monotonic() < deadline:
+                attempts += 1
+                t = time.monotonic()
+                try:
+                    ack = bool(self._stop_fresh())
+                    if sent_t is None or via == "none":
+                        sent_t = t
+                    via = "new connection"
+                except Exception:
+                    ack = False
+                if not ack:
+                    time.sleep(0.05)
+            self._trip_report = StopReport(reason, t_fault, sent_t, ack, via, attempts)
+            self._tripped.set()
+
+    def stop(self) -> None:
+        """Halt motion now. Best effort: never raises."""
+        try:
+            if self._connected and self._command_alive() and self._stop_command():
+                return
+        except Exception:
+            pass
+        try:
+            if self._connected:
+                self._stop_fresh()
+        except Exception:
+            pass
+
+    # -- kinematic cross-check ----------------------------------------------------------------
+    def flange_pose(self) -> FlangePose | None:
+        """The flange pose the controller reports (TCP offset removed), or None if it has none."""
+        return None
+
+    # -- optional capabilities ----------------------------------------------------------------
+    def read_payload(self) -> PayloadSetting:
+        raise UnsupportedCapability(f"driver {self.name!r} cannot read the payload setting")
+
+    def write_payload(self, payload: PayloadSetting) -> None:
+        raise UnsupportedCapability(f"driver {self.name!r} cannot write the payload setting")
+
+    def read_digital_input(self, index: int) -> bool:
+        """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
+        raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
+
+    def joint_temperatures_c(self) -> tuple[float, ...] | None:
+        """Per-joint temperatures in °C as the controller reports them, or None if it does not."""
+        return None
+
+
+def _check_sample(sample: Sample, n: int) -> None:
+    if len(sample.q) != n or len(sample.effort) != n:
+        raise CommunicationError(f"a sample has {len(sample.q)} angles and {len(sample.effort)} efforts, expected {n}")
+    if not (all(math.isfinite(v) for v in sample.q) and all(math.isfinite(v) for v in sample.effort)):
+        raise CommunicationError(f"the controller sent a non-finite value: q={list(sample.q)}, "
+                                 f"effort={list(sample.effort)}")
 
 
 def as_joint_vector(values: Sequence[float], n: int = 6) -> np.ndarray:

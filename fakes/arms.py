@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from payload_agent.fakes.physics import ArmSpec, LinkInertia
-from payload_agent.kinematics import DHRow
+from payload_agent.model.kinematics import DHRow
 
 from payload_agent.fakes import robot_data as _data  # curated numbers with sources (docs/sources.md)
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.fakes.offline import step_until_still
-from payload_agent.kinematics import Kinematics
+from payload_agent.model.kinematics import Kinematics
 from payload_agent.solvers.dynamic import ExcitationRecord, payload_regressor
 
 HARMONICS = 5
@@ -165,7 +165,7 @@ def design_trajectory(kin: Kinematics, q_start: Sequence[float], *, joints: Sequ
 
 def default_start(kin: Kinematics, wrist_deg: Sequence[float] = (90.0, -90.0, 0.0)) -> np.ndarray:
     """Joints 1–3 held with link 2 vertical and link 3 horizontal (the joint-3 sweep's start), base 0."""
-    from payload_agent.arm_geometry import ArmGeometry
+    from payload_agent.model.arm_geometry import ArmGeometry
 
     geo = ArmGeometry(kin, 0.0)
     q2, q3 = geo.joints_for(math.pi / 2, 0.0)

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.planner import Plan, SweepKey
-from payload_agent.rundata import SweepData
+from payload_agent.motion.planner import Plan, SweepKey
+from payload_agent.recording.rundata import SweepData
 
 
 def step_until_still(robot: SimRobot, settle_ticks: int) -> list:

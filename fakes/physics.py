@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from payload_agent.kinematics import DHRow, GRAVITY_M_S2, fixed_part
+from payload_agent.model.kinematics import DHRow, GRAVITY_M_S2, fixed_part
 
 
 @dataclass(frozen=True)

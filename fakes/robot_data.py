@@ -2,7 +2,7 @@
 
 Data only. Every number group names its source; docs/sources.md ("Robot data") lists them too.
 
-Conventions (shared with payload_agent.kinematics.DHRow and fakes/physics.build_mjcf):
+Conventions (shared with payload_agent.model.kinematics.DHRow and fakes/physics.build_mjcf):
   DH row i = (a_m, d_m, alpha_rad, theta_offset_rad); frame i from frame i-1 is
       Rz(theta_DH) Tz(d) Tx(a) Rx(alpha),   theta_DH = q_controller + theta_offset.
   Link i is the body moved by joint i; its inertial data are expressed in DH frame i

@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from payload_agent.fakes.physics import ArmPhysics, ArmSpec, FrictionParams, PayloadTruth
-from payload_agent.fakes.profile import JointPath
+from payload_agent.model.profile import JointPath
 
 
 class SimRefused(Exception):

@@ -459,7 +459,7 @@ class URControllerCore:
 
     def _tcp_pose(self, q) -> tuple[float, ...]:
         if self._kin is None:
-            from payload_agent.kinematics import Kinematics
+            from payload_agent.model.kinematics import Kinematics
 
             self._kin = Kinematics(self.robot.spec.dh)
         T = self._kin.flange(q)

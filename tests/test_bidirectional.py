@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from payload_agent.combine import COMBINED, add_combined, combine_pair
-from payload_agent.delta import DeltaSweep
+from payload_agent.analysis.combine import COMBINED, add_combined, combine_pair
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
-from payload_agent.planner import SweepKey
+from payload_agent.types import SweepKey
 from payload_agent.solvers import general, three_step
 
 from test_general_solver import THETA, TRUTH_C, TRUTH_M, planned_sweeps

@@ -9,20 +9,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from payload_agent.analysis import analyse_run
-from payload_agent.calibration import (GainCalibration, calibration_fingerprint, effective_gains, fit_gains,
+from payload_agent.evaluation.pipeline import analyse_run
+from payload_agent.evaluation.calibration import (GainCalibration, calibration_fingerprint, effective_gains, fit_gains,
                                        fit_gains_from_deltas, load_calibration, save_calibration)
-from payload_agent.combine import add_combined
-from payload_agent.config import load_config
-from payload_agent.delta import subtract_all
+from payload_agent.analysis.combine import add_combined
+from payload_agent.configuration.config import load_config
+from payload_agent.analysis.delta import subtract_all
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.fakes.arms import SPECS
 from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.planner import make_plan
+from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import general
-from payload_agent.state import RobotState
+from payload_agent.recording.state import RobotState
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim-ec66.yaml"
 TORQUE_SCALE = np.array([1.0, 1.03, 0.97, 1.0, 1.0, 1.0])  # what the drives report / true torque

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from conftest import DELETE, ROOT, tweak
-from payload_agent.config import load_config, parse_config
+from payload_agent.configuration.config import load_config, parse_config
 from payload_agent.errors import ConfigError
 
 CASES = [

@@ -17,7 +17,7 @@ from payload_agent.fakes.excitation import (MAX_ACCEL_RAD_S2, MAX_EXCURSION_RAD,
                                             default_start, design_trajectory, record_excitation)
 from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.kinematics import Kinematics
+from payload_agent.model.kinematics import Kinematics
 from payload_agent.solvers import SOLVERS, dynamic
 
 MASS, COG_MM = 2.5, (40.0, -30.0, 90.0)

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from payload_agent.drivers.base import PayloadSetting, Sample
+from payload_agent.types import PayloadSetting, Sample
 from payload_agent.drivers.elite_ec import EliteECDriver
 from payload_agent.drivers.registry import driver_class
 from payload_agent.errors import (

@@ -9,10 +9,10 @@ import pytest
 
 from conftest import tweak
 from payload_agent.cli import main
-from payload_agent.config import parse_config
+from payload_agent.configuration.config import parse_config
 from payload_agent.errors import MotionAbortedError
-from payload_agent.rundata import load_manifest
-from payload_agent.runner import RunOptions, run_identification
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.session.runner import RunOptions, run_identification
 
 
 def _config(data, tmp_path, **changes):

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from payload_agent.config import load_config
-from payload_agent.delta import DeltaSweep
-from payload_agent.planner import make_plan
+from payload_agent.configuration.config import load_config
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import SOLVERS, general
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim-ec66.yaml"
@@ -125,7 +125,7 @@ def test_single_pose_restriction(setup):
 
 
 def _with_length(kin, row: int, which: str, delta_m: float):
-    from payload_agent.kinematics import Kinematics
+    from payload_agent.model.kinematics import Kinematics
 
     rows = list(kin.rows)
     rows[row] = dataclasses.replace(rows[row], **{f"{which}_m": getattr(rows[row], f"{which}_m") + delta_m})
@@ -172,7 +172,7 @@ def test_kinematic_sensitivity_predicts_length_error(setup):
 def test_kinematic_sensitivity_after_gain_calibration(setup):
     """A gain calibration on the same (wrong-length) arm absorbs part of the length error; with the
     calibration's reference the sensitivity predicts what is left."""
-    from payload_agent.calibration import fit_gains_from_deltas
+    from payload_agent.evaluation.calibration import fit_gains_from_deltas
 
     kin, _ = setup
     _, sweeps = planned_sweeps()

@@ -6,10 +6,10 @@ import sqlite3
 
 import pytest
 
-from payload_agent import history
-from payload_agent.drivers.base import PayloadSetting
+from payload_agent.output import history
+from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
-from payload_agent.history import HistoryEntry
+from payload_agent.output.history import HistoryEntry
 
 
 def entry(mass=2.0, cog=(40.0, -25.0, 70.0), std=0.001, cog_std=(0.2, 0.2, 0.2), tool=None, t="2026-11-21T08:00:00+00:00",

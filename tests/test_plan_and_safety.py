@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from conftest import tweak
-from payload_agent.arm_geometry import ArmGeometry
-from payload_agent.config import parse_config
+from payload_agent.model.arm_geometry import ArmGeometry
+from payload_agent.configuration.config import parse_config
 from payload_agent.errors import SafetyError
-from payload_agent.planner import make_plan
-from payload_agent.safety import SafetyGate
+from payload_agent.motion.planner import make_plan
+from payload_agent.motion.safety import SafetyGate
 
 
 def test_sweeps_follow_the_paper(sim_ec66_data):

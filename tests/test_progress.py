@@ -9,10 +9,10 @@ import threading
 import numpy as np
 import pytest
 
-from payload_agent.drivers.base import Sample
-from payload_agent.planner import Move, Plan, SweepKey, expected_durations
-from payload_agent.procedure import Procedure
-from payload_agent.progress import Progress, format_duration
+from payload_agent.types import Sample
+from payload_agent.motion.planner import Move, Plan, SweepKey, expected_durations
+from payload_agent.configuration.procedure import Procedure
+from payload_agent.output.progress import Progress, format_duration
 
 START = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 

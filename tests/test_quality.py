@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from payload_agent.delta import DeltaSweep
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError, QualityGateError
-from payload_agent.quality import evaluate, require_passed
-from payload_agent.results import RunResult
+from payload_agent.evaluation.quality import evaluate, require_passed
+from payload_agent.solvers.results import RunResult
 from payload_agent.solvers import general
 
 from test_general_solver import planned_sweeps, synthetic

@@ -16,21 +16,21 @@ import pytest
 import yaml
 
 from conftest import ROOT, tweak
-from payload_agent import history
-from payload_agent.config import parse_config
-from payload_agent.drivers.base import Sample
+from payload_agent.output import history
+from payload_agent.configuration.config import parse_config
+from payload_agent.types import Sample
 from payload_agent.errors import DataError
-from payload_agent.history import HistoryEntry
-from payload_agent.planner import make_plan
-from payload_agent.recorder import RunRecorder
+from payload_agent.output.history import HistoryEntry
+from payload_agent.motion.planner import make_plan
+from payload_agent.recording.recorder import RunRecorder
 try:  # the analysis entry point is moving from runner to analysis (refactor in progress)
-    from payload_agent.analysis import analyse_run as analyse
+    from payload_agent.evaluation.pipeline import analyse_run as analyse
 except ImportError:
-    from payload_agent.runner import analyse
+    from payload_agent.session.runner import analyse
 
 pytest.importorskip("matplotlib")
 
-from payload_agent.report import write_report  # noqa: E402
+from payload_agent.output.report import write_report  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 TRUTH = (2.0, (40.0, -25.0, 70.0))  # kg, mm

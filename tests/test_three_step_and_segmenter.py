@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from conftest import tweak
-from payload_agent.config import parse_config
-from payload_agent.delta import subtract_all, window_of
+from payload_agent.configuration.config import parse_config
+from payload_agent.analysis.delta import subtract_all, window_of
 from payload_agent.fakes.arms import ec66_spec
 from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.planner import make_plan
+from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import three_step
 
 TRUTH = PayloadTruth.point(2.3, (70.0, 65.0, 50.0))  # the paper's simulation group 2 (Table 1)
@@ -47,7 +47,7 @@ def test_segmenter_keeps_only_constant_speed(fast_cfg):
         states += [robot.step() for _ in range(20)]
         if move.sweep:
             states_by_sweep[move.sweep] = (move, states)
-    from payload_agent.rundata import SweepData
+    from payload_agent.recording.rundata import SweepData
 
     for key, (move, states) in states_by_sweep.items():
         j = key.joint - 1

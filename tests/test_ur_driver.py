@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("rtde_control", reason="ur-rtde wheel not installed (CPython 3.11/3.12)")
 
-from payload_agent.drivers.base import PayloadSetting  # noqa: E402
+from payload_agent.types import PayloadSetting  # noqa: E402
 from payload_agent.drivers.registry import driver_class  # noqa: E402
 from payload_agent.drivers.ur_rtde import URRTDEDriver  # noqa: E402
 from payload_agent.errors import (  # noqa: E402

@@ -20,11 +20,11 @@ pytest.importorskip("rtde_control", reason="ur-rtde wheel not installed (CPython
 
 from conftest import ROOT, tweak  # noqa: E402
 from payload_agent.cli import main  # noqa: E402
-from payload_agent.config import parse_config  # noqa: E402
+from payload_agent.configuration.config import parse_config  # noqa: E402
 from payload_agent.errors import MotionAbortedError  # noqa: E402
 from payload_agent.fakes.ur_controller import pick_loopback_host  # noqa: E402
-from payload_agent.rundata import load_manifest  # noqa: E402
-from payload_agent.runner import RunOptions, run_identification  # noqa: E402
+from payload_agent.recording.rundata import load_manifest  # noqa: E402
+from payload_agent.session.runner import RunOptions, run_identification  # noqa: E402
 
 
 @pytest.fixture

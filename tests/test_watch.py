@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from conftest import ROOT
-from payload_agent.config import WatchConfig, parse_config
+from payload_agent.configuration.config import WatchConfig, parse_config
 from payload_agent.errors import CommunicationError, ConfigError, MotionAbortedError, UnsupportedCapability
-from payload_agent.watch import watch
+from payload_agent.session.watch import watch
 
 POLL = 0.01
 

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from conftest import tweak
-from payload_agent import history
+from payload_agent.output import history
 from payload_agent.cli import main
-from payload_agent.config import parse_config
+from payload_agent.configuration.config import parse_config
 from payload_agent.errors import BaselineError, QualityGateError
-from payload_agent.runner import RunOptions, run_identification
-from payload_agent.simulation import SimulatedCell
-from payload_agent.state import RobotState
+from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.simulation import SimulatedCell
+from payload_agent.recording.state import RobotState
 
 TOOLS = {"gripper-A": (1.2, (10.0, 20.0, 60.0)), "gripper-B": (3.1, (-30.0, 40.0, 110.0)),
          "camera": (0.8, (0.0, -45.0, 35.0))}
@@ -194,7 +194,7 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
         assert abs(nominal["mass_kg"] - tool_mass) > 0.05
         # the reference payload, known
         cell.change_tool(ref_mass, ref_cog)
-        from payload_agent.drivers.base import PayloadSetting
+        from payload_agent.types import PayloadSetting
 
         cal = run_identification(cfg, RunOptions(mode="calibrate", unattended=True, cell=cell, out=lines.append,
                                                  report=False,

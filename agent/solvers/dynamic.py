@@ -38,8 +38,8 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.kinematics import GRAVITY_M_S2, Kinematics
-from payload_agent.results import Estimate
+from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
+from payload_agent.solvers.results import Estimate
 from payload_agent.solvers.general import Group, cog_with_covariance, fit
 
 NAME = "dynamic"

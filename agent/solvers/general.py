@@ -3,7 +3,7 @@
 θ = [m, m·cx, m·cy, m·cz] (c in the flange frame, SI). Rows come from every joint whose
 regressor rows are not all zero (joint 1 has a vertical axis and never carries the
 payload's weight) and from every constant-speed sample of every sweep. Where a
-bidirectional sweep was combined (direction "both", see ``payload_agent.combine``) the
+bidirectional sweep was combined (direction "both", see ``payload_agent.analysis.combine``) the
 combined sweep replaces its "up" and "down" halves.
 
 Model: the static gravity regressor (``Kinematics.payload_regressor``) plus the centripetal
@@ -39,11 +39,11 @@ from typing import Iterable
 
 import numpy as np
 
-from payload_agent.delta import DeltaSweep
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
-from payload_agent.kinematics import Kinematics
-from payload_agent.planner import SweepKey
-from payload_agent.results import Estimate
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.types import SweepKey
+from payload_agent.solvers.results import Estimate
 
 NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6

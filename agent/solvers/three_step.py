@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from payload_agent.arm_geometry import ArmGeometry
-from payload_agent.delta import DeltaSweep
+from payload_agent.model.arm_geometry import ArmGeometry
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
-from payload_agent.kinematics import GRAVITY_M_S2, Kinematics
-from payload_agent.planner import SweepKey
-from payload_agent.results import Estimate
+from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
+from payload_agent.types import SweepKey
+from payload_agent.solvers.results import Estimate
 
 NAME = "three-step"
 

@@ -32,8 +32,8 @@ from typing import Callable, Sequence, TextIO
 
 import numpy as np
 
-from payload_agent.drivers.base import Sample
-from payload_agent.planner import Move, Plan, expected_durations
+from payload_agent.types import Sample
+from payload_agent.motion.planner import Move, Plan, expected_durations
 
 REDRAW_INTERVAL_S = 0.2  # ~5 Hz
 BAR_WIDTH = 20

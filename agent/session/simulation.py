@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from payload_agent.config import Config, SimulationConfig
+from payload_agent.configuration.config import Config, SimulationConfig
 from payload_agent.errors import ConfigError
 
 

@@ -33,10 +33,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from payload_agent import __version__
-from payload_agent.config import Config
+from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError, UnsupportedCapability
-from payload_agent.planner import SweepKey
-from payload_agent.rundata import SweepData, load_manifest, load_phase
+from payload_agent.types import SweepKey
+from payload_agent.recording.rundata import SweepData, load_manifest, load_phase
 
 REPORT_NAME = "report.html"
 PLOT_POINTS = 250  # residual points per sweep (evenly spaced): the regressor per point is the slow part
@@ -141,7 +141,7 @@ def _empty_at(empty: SweepData, x: np.ndarray, j: int, joints: Sequence[int]) ->
     """The empty sweep's effort of ``joints`` at angles ``x`` of moving joint ``j``: a smooth
     polynomial in the angle fitted over the empty sweep's constant-speed window (the raw samples
     are noisy; the plotted model should show the model, not the noise). NaN outside the window."""
-    from payload_agent.delta import window_of
+    from payload_agent.analysis.delta import window_of
 
     w = window_of(empty)
     xe = empty.q[w.slice, j]
@@ -161,7 +161,7 @@ def _sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin,
     bidirectional combination cancels), each with its own model line."""
     from matplotlib.figure import Figure
 
-    from payload_agent.delta import window_of
+    from payload_agent.analysis.delta import window_of
 
     key0, loaded0, _ = legs[0]
     j = key0.joint - 1
@@ -219,8 +219,8 @@ def _residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Sw
                      theta: np.ndarray | None, theta_from: str, result: dict[str, Any]) -> _Figure | None:
     from matplotlib.figure import Figure
 
-    from payload_agent.combine import add_combined
-    from payload_agent.delta import subtract_all
+    from payload_agent.analysis.combine import add_combined
+    from payload_agent.analysis.delta import subtract_all
     from payload_agent.solvers.general import GRAVITY_JOINTS, ZERO_ROW_TOL, select_sweeps
 
     if theta is None or not empty:
@@ -262,7 +262,7 @@ def _residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Sw
 def _history_part(db: Path, robot: str, result_run_dir: str, run_dir: Path) -> tuple[list, _Figure | None]:
     from matplotlib.figure import Figure
 
-    from payload_agent import history
+    from payload_agent.output import history
 
     past = history.entries(db, robot=robot)
     if not past:

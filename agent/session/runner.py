@@ -6,7 +6,7 @@ Three kinds of session share this path (``RunOptions.mode``):
   fits; otherwise (interactive only) the empty run first, which then becomes the baseline;
 - ``baseline``: the empty-flange run only, stored as the robot's baseline;
 - ``calibrate``: an identification of a known reference payload, whose result fits the
-  drive gains (``payload_agent.calibration``).
+  drive gains (``payload_agent.evaluation.calibration``).
 
 Motion only ever goes through the SafetyGate. Any exception, Ctrl-C or lost
 connection stops the robot; what was recorded stays in the run folder. Nothing is
@@ -25,17 +25,17 @@ from typing import Any, Callable
 import numpy as np
 
 from payload_agent import __version__
-from payload_agent import baseline as baselines
-from payload_agent.config import Config, config_snapshot
+from payload_agent.session import baseline as baselines
+from payload_agent.configuration.config import Config, config_snapshot
 from payload_agent.drivers.base import Driver, PayloadSetting
 from payload_agent.drivers.registry import driver_class
 from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, RobotNotReadyError)
-from payload_agent.planner import Plan, expected_durations, make_plan
-from payload_agent.recorder import RunRecorder
-from payload_agent.results import RunResult, format_table
-from payload_agent.safety import SafetyGate
-from payload_agent.state import RobotState
+from payload_agent.motion.planner import Plan, expected_durations, make_plan
+from payload_agent.recording.recorder import RunRecorder
+from payload_agent.solvers.results import RunResult, format_table
+from payload_agent.motion.safety import SafetyGate
+from payload_agent.recording.state import RobotState
 
 SAMPLE_WAIT_S = 5.0
 SETTLED_RAD = math.radians(0.05)
@@ -87,7 +87,7 @@ def read_current_q(config: Config) -> np.ndarray:
     cell = None
     options = dict(config.driver)
     if config.simulation is not None:
-        from payload_agent.simulation import SimulatedCell
+        from payload_agent.session.simulation import SimulatedCell
 
         cell = SimulatedCell(config).start()
         options = cell.options
@@ -242,7 +242,7 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
     cell = opts.cell
     driver_options = dict(config.driver)
     if own_cell:
-        from payload_agent.simulation import SimulatedCell
+        from payload_agent.session.simulation import SimulatedCell
 
         cell = SimulatedCell(config).start()
     if cell is not None:
@@ -266,7 +266,7 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
             raise RobotNotReadyError(f"the controller is in {ctl_state.mode} mode: an external program cannot move "
                                      "the robot. Switch it to remote control on the teach pendant and retry.")
         if opts.mode == "identify":
-            from payload_agent.calibration import effective_gains
+            from payload_agent.evaluation.calibration import effective_gains
 
             note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
             out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
@@ -348,7 +348,7 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
             if own_cell and cell is not None:
                 cell.close()
     if outcome.result is not None:
-        from payload_agent.quality import require_passed
+        from payload_agent.evaluation.quality import require_passed
 
         try:
             require_passed(outcome.result)
@@ -364,7 +364,7 @@ def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver,
     truth = cell.truth_json if cell else None
     calibration = None
     if opts.mode == "calibrate":
-        from payload_agent.calibration import fit_gains, save_calibration
+        from payload_agent.evaluation.calibration import fit_gains, save_calibration
 
         ref = opts.reference
         calibration = fit_gains(config, run_dir, ref.mass_kg, ref.cog_m)
@@ -383,7 +383,7 @@ def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver,
     if opts.apply and opts.mode == "identify" and passed:
         outcome.applied = _apply(driver, result, opts, out)
         if outcome.history_id is not None:
-            from payload_agent import history
+            from payload_agent.output import history
 
             history.mark_applied(state.history_db, outcome.history_id, outcome.applied)
     elif opts.apply and not passed:
@@ -397,7 +397,7 @@ def _record_history(config: Config, opts: RunOptions, state: RobotState, result:
                     stored: baselines.BaselineInfo | None, out) -> int | None:
     if opts.mode == "calibrate":
         return None  # a reference payload, not a tool: kept out of the tool history
-    from payload_agent import history
+    from payload_agent.output import history
 
     entry = history.HistoryEntry.from_result_json(
         result.to_json(), tool=opts.tool,
@@ -413,7 +413,7 @@ def _record_history(config: Config, opts: RunOptions, state: RobotState, result:
 
 
 def _write_report(config: Config, run_dir: Path, state: RobotState, out) -> Path | None:
-    from payload_agent.report import write_report
+    from payload_agent.output.report import write_report
 
     try:
         path = write_report(Path(run_dir), config, history_db=state.history_db)
@@ -470,7 +470,7 @@ def _make_progress(opts: RunOptions, config: Config, plan: Plan, durations: list
     """The live progress line (terminal only, unless asked for)."""
     import sys
 
-    from payload_agent.progress import Progress
+    from payload_agent.output.progress import Progress
 
     enabled = opts.progress if opts.progress is not None else (sys.stdout.isatty() and not opts.unattended)
     if not enabled:
@@ -497,7 +497,7 @@ def _prepare_tool(phase: str, mounted: bool, cell, opts: RunOptions, out, changi
 
 def analyse(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None) -> RunResult:
     """Analyse a run folder (gains: the robot's valid calibration, else nominal) and write result.json."""
-    from payload_agent.analysis import analyse_run
+    from payload_agent.evaluation.pipeline import analyse_run
 
     result = analyse_run(config, run_dir, solver, baseline_dir)
     result.write(Path(run_dir) / "result.json")

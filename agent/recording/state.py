@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from payload_agent.config import Config
+from payload_agent.configuration.config import Config
 
 
 @dataclass(frozen=True)

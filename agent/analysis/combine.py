@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from payload_agent.delta import DeltaSweep
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
-from payload_agent.planner import SweepKey
+from payload_agent.types import SweepKey
 
 COMBINED = "both"
 MIN_OVERLAP_SAMPLES = 20

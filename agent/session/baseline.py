@@ -18,12 +18,12 @@ from pathlib import Path
 from typing import Any
 
 from payload_agent import __version__
-from payload_agent.config import Config
-from payload_agent.drivers.base import ControllerInfo
+from payload_agent.configuration.config import Config
+from payload_agent.types import ControllerInfo
 from payload_agent.errors import BaselineError
-from payload_agent.planner import Plan
-from payload_agent.rundata import load_manifest
-from payload_agent.state import RobotState, write_json_atomic
+from payload_agent.motion.planner import Plan
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.recording.state import RobotState, write_json_atomic
 
 BASELINE_FORMAT = "payload-agent-baseline/1"
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from payload_agent.config import Config
+from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import SafetyError
-from payload_agent.planner import Move, Plan, move_duration_s
+from payload_agent.motion.planner import Move, Plan, move_duration_s
 
 PATH_CHECK_POINTS = 60
 MAX_SINGLE_MOVE_RAD = math.radians(200.0)

@@ -11,7 +11,7 @@ from pathlib import Path
 import yaml
 
 from payload_agent.errors import ConfigError
-from payload_agent.yamlcheck import Node
+from payload_agent.configuration.yamlcheck import Node
 
 ARM_AXES = ("arm", "-arm", "axis", "-axis", "up", "-up")
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.planner import SweepKey
+from payload_agent.types import SweepKey
 
 
 @dataclass

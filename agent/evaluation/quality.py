@@ -41,11 +41,11 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from payload_agent.delta import DeltaSweep
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError, QualityGateError
-from payload_agent.kinematics import Kinematics
-from payload_agent.planner import SweepKey
-from payload_agent.results import Estimate, RunResult
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.types import SweepKey
+from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.solvers import general
 
 POSE_AGREEMENT_Z = 3.0  # |m_b − m_d| / σ above this fails (mass)

@@ -41,7 +41,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Callable
 
-from payload_agent.config import Config, WatchConfig
+from payload_agent.configuration.config import Config, WatchConfig
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import ConfigError, PayloadAgentError, UnsupportedCapability
 

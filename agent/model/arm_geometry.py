@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from payload_agent.errors import PlanError
-from payload_agent.kinematics import Kinematics
+from payload_agent.model.kinematics import Kinematics
 
 Z_UP = np.array([0.0, 0.0, 1.0])
 

@@ -16,8 +16,11 @@ from typing import Any, Mapping
 import yaml
 
 from payload_agent.errors import ConfigError
-from payload_agent.kinematics import DHRow, Kinematics
-from payload_agent.yamlcheck import Node
+from payload_agent.model.kinematics import DHRow, Kinematics
+from payload_agent.configuration.simulation import SimulationConfig, parse_simulation
+from payload_agent.configuration.yamlcheck import Node
+from payload_agent.drivers.base import DriverOptions
+from payload_agent.drivers.registry import parse_driver_options
 
 N_JOINTS = 6
 EFFORT_UNITS = ("percent_rated", "permille_rated", "A", "Nm")
@@ -74,12 +77,20 @@ class SafetyConfig:
     floor_z_m: float
     reach_box_m: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
     motion_timeout_factor: float
+    # supervision: stream gap that stops the arm (None: max(5 sample periods, 50 ms)), stop acknowledgement wait
+    max_stream_gap_s: float | None = None
+    stop_ack_timeout_s: float = 2.0
+    # kinematic cross-check: YAML forward kinematics vs the pose the controller reports
+    pose_tolerance_m: float = 0.005
+    pose_tolerance_rad: float = math.radians(1.0)
+    # a driver without a reported pose: an unattended run needs this explicit acknowledgement
+    unattended_without_pose_check: bool = False
 
 
 @dataclass(frozen=True)
 class StorageConfig:
     runs_dir: Path
-    state_dir: Path  # per-robot state lives in state_dir/<robot.name>/ (see payload_agent.state)
+    state_dir: Path  # per-robot state lives in state_dir/<robot.name>/ (see payload_agent.recording.state)
     baseline_max_age_days: float  # a stored empty-flange baseline older than this is refused
     baseline_max_temperature_delta_c: float  # ... and one recorded this much colder/warmer (any joint)
 
@@ -98,39 +109,17 @@ class WatchConfig:
 
 
 @dataclass(frozen=True)
-class SimPayload:
-    mass_kg: float
-    cog_mm: tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class SimulationConfig:
-    """Only in sim-*.yaml: the agent starts a fake controller in-process with this truth."""
-
-    arm: str
-    payload: SimPayload
-    noise_nm: tuple[float, ...]
-    coulomb_nm: tuple[float, ...]
-    viscous_nm_s_rad: tuple[float, ...]
-    load_ratio: tuple[float, ...]
-    friction_drift: float  # friction scale change at the tool change (e.g. 0.1 = +10 %)
-    drive_gain_error: tuple[float, ...]  # multiplicative, per joint (1.0 = exact)
-    time_scale: float
-    seed: int
-    start_deg: tuple[float, ...]  # where the simulated robot stands when the controller starts
-
-
-@dataclass(frozen=True)
 class Config:
     source: str
     robot: RobotConfig
     effort: EffortConfig
-    driver: Mapping[str, Any]
+    driver: Mapping[str, Any]  # the raw YAML section (snapshot); driver_options is the typed, checked form
     procedure: ProcedureConfig
     safety: SafetyConfig
     storage: StorageConfig
     simulation: SimulationConfig | None
     watch: WatchConfig | None = None
+    driver_options: DriverOptions | None = None
     raw: Mapping[str, Any] = field(repr=False, compare=False, default_factory=dict)
 
     @property
@@ -166,12 +155,12 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     top = Node(data, "", source)
     robot = _robot(top.child("robot"))
     effort = _effort(top.child("effort"))
-    driver = _driver(top.child("driver"))
+    driver, driver_options = _driver(top.child("driver"))
     procedure = _procedure(top.child("procedure"))
     safety = _safety(top.child("safety"), robot)
     storage = _storage(top.child("storage", required=False), base_dir)
     sim_node = top.child("simulation", required=False)
-    simulation = _simulation(sim_node) if sim_node is not None else None
+    simulation = parse_simulation(sim_node) if sim_node is not None else None
     watch_node = top.child("watch", required=False)
     watch = _watch(watch_node, base_dir) if watch_node is not None else None
     top.reject_unknown(["robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch"])
@@ -183,7 +172,8 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
         raise ConfigError("procedure.travel_speed_percent",
                           f"{procedure.travel_speed_percent:g} % exceeds safety.max_speed_percent "
                           f"({safety.max_speed_percent:g} %)", source)
-    return Config(source, robot, effort, driver, procedure, safety, storage, simulation, watch, raw=data)
+    return Config(source, robot, effort, driver, procedure, safety, storage, simulation, watch, driver_options,
+                  raw=data)
 
 
 def _robot(node: Node) -> RobotConfig:
@@ -211,7 +201,7 @@ def _robot(node: Node) -> RobotConfig:
         raise node.error("joint_limits_deg", f"expected {N_JOINTS} [min, max] pairs, got {limits_raw!r:.60}")
     limits = []
     for i, pair in enumerate(limits_raw):
-        from payload_agent.yamlcheck import check_numbers
+        from payload_agent.configuration.yamlcheck import check_numbers
 
         lo, hi = check_numbers(pair, node.key(f"joint_limits_deg[{i}]"), 2, source=node.source, min=-720, max=720)
         if lo >= hi:
@@ -232,9 +222,9 @@ def _effort(node: Node) -> EffortConfig:
     return EffortConfig(unit, gains)
 
 
-def _driver(node: Node) -> Mapping[str, Any]:
+def _driver(node: Node) -> tuple[Mapping[str, Any], DriverOptions]:
     node.string("type")
-    return dict(node.data)  # the driver class validates its own options
+    return dict(node.data), parse_driver_options(node.data, node.path, node.source)
 
 
 def _procedure(node: Node) -> ProcedureConfig:
@@ -267,11 +257,19 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
         axes.append((lo / 1000.0, hi / 1000.0))
     box.reject_unknown(["x", "y", "z"])
     timeout = node.number("motion_timeout_factor", 2.0, min=1.2, max=20)
+    gap_ms = node.number("max_stream_gap_ms", None, min=5, max=1000) if node.has("max_stream_gap_ms") else None
+    ack_s = node.number("stop_ack_timeout_s", 2.0, min=0.1, max=10)
+    pose_mm = node.number("pose_tolerance_mm", 5.0, gt=0, max=50)
+    pose_deg = node.number("pose_tolerance_deg", 1.0, gt=0, max=10)
+    no_pose_ok = node.boolean("unattended_without_pose_check", False)
     node.reject_unknown(["joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm",
-                         "reach_box_mm", "motion_timeout_factor"])
+                         "reach_box_mm", "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s",
+                         "pose_tolerance_mm", "pose_tolerance_deg", "unattended_without_pose_check"])
     if approach > max_speed:
         raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
-    return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout)
+    return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout,
+                        None if gap_ms is None else gap_ms / 1000.0, ack_s, pose_mm / 1000.0, math.radians(pose_deg),
+                        no_pose_ok)
 
 
 def _storage(node: Node | None, base_dir: Path | None) -> StorageConfig:
@@ -299,27 +297,6 @@ def _watch(node: Node, base_dir: Path | None) -> WatchConfig:
     poll = node.number("poll_interval_s", 0.5, gt=0, max=60)
     node.reject_unknown(["trigger", "poll_interval_s"])
     return WatchConfig(kind, path, index, poll)
-
-
-def _simulation(node: Node) -> SimulationConfig:
-    arm = node.string("arm", choices=["ec66", "ur5e"])
-    p = node.child("payload")
-    payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000))
-    p.reject_unknown(["mass_kg", "cog_mm"])
-    noise = node.per_joint("noise_nm", N_JOINTS, min=0, max=100)
-    fr = node.child("friction")
-    coulomb = fr.per_joint("coulomb_nm", N_JOINTS, min=0, max=200)
-    viscous = fr.per_joint("viscous_nm_s_rad", N_JOINTS, min=0, max=1000)
-    load = fr.per_joint("load_ratio", N_JOINTS, 0.0, min=0, max=1)
-    drift = fr.number("drift", 0.0, min=-0.9, max=2.0)
-    fr.reject_unknown(["coulomb_nm", "viscous_nm_s_rad", "load_ratio", "drift"])
-    gain_err = node.per_joint("drive_gain_error", N_JOINTS, 1.0, gt=0.5, max=1.5)
-    scale = node.number("time_scale", gt=0, max=1000)
-    seed = node.integer("seed", 0)
-    start = node.numbers("start_deg", N_JOINTS, min=-360, max=360)
-    node.reject_unknown(["arm", "payload", "noise_nm", "friction", "drive_gain_error", "time_scale", "seed",
-                         "start_deg"])
-    return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start)
 
 
 def config_snapshot(config: Config) -> dict[str, Any]:

@@ -36,13 +36,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from payload_agent.config import Config
-from payload_agent.delta import DeltaSweep
+from payload_agent.configuration.config import Config
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError, QualityGateError
-from payload_agent.kinematics import Kinematics
-from payload_agent.planner import SweepKey
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.types import SweepKey
 from payload_agent.solvers import general
-from payload_agent.state import RobotState, write_json_atomic
+from payload_agent.recording.state import RobotState, write_json_atomic
 
 FORMAT = "payload-agent-gains/1"
 SCALE_MIN, SCALE_MAX = 0.8, 1.25  # a drive gain this far off nominal is a wrong reference, not a drive
@@ -198,7 +198,7 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
 def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: Sequence[float],
               baseline_dir: Path | None = None) -> GainCalibration:
     """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains."""
-    from payload_agent.analysis import deltas_for  # analysis uses this module: import late
+    from payload_agent.evaluation.pipeline import deltas_for  # analysis uses this module: import late
 
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     deltas = deltas_for(Path(run_dir), nominal, baseline_dir)

@@ -15,8 +15,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TextIO
 
-from payload_agent.drivers.base import Sample
-from payload_agent.planner import Move
+from payload_agent.types import Sample
+from payload_agent.motion.planner import Move
 
 CSV_COLUMNS = ["t_ctrl_s", "t_recv_s"] + [f"q{j}_rad" for j in range(1, 7)] + [f"effort{j}" for j in range(1, 7)]
 FLUSH_EVERY_S = 0.25

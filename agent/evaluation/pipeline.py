@@ -12,16 +12,16 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from payload_agent import quality
-from payload_agent.calibration import effective_calibration, effective_gains
-from payload_agent.combine import add_combined
-from payload_agent.config import Config
-from payload_agent.delta import DeltaSweep, subtract_all
+from payload_agent.evaluation import quality
+from payload_agent.evaluation.calibration import effective_calibration, effective_gains
+from payload_agent.analysis.combine import add_combined
+from payload_agent.configuration.config import Config
+from payload_agent.analysis.delta import DeltaSweep, subtract_all
 from payload_agent.errors import DataError
-from payload_agent.kinematics import Kinematics
-from payload_agent.planner import SweepKey
-from payload_agent.results import Estimate, RunResult
-from payload_agent.rundata import load_manifest, load_phase
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.types import SweepKey
+from payload_agent.solvers.results import Estimate, RunResult
+from payload_agent.recording.rundata import load_manifest, load_phase
 from payload_agent.solvers import SOLVERS, general
 
 POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
@@ -32,7 +32,7 @@ def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
     """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
 
     With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
-    combined sweep (direction "both", see ``payload_agent.combine``); problems go to ``notes``.
+    combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
     """
     manifest = load_manifest(run_dir)
     loaded = load_phase(run_dir, "loaded", gains, manifest)
@@ -83,7 +83,7 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
 def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate,
                    gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
                    gain_reference: tuple[Sequence[float], Sequence[int]] | None = None) -> dict[str, Any]:
-    """Redundant checks recorded beside the result; ``payload_agent.quality.require_passed`` enforces them.
+    """Redundant checks recorded beside the result; ``payload_agent.evaluation.quality.require_passed`` enforces them.
 
     The uncertainty terms are those the primary estimate was solved with (see ``solve_all``): the
     pose-agreement check propagates the same drive-gain and DH-length uncertainty through both poses.

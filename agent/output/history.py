@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from payload_agent import __version__
-from payload_agent.drivers.base import PayloadSetting
+from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
 
 SCHEMA_VERSION = 1

@@ -13,24 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from payload_agent.arm_geometry import ArmGeometry
-from payload_agent.config import Config
+from payload_agent.model.arm_geometry import ArmGeometry
+from payload_agent.configuration.config import Config
 from payload_agent.errors import PlanError
-from payload_agent.procedure import Procedure, load_procedure
-
-
-@dataclass(frozen=True)
-class SweepKey:
-    """What a recorded sweep is: baseline matching uses all four fields."""
-
-    pose: str
-    joint: int  # 1-based
-    direction: str  # "up" (elevation increasing) or "down"
-    speed_percent: float
-
-    @property
-    def name(self) -> str:
-        return f"{self.pose}-j{self.joint}-{self.direction}"
+from payload_agent.types import SweepKey
+from payload_agent.configuration.procedure import Procedure, load_procedure
 
 
 @dataclass(frozen=True)

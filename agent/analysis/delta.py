@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.planner import SweepKey
-from payload_agent.rundata import SweepData
-from payload_agent.segmenter import Window, constant_speed_window
+from payload_agent.types import SweepKey
+from payload_agent.recording.rundata import SweepData
+from payload_agent.analysis.segmenter import Window, constant_speed_window
 
 
 @dataclass

@@ -1,0 +1,1 @@
+"""Recorded sweeps -> constant-speed windows, baseline-subtracted and direction-combined torques."""

@@ -1,0 +1,1 @@
+"""Robot YAML and procedure files -> typed, validated configuration."""

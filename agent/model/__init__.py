@@ -1,0 +1,1 @@
+"""Robot model math shared by every stage: forward kinematics, procedure geometry, PTP profiles."""

@@ -1,0 +1,1 @@
+"""The plan (every PTP move, as data) and the safety gate, the only code that commands motion."""

@@ -1,0 +1,123 @@
+"""The value types every stage shares: a sample, a sweep's name, a controller's identity and state.
+
+They are plain frozen dataclasses with no behaviour beyond naming, so any stage may import
+them without importing another stage.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One reading of the robot: joint angles and the controller's effort signal."""
+
+    t_ctrl: float | None  # controller timestamp in seconds, if the protocol has one
+    t_recv: float  # time.monotonic() when the sample was received
+    q: tuple[float, ...]  # joint angles, rad, controller convention
+    effort: tuple[float, ...]  # per joint, in the driver's effort unit (Driver.effort_unit)
+
+
+@dataclass(frozen=True)
+class ControllerInfo:
+    vendor: str
+    model: str
+    firmware: str
+    serial: str = ""
+
+
+@dataclass(frozen=True)
+class ControllerState:
+    """Whether the controller accepts motion now, and if not, what the user must do.
+
+    Vendor mode names stay inside the driver: ``reason`` is a sentence for a person
+    ("switch the teach pendant to REMOTE"), ``detail`` the raw vendor state for logs.
+    """
+
+    motion_allowed: bool
+    reason: str = ""  # why motion is refused, in words a user can act on ("" when allowed)
+    estop: bool = False
+    protective_stop: bool = False
+    moving: bool = False
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class PayloadSetting:
+    """The payload the controller uses for its own dynamics model."""
+
+    mass_kg: float
+    cog_m: tuple[float, float, float]  # in the flange frame
+    tool_num: int | None = None
+
+
+@dataclass(frozen=True)
+class FlangePose:
+    """Where the controller says its flange is: position (m) and rotation matrix, base frame."""
+
+    position_m: tuple[float, float, float]
+    rotation: tuple[tuple[float, float, float], ...]  # 3x3, rows
+
+
+@dataclass(frozen=True)
+class SweepKey:
+    """What a recorded sweep is: baseline matching uses all four fields."""
+
+    pose: str
+    joint: int  # 1-based
+    direction: str  # "up" (elevation increasing) or "down"
+    speed_percent: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.pose}-j{self.joint}-{self.direction}"
+
+
+@dataclass
+class StreamStats:
+    """How the sample stream behaved over one sweep (written to the manifest)."""
+
+    nominal_period_s: float
+    count: int = 0
+    first_t: float | None = None  # receive times (monotonic)
+    last_t: float | None = None
+    largest_gap_s: float = 0.0
+    gaps: list[tuple[float, float]] = field(default_factory=list)  # (offset from first sample s, length s) > limit
+
+    @property
+    def achieved_rate_hz(self) -> float:
+        if self.count < 2 or self.first_t is None or self.last_t is None or self.last_t <= self.first_t:
+            return 0.0
+        return (self.count - 1) / (self.last_t - self.first_t)
+
+    def to_json(self) -> dict:
+        return {"nominal_period_s": self.nominal_period_s, "count": self.count,
+                "achieved_rate_hz": round(self.achieved_rate_hz, 3), "largest_gap_s": round(self.largest_gap_s, 6),
+                "gaps": [[round(a, 6), round(b, 6)] for a, b in self.gaps]}
+
+
+@dataclass(frozen=True)
+class StopReport:
+    """What the supervision did when it tripped: why, how fast the stop went out, whether it was heard."""
+
+    reason: str
+    fault_t: float  # monotonic time the fault was detected
+    stop_sent_t: float | None  # monotonic time the first stop command went out
+    acknowledged: bool
+    via: str  # "command channel", "new connection", or "none"
+    attempts: int = 1
+
+    @property
+    def stop_delay_s(self) -> float | None:
+        return None if self.stop_sent_t is None else self.stop_sent_t - self.fault_t
+
+    def describe(self) -> str:
+        if self.stop_sent_t is None:
+            return f"{self.reason}; NO stop could be sent: stop the robot at the pendant now"
+        ack = "acknowledged" if self.acknowledged else "NOT acknowledged: check the robot at the pendant"
+        return (f"{self.reason}; stop sent over the {self.via} {1000 * self.stop_delay_s:.0f} ms later, {ack}")
+
+    def to_json(self) -> dict:
+        return {"reason": self.reason, "stop_delay_s": self.stop_delay_s, "acknowledged": self.acknowledged,
+                "via": self.via, "attempts": self.attempts}
