@@ -37,7 +37,7 @@ class SimulationConfig:
 
 
 def parse_simulation(node: Node) -> SimulationConfig:
-    arm = node.string("arm", choices=["ec66", "ur5e"])
+    arm = node.string("arm")  # a name in payload_agent.fakes.arms.SPECS, checked when the simulation starts
     p = node.child("payload")
     payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000))
     p.reject_unknown(["mass_kg", "cog_mm"])
