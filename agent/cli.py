@@ -23,7 +23,8 @@ def _run_options(args, mode: str, **extra):
                       result_path=Path(args.result) if getattr(args, "result", None) else None,
                       solver=getattr(args, "solver", None), tool=getattr(args, "tool", None),
                       fresh_baseline=getattr(args, "fresh_baseline", False),
-                      report=not getattr(args, "no_report", False), **extra)
+                      report=not getattr(args, "no_report", False),
+                      retry_sweeps=getattr(args, "retry_sweeps", 0) or 0, **extra)
 
 
 def _cmd_run(args) -> int:
@@ -89,7 +90,8 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_watch(args) -> int:
-    from payload_agent.session.runner import RunOptions, make_driver, run_identification
+    from payload_agent.session.connection import build_driver
+    from payload_agent.session.runner import RunOptions, run_identification
     from payload_agent.session.watch import watch
 
     config = load_config(args.robot)
@@ -105,7 +107,7 @@ def _cmd_watch(args) -> int:
 
     try:
         return watch(config, run_once, max_runs=args.max_runs,
-                     driver_factory=lambda: make_driver(config, cell.options if cell else None))
+                     driver_factory=lambda: build_driver(config, cell.options if cell else None))
     finally:
         if cell is not None:
             cell.close()
@@ -120,8 +122,11 @@ def _cmd_plan(args) -> int:
     from payload_agent.recording.state import RobotState
     from payload_agent.motion.safety import SafetyGate
 
+    from payload_agent.session.connection import build_driver
+
     config = load_config(args.robot)
     plan = make_plan(config)
+    build_driver(config)  # the driver section and effort unit, checked without connecting
     start = None
     if args.from_deg and args.connect:
         raise ConfigError("--from-deg", "give either --from-deg or --connect, not both")
@@ -134,7 +139,7 @@ def _cmd_plan(args) -> int:
         if start.shape != (6,):
             raise ConfigError("--from-deg", f"expected six joint angles, got {start.size}")
     elif args.connect:
-        from payload_agent.session.runner import read_current_q
+        from payload_agent.session.connection import read_current_q
 
         start = read_current_q(config)
         print("Robot stands at [" + ", ".join(f"{v:.2f}" for v in np.degrees(start)) + "] deg")
@@ -187,6 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--fresh-baseline", action="store_true",
                      help="record the empty-flange run in this session even if a stored baseline fits")
     run.add_argument("--no-report", action="store_true", help="do not write report.html")
+    run.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
+                     help="redo a sweep whose sample stream had a gap, up to N times per run phase (default 0: abort)")
     run.set_defaults(func=_cmd_run)
 
     base = sub.add_parser("baseline", help="record and store the empty-flange run (remove the tool first)")

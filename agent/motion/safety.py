@@ -132,3 +132,25 @@ class SafetyGate:
         timeout = expected * self.safety.motion_timeout_factor + 5.0
         self._next += 1
         driver.move_joints(move.target_rad, move.speed_rad_s, move.accel_rad_s2, timeout_s=timeout)
+
+    def redo_last_sweep(self, driver: Driver, current_q: np.ndarray) -> None:
+        """Take the arm back along the sweep just run to its start, so that the sweep can run again.
+
+        Only a sweep may be redone, only from its end, and only back along its own joint-space
+        segment (a path this gate has already checked) at the sweep's own approved speed.
+        """
+        if self._approved is None or self._next == 0:
+            raise SafetyError("no sweep has run yet: nothing to redo")
+        idx = self._next - 1
+        move = self._approved[idx]
+        if move.sweep is None:
+            raise SafetyError(f"{move.label!r} is not a sweep: only sweeps are redone")
+        start = self._start_q if idx == 0 else np.asarray(self._approved[idx - 1].target_rad)
+        drift = float(np.max(np.abs(np.asarray(current_q) - np.asarray(move.target_rad))))
+        if drift > math.radians(0.5):
+            raise SafetyError(f"cannot redo {move.label!r}: the robot is {math.degrees(drift):.2f}° away from the "
+                              "sweep's end")
+        expected = move_duration_s(np.asarray(current_q), start, move.speed_rad_s, move.accel_rad_s2)
+        self._next = idx
+        driver.move_joints(tuple(float(v) for v in start), move.speed_rad_s, move.accel_rad_s2,
+                           timeout_s=expected * self.safety.motion_timeout_factor + 5.0)

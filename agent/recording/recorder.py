@@ -70,7 +70,8 @@ class RunRecorder:
         self.manifest["phases"][self._phase]["sweeps"].append(entry)
         self.write_manifest()
 
-    def end_sweep(self, status: str) -> None:
+    def end_sweep(self, status: str, stream: dict[str, Any] | None = None) -> None:
+        """Close the sweep's file; ``stream`` is the driver's stream statistics for it (manifest)."""
         with self._lock:
             f, entry = self._file, self._entry
             self._file = self._entry = None
@@ -78,6 +79,8 @@ class RunRecorder:
             f.close()
         if entry is not None:
             entry.update(status=status, ended_utc=utc_now())
+            if stream is not None:
+                entry["stream"] = stream
             self.write_manifest()
 
     # -- the driver's sample sink -------------------------------------------------------------

@@ -24,25 +24,24 @@ from typing import Any, Callable
 
 import numpy as np
 
-from payload_agent import __version__
-from payload_agent.session import baseline as baselines
-from payload_agent.configuration.config import Config, config_snapshot
-from payload_agent.drivers.base import Driver, PayloadSetting
-from payload_agent.drivers.registry import driver_class
+from payload_agent.configuration.config import Config
+from payload_agent.drivers.base import Driver
 from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
-                                  QualityGateError, RobotNotReadyError)
+                                  QualityGateError, RobotNotReadyError, SafetyError)
 from payload_agent.motion.planner import Plan, expected_durations, make_plan
-from payload_agent.recording.recorder import RunRecorder
-from payload_agent.solvers.results import RunResult, format_table
 from payload_agent.motion.safety import SafetyGate
+from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
+from payload_agent.session import baseline as baselines
+from payload_agent.session.apply import apply_result
+from payload_agent.session.connection import build_driver, simulated_cell
+from payload_agent.session.manifest import RunManifest, new_run_dir
+from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
+from payload_agent.solvers.results import RunResult, format_table
+from payload_agent.types import PayloadSetting
 
 SAMPLE_WAIT_S = 5.0
-SETTLED_RAD = math.radians(0.05)
-READBACK_TOL_KG = 0.001  # the controllers store mass to 1 g or better
-READBACK_TOL_M = 0.0005  # and the centre of mass to 0.5 mm or better
 MODES = ("identify", "baseline", "calibrate")
-NOT_REMOTE_MODES = ("local", "teach", "play")  # ControllerState.mode values in which motion commands are refused
 
 
 @dataclass
@@ -62,6 +61,7 @@ class RunOptions:
     ask: Callable[[str], str] = input
     on_cell: Callable[[object], None] | None = None  # tests: sees the SimulatedCell once it runs
     cell: Any = None  # an already started SimulatedCell to use (left running afterwards)
+    retry_sweeps: int = 0  # redo a sweep whose sample stream had a gap, up to this many times per phase
 
 
 @dataclass
@@ -76,41 +76,6 @@ class RunOutcome:
     calibration: Any = None
 
 
-def make_driver(config: Config, options: dict | None = None) -> Driver:
-    cls = driver_class(config.driver_type)
-    return cls(options if options is not None else config.driver,
-               max_joint_speed_rad_s=config.robot.max_joint_speed_rad_s)
-
-
-def read_current_q(config: Config) -> np.ndarray:
-    """Connect only to read where the robot stands now (for `plan --connect`); nothing moves."""
-    cell = None
-    options = dict(config.driver)
-    if config.simulation is not None:
-        from payload_agent.session.simulation import SimulatedCell
-
-        cell = SimulatedCell(config).start()
-        options = cell.options
-    driver = make_driver(config, options)
-    latest: list = []
-    try:
-        driver.connect()
-        driver.start_stream(latest.append)
-        deadline = time.monotonic() + SAMPLE_WAIT_S
-        while not latest:
-            if driver.stream_error is not None:
-                raise CommunicationError(f"sample stream ended: {driver.stream_error}")
-            if time.monotonic() > deadline:
-                raise CommunicationError(f"no joint sample from the controller for {SAMPLE_WAIT_S:.0f} s")
-            time.sleep(0.005)
-        driver.stop_stream()
-        return np.asarray(latest[-1].q, float)
-    finally:
-        driver.close()
-        if cell is not None:
-            cell.close()
-
-
 def describe_plan(plan: Plan, durations: list[float]) -> str:
     lines = [f"Plan: procedure {plan.procedure.name}, {len(plan.moves)} moves per run"]
     for i, (m, d) in enumerate(zip(plan.moves, durations), 1):
@@ -121,85 +86,6 @@ def describe_plan(plan: Plan, durations: list[float]) -> str:
     total = sum(d for d in durations if not math.isnan(d))
     lines.append(f"  robot time per run: {total:.1f} s")
     return "\n".join(lines)
-
-
-class _Session:
-    """Holds the live connection; every exit path stops the robot."""
-
-    def __init__(self, config: Config, driver: Driver, gate: SafetyGate, recorder: RunRecorder, out,
-                 progress=None):
-        self.config, self.driver, self.gate, self.recorder, self.out = config, driver, gate, recorder, out
-        self.progress = progress
-
-    def sink(self, sample) -> None:
-        self.recorder.sink(sample)
-        if self.progress is not None:
-            self.progress.on_sample(sample)
-
-    def current_q(self, after: float | None = None, near: tuple[float, ...] | None = None) -> np.ndarray:
-        """Latest joint angles; with ``after`` (monotonic time), wait for a sample received after it,
-        and with ``near``, for one at those angles (the stream may lag the motion-finished reply)."""
-        deadline = time.monotonic() + SAMPLE_WAIT_S
-        while True:
-            s = self.recorder.last_sample
-            if s is not None and (after is None or s.t_recv > after) and (
-                    near is None or np.max(np.abs(np.asarray(s.q) - near)) < SETTLED_RAD):
-                return np.asarray(s.q, float)
-            if self.driver.stream_error is not None:
-                raise CommunicationError(f"sample stream ended: {self.driver.stream_error}")
-            if time.monotonic() > deadline:
-                raise CommunicationError(f"no joint sample from the controller for {SAMPLE_WAIT_S:.0f} s")
-            time.sleep(0.005)
-
-    def run_phase(self, name: str, plan: Plan) -> None:
-        start_q = self.current_q()
-        self.gate.approve(plan, start_q)  # the approach path starts wherever the robot stands now
-        self.recorder.begin_phase(name, joint_temperatures_c={"start": _temperatures(self.driver)})
-        if self.progress is not None:
-            self.progress.begin_phase(name)
-        n = len(plan.moves)
-        try:
-            for i, move in enumerate(plan.moves, 1):
-                q_now = self.current_q()
-                if move.sweep is not None:
-                    self.recorder.begin_sweep(move)
-                self.out(f"  [{name}] {i}/{n} {move.label}")
-                if self.progress is not None:
-                    self.progress.begin_move(i, move, q_now)
-                self.gate.execute(self.driver, move, q_now)
-                done = time.monotonic()
-                self.current_q(after=done, near=move.target_rad)  # the stream has caught up with the move
-                if self.progress is not None:
-                    self.progress.end_move()
-                if move.sweep is not None:
-                    self.recorder.end_sweep("complete")
-        except BaseException as exc:
-            self.stop_robot()
-            if self.progress is not None:
-                self.progress.close()
-            self.recorder.end_sweep("aborted")
-            self.recorder.end_phase(f"aborted: {type(exc).__name__}: {exc}")
-            if isinstance(exc, KeyboardInterrupt):
-                raise MotionAbortedError("interrupted by the operator (Ctrl-C); the robot was stopped, "
-                                         f"recorded data kept in {self.recorder.run_dir}") from None
-            raise
-        self.recorder.manifest["phases"][name]["joint_temperatures_c"]["end"] = _temperatures(self.driver)
-        self.recorder.end_phase("complete")
-
-    def stop_robot(self) -> None:
-        try:
-            self.driver.stop()
-        except Exception:
-            pass
-
-
-def _temperatures(driver: Driver) -> list[float] | None:
-    """Joint temperatures, °C, where the controller reports them (friction depends on them)."""
-    try:
-        temps = driver.joint_temperatures_c()
-    except PayloadAgentError:
-        return None
-    return None if temps is None else [round(float(t), 2) for t in temps]
 
 
 def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: baselines.BaselineInfo,
@@ -230,123 +116,105 @@ def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: ba
 
 
 def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
+    """One session: connect, check, show the plan, move through it, record, analyse, apply."""
     if opts.mode not in MODES:
         raise ValueError(f"unknown mode {opts.mode!r}")
     if opts.mode == "calibrate" and opts.reference is None:
         raise PayloadAgentError("calibrate needs the reference payload (--known-mass, --known-cog)")
-    out = opts.out
     plan = make_plan(config)
+    build_driver(config)  # a bad driver section or effort unit is refused before anything starts
+    with simulated_cell(config, opts.cell) as cell:
+        driver = build_driver(config, cell.options if cell else None)
+        if cell is not None:
+            if opts.on_cell is not None:
+                opts.on_cell(cell)
+            opts.out(f"Simulated {config.simulation.arm if config.simulation else ''} controller at "
+                     f"{driver.describe_endpoint()}; payload truth {cell.truth_json}")
+        return _run_connected(config, opts, plan, cell, driver)
+
+
+def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: Driver) -> RunOutcome:
+    out = opts.out
     gate = SafetyGate(config)
     state = RobotState.for_config(config)
-    own_cell = opts.cell is None and config.simulation is not None
-    cell = opts.cell
-    driver_options = dict(config.driver)
-    if own_cell:
-        from payload_agent.session.simulation import SimulatedCell
-
-        cell = SimulatedCell(config).start()
-    if cell is not None:
-        driver_options = cell.options
-        if opts.on_cell is not None:
-            opts.on_cell(cell)
-        out(f"Simulated {config.simulation.arm if config.simulation else ''} controller on "
-            f"{driver_options.get('host')}; payload truth {cell.truth_json}")
     t0 = time.monotonic()
-    driver = make_driver(config, driver_options)
     recorder = None
-    outcome: RunOutcome | None = None
     try:
         driver.connect()
         info = driver.identify()
         ctl_state = driver.state()
-        out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}; mode {ctl_state.mode}")
-        if ctl_state.fault:
-            raise RobotNotReadyError(f"the robot is not ready: {ctl_state.fault}. Clear it on the pendant and retry.")
-        if ctl_state.mode in NOT_REMOTE_MODES:  # refuse before the plan is shown, not at the first move
-            raise RobotNotReadyError(f"the controller is in {ctl_state.mode} mode: an external program cannot move "
-                                     "the robot. Switch it to remote control on the teach pendant and retry.")
+        out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}"
+            + (f" ({ctl_state.detail})" if ctl_state.detail else ""))
+        if not ctl_state.motion_allowed:  # refuse before the plan is shown, not at the first move
+            raise RobotNotReadyError(f"the robot is not ready: {ctl_state.reason}")
         if opts.mode == "identify":
             from payload_agent.evaluation.calibration import effective_gains
 
             note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
             out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
                 "`payload-agent calibrate` with a known reference payload removes their error")
+        start_q = np.asarray(driver.wait_sample(SAMPLE_WAIT_S).q, float)
+        pose_check = check_kinematics(config, driver, start_q, "before any motion")
+        if pose_check is not None:
+            out(f"Kinematic cross-check: YAML model and controller agree within "
+                f"{1000 * pose_check.position_error_m:.1f} mm, {math.degrees(pose_check.rotation_error_rad):.2f}°")
         current = baselines.describe_for(config, plan, info, source_run=Path("."),
-                                         joint_temperatures_c=_temperatures(driver))
+                                         joint_temperatures_c=joint_temperatures(driver))
         phases, stored_info, store_empty = _phases_for(config, opts, state, current, out)
-        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        suffix = {"identify": "", "baseline": "-baseline", "calibrate": "-calibration"}[opts.mode]
-        run_dir = config.storage.runs_dir / f"{stamp}-{config.robot.name}{suffix}"
-        n = 1
-        while run_dir.exists():
-            n += 1
-            run_dir = config.storage.runs_dir / f"{stamp}-{config.robot.name}{suffix}-{n}"
-        recorder = RunRecorder(run_dir, {
-            "format": "payload-agent-run/1", "software_version": __version__, "robot": config.robot.name,
-            "mode": opts.mode, "tool": opts.tool,
-            "config_source": config.source, "config": config_snapshot(config),
-            "controller": baselines.controller_identity(info),
-            "effort_unit": driver.effort_unit, "gains_nm_per_unit": list(config.effort.gains_nm_per_unit),
-            "procedure": plan.procedure.name, "plan_fingerprint": plan.fingerprint(),
-            "plan": [m.to_json() for m in plan.moves],
-            "baseline": None if stored_info is None else {"dir": str(state.baseline_dir), **stored_info.to_json()},
-            "reference_payload": None if opts.reference is None else {
-                "mass_kg": opts.reference.mass_kg, "cog_mm": [1000 * c for c in opts.reference.cog_m]},
-            "simulation_truth": cell.truth_json if cell else None,
-        })
-        if stored_info is not None:  # the run folder keeps its own copy: it stays self-contained
-            recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
-            recorder.write_manifest()
-        session = _Session(config, driver, gate, recorder, out)
-        driver.start_stream(session.sink)
-        start_q = session.current_q()
         verdict = gate.check(plan, start_q)
         durations = expected_durations(plan, start_q)
         out(describe_plan(plan, durations))
-        session.progress = _make_progress(opts, config, plan, durations, [p for p, _ in phases])
         out("Safety gate: " + verdict.describe())
         if not verdict.ok:
             gate.approve(plan, start_q)  # raises SafetyError with every problem listed
+        _confirm_without_pose_check(config, driver, plan, opts)
         if not (opts.unattended or opts.assume_yes):
             what = " and ".join({"empty": "the empty-flange run", "loaded": "the loaded run"}[p] for p, _ in phases)
             answer = opts.ask(f"Record {what} now? The robot will move. [y/N] ")
             if answer.strip().lower() not in ("y", "yes"):
                 raise MotionAbortedError("the operator declined; nothing moved")
+        recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")),
+                               RunManifest(config, plan, opts.mode, baselines.controller_identity(info),
+                                           driver.effort_unit, opts.tool,
+                                           None if stored_info is None else {"dir": str(state.baseline_dir),
+                                                                             **stored_info.to_json()},
+                                           opts.reference, cell.truth_json if cell else None,
+                                           None if pose_check is None else pose_check.to_json()).to_json())
+        if stored_info is not None:  # the run folder keeps its own copy: it stays self-contained
+            recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
+            recorder.write_manifest()
+        phase_runner = PhaseRunner(config, driver, gate, recorder, out,
+                                   _make_progress(opts, config, plan, durations, [p for p, _ in phases]),
+                                   retry_sweeps=opts.retry_sweeps)
+        driver.start_stream(phase_runner.sink)
         for phase, mounted in phases:
             _prepare_tool(phase, mounted, cell, opts, out, changing=len(phases) > 1 or opts.mode == "baseline")
-            session.run_phase(phase, plan)
-        if session.progress is not None:
-            session.progress.close()
-        t_motion = time.monotonic() - t0
-        if store_empty:
-            temps = recorder.manifest["phases"]["empty"].get("joint_temperatures_c", {}).get("end")
-            stored = baselines.store_baseline(state, recorder.run_dir,
-                                              baselines.describe_for(config, plan, info, recorder.run_dir,
-                                                                     joint_temperatures_c=temps))
-            out(f"Empty-flange baseline stored in {stored}")
-        if opts.mode == "baseline":
-            driver.stop_stream()
-            recorder.update(finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
-            return RunOutcome(recorder.run_dir, None, cell.truth_json if cell else None,
-                              {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion})
+            phase_runner.run_phase(phase, plan)
+        if phase_runner.progress is not None:
+            phase_runner.progress.close()
         driver.stop_stream()
+        t_motion = time.monotonic() - t0
         if driver.stream_error is not None:
             raise CommunicationError(f"the sample stream failed: {driver.stream_error}")
+        if store_empty:
+            stored = _store_baseline(config, plan, info, state, recorder)
+            out(f"Empty-flange baseline stored in {stored}")
+        if opts.mode == "baseline":
+            recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+            return RunOutcome(recorder.run_dir, None, cell.truth_json if cell else None,
+                              {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion})
         outcome = _finish(config, opts, state, driver, recorder.run_dir, stored_info, cell)
         outcome.timings = {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion}
-        recorder.update(finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
-    except BaseException:
-        try:
-            driver.stop()
-        except Exception:
-            pass
+        recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+    except BaseException as exc:
+        driver.stop()
+        if recorder is not None:
+            report = getattr(exc, "stop_report", None)
+            recorder.update(status="incomplete", stopped_because=f"{type(exc).__name__}: {exc}",
+                            stop=None if report is None else report.to_json())
         raise
     finally:
-        try:
-            driver.close()
-        finally:
-            if own_cell and cell is not None:
-                cell.close()
+        driver.close()
     if outcome.result is not None:
         from payload_agent.evaluation.quality import require_passed
 
@@ -355,6 +223,42 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         except QualityGateError as exc:
             raise QualityGateError(f"{exc}\nData, result and report kept in {outcome.run_dir}") from None
     return outcome
+
+
+def _confirm_without_pose_check(config: Config, driver: Driver, plan: Plan, opts: RunOptions) -> None:
+    """A controller that reports no flange pose: the YAML kinematics cannot be cross-checked.
+
+    Interactive runs show the planned flange heights and ask; unattended runs need the
+    explicit acknowledgement ``safety.unattended_without_pose_check: true``.
+    """
+    if driver.reports_flange_pose:
+        return
+    heights = [1000 * float(config.robot.kinematics.flange(m.target_rad)[2, 3]) for m in plan.moves]
+    opts.out(f"This controller reports no flange pose: the YAML kinematics cannot be checked against the robot. "
+             f"Planned flange heights {min(heights):.0f} to {max(heights):.0f} mm above the base "
+             f"(floor at {1000 * config.safety.floor_z_m:.0f} mm); watch the first move.")
+    if opts.unattended:
+        if not config.safety.unattended_without_pose_check:
+            raise SafetyError("safety.unattended_without_pose_check: this driver cannot cross-check the YAML "
+                              "kinematics against the robot, so an unattended run needs this explicit "
+                              "acknowledgement (true) in the robot YAML, after an attended run has shown the "
+                              "kinematics are right")
+        return
+    if not opts.assume_yes:
+        answer = opts.ask("Do the planned flange heights match the robot's surroundings? [y/N] ")
+        if answer.strip().lower() not in ("y", "yes"):
+            raise MotionAbortedError("the operator did not confirm the flange heights; nothing moved")
+
+
+def _store_baseline(config: Config, plan: Plan, info, state: RobotState, recorder: RunRecorder) -> Path:
+    """Store this session's empty run as the baseline, only if every one of its sweeps segments."""
+    from payload_agent.evaluation.pipeline import check_baseline_segmentation
+
+    check_baseline_segmentation(config, recorder.run_dir)  # DataError: nothing is stored
+    temps = recorder.manifest["phases"]["empty"].get("joint_temperatures_c", {}).get("end")
+    return baselines.store_baseline(state, recorder.run_dir,
+                                    baselines.describe_for(config, plan, info, recorder.run_dir,
+                                                           joint_temperatures_c=temps))
 
 
 def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver, run_dir: Path,
@@ -381,7 +285,8 @@ def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver,
     outcome.history_id = _record_history(config, opts, state, result, stored, out)
     passed = bool(result.quality.get("passed", False))
     if opts.apply and opts.mode == "identify" and passed:
-        outcome.applied = _apply(driver, result, opts, out)
+        outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,
+                                       out)
         if outcome.history_id is not None:
             from payload_agent.output import history
 
@@ -422,48 +327,6 @@ def _write_report(config: Config, run_dir: Path, state: RobotState, out) -> Path
         return None
     out(f"Report: {path}")
     return path
-
-
-def _apply(driver: Driver, result: RunResult, opts: RunOptions, out) -> PayloadSetting:
-    """Show the controller's current setting and the difference, write, read back, verify."""
-    est = result.primary
-    new = PayloadSetting(mass_kg=float(est.mass_kg), cog_m=tuple(float(c) for c in est.cog_m))
-    try:
-        current = driver.read_payload()
-    except PayloadAgentError as exc:
-        current = None
-        out(f"Current controller payload setting: unknown ({exc})")
-    if current is not None:
-        out(describe_payload_change(current, new))
-    if not (opts.unattended or opts.assume_yes):
-        answer = opts.ask("Write the identified payload to the controller? [y/N] ")
-        if answer.strip().lower() not in ("y", "yes"):
-            out("Not applied (declined).")
-            raise MotionAbortedError("the operator declined writing the payload; the result is kept")
-    if current is not None and current.tool_num is not None:
-        new = PayloadSetting(new.mass_kg, new.cog_m, current.tool_num)
-    driver.write_payload(new)
-    back = driver.read_payload()
-    dm = abs(back.mass_kg - new.mass_kg)
-    dc = max(abs(a - b) for a, b in zip(back.cog_m, new.cog_m))
-    if dm > READBACK_TOL_KG or dc > READBACK_TOL_M:
-        raise CommunicationError(
-            f"the controller reads back {back.mass_kg:.4f} kg at {[round(1000 * c, 2) for c in back.cog_m]} mm "
-            f"after writing {new.mass_kg:.4f} kg at {[round(1000 * c, 2) for c in new.cog_m]} mm")
-    out(f"Applied and read back: {back.mass_kg:.4f} kg, centre of mass "
-        f"{', '.join(f'{1000 * c:.1f}' for c in back.cog_m)} mm")
-    return back
-
-
-def describe_payload_change(current: PayloadSetting, new: PayloadSetting) -> str:
-    cur_mm = [1000 * c for c in current.cog_m]
-    new_mm = [1000 * c for c in new.cog_m]
-    tool = f" (tool {current.tool_num})" if current.tool_num is not None else ""
-    return (f"Controller payload setting{tool}: {current.mass_kg:.3f} kg at "
-            f"[{', '.join(f'{v:.1f}' for v in cur_mm)}] mm\n"
-            f"Identified:                 {new.mass_kg:.3f} kg at [{', '.join(f'{v:.1f}' for v in new_mm)}] mm\n"
-            f"Difference:                 {new.mass_kg - current.mass_kg:+.3f} kg, "
-            f"[{', '.join(f'{b - a:+.1f}' for a, b in zip(cur_mm, new_mm))}] mm")
 
 
 def _make_progress(opts: RunOptions, config: Config, plan: Plan, durations: list[float], phases: list[str]):

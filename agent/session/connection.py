@@ -1,0 +1,62 @@
+"""Building and opening the driver a robot YAML names, the simulated controller included.
+
+``build_driver`` checks everything that needs no connection (the driver's options, its
+effort unit against ``effort.unit``), so ``plan`` refuses a bad driver section before any
+socket opens. ``open_controller`` starts the simulated controller when the YAML has a
+``simulation`` section and points the driver at it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Iterator
+
+import numpy as np
+
+from payload_agent.configuration.config import Config
+from payload_agent.drivers.base import Driver, DriverOptions, MotionLimits, Supervision
+from payload_agent.drivers.registry import make_driver
+
+SAMPLE_WAIT_S = 5.0
+
+
+def motion_limits(config: Config) -> MotionLimits:
+    return MotionLimits(config.robot.max_joint_speed_rad_s, config.robot.max_joint_accel_rad_s2)
+
+
+def supervision(config: Config) -> Supervision:
+    return Supervision(config.safety.max_stream_gap_s, config.safety.stop_ack_timeout_s)
+
+
+def build_driver(config: Config, options: DriverOptions | None = None) -> Driver:
+    """The driver for ``config`` (not connected); ConfigError if its effort unit is not the YAML's."""
+    driver = make_driver(options or config.driver_options, motion_limits(config), supervision(config))
+    driver.check_effort_unit(config.effort.unit)
+    return driver
+
+
+@contextlib.contextmanager
+def simulated_cell(config: Config, cell=None) -> Iterator[object | None]:
+    """The running simulated cell for a sim YAML (started here unless given), else None."""
+    if cell is not None or config.simulation is None:
+        yield cell
+        return
+    from payload_agent.session.simulation import SimulatedCell
+
+    own = SimulatedCell(config).start()
+    try:
+        yield own
+    finally:
+        own.close()
+
+
+def read_current_q(config: Config) -> np.ndarray:
+    """Connect only to read where the robot stands now (for `plan --connect`); nothing moves."""
+    build_driver(config)  # refuse a bad driver section before starting anything
+    with simulated_cell(config) as cell:
+        driver = build_driver(config, cell.options if cell is not None else None)
+        try:
+            driver.connect()
+            return np.asarray(driver.wait_sample(SAMPLE_WAIT_S).q, float)
+        finally:
+            driver.close()
