@@ -30,7 +30,8 @@ import numpy as np
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.fakes.offline import step_until_still
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers.dynamic import ExcitationRecord, payload_regressor
+from payload_agent.solvers.dynamic import ExcitationRecord
+from payload_agent.solvers.regressor import payload_regressor
 
 HARMONICS = 5
 PERIOD_S = 10.0

@@ -18,7 +18,7 @@ from payload_agent.fakes.excitation import (MAX_ACCEL_RAD_S2, MAX_EXCURSION_RAD,
 from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import SOLVERS, dynamic
+from payload_agent.solvers import SOLVERS, dynamic, regressor
 
 MASS, COG_MM = 2.5, (40.0, -30.0, 90.0)
 
@@ -53,12 +53,12 @@ def test_regressor_matches_mujoco_inverse_dynamics():
     theta = np.array([m, *(m * c), I_o[0, 0], I_o[0, 1], I_o[0, 2], I_o[1, 1], I_o[1, 2], I_o[2, 2]])
     rng = np.random.default_rng(0)
     q, qd, qdd = rng.normal(size=(3, 20, 6))
-    W = dynamic.payload_regressor(kin, q, qd, qdd)
+    W = regressor.payload_regressor(kin, q, qd, qdd)
     for k in range(20):
         expected = with_payload.rigid_torque(q[k], qd[k], qdd[k]) - without.rigid_torque(q[k], qd[k], qdd[k])
         assert np.allclose(W[k] @ theta, expected, atol=1e-9)
     # static limit: the gravity regressor the PTP solvers use
-    W0 = dynamic.payload_regressor(kin, q, np.zeros_like(qd), np.zeros_like(qdd))
+    W0 = regressor.payload_regressor(kin, q, np.zeros_like(qd), np.zeros_like(qdd))
     assert np.allclose(W0[3, :, :4], kin.payload_regressor(q[3], range(6)), atol=1e-12)
 
 

@@ -92,7 +92,7 @@ def test_noisy_error_within_reported_std_and_ci_coverage(setup):
         noisy = [dataclasses.replace(g, y=g.y + rng.normal(0.0, sigma_j[int(g.label.rsplit("j", 1)[1])], len(g.y)))
                  for g in groups]
         res = general.fit(noisy)
-        theta, cov = res["theta"], res["cov"]
+        theta, cov = res.theta, res.cov
         std = np.sqrt(np.diag(cov))
         assert np.all(np.abs(theta - THETA) < 4.5 * std), (trial, theta - THETA, std)
         c, cov_c = general.cog_with_covariance(theta, cov)
@@ -163,8 +163,8 @@ def test_kinematic_sensitivity_predicts_length_error(setup):
     sel = general.select_sweeps(deltas)
     groups = general.build_groups(sel, kin)
     res = general.fit(groups)
-    S = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"])
-    err = res["theta"] - THETA
+    S = general.kinematic_sensitivities(sel, kin, groups, res.weights, res.normal_inverse, res.theta)
+    err = res.theta - THETA
     assert np.max(np.abs(err)) > 1e-4  # the length error matters ...
     assert np.allclose(err, S[k] * 0.0005, rtol=0.02, atol=2e-6)  # ... and is predicted to first order
 
@@ -186,8 +186,8 @@ def test_kinematic_sensitivity_after_gain_calibration(setup):
     groups = general.build_groups(sel, kin)
     res = general.fit(groups)
     k = general.length_parameters(kin).index((1, "a"))
-    S_cal = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"], (theta_ref, fitted))
-    S_raw = general.kinematic_sensitivities(sel, kin, groups, res["w"], res["inv"], res["theta"])
-    err = res["theta"] - THETA
+    S_cal = general.kinematic_sensitivities(sel, kin, groups, res.weights, res.normal_inverse, res.theta, (theta_ref, fitted))
+    S_raw = general.kinematic_sensitivities(sel, kin, groups, res.weights, res.normal_inverse, res.theta)
+    err = res.theta - THETA
     assert np.allclose(err, S_cal[k] * 0.0005, rtol=0.05, atol=5e-6)
     assert abs(S_cal[k][0]) < abs(S_raw[k][0])  # the calibration took out part of the mass error

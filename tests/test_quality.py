@@ -121,7 +121,7 @@ def _arm_with_length_errors(kin, seed, size_m=LENGTH_STD_M):
     params = general.length_parameters(kin)
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], len(params))
     for (row, which), s in zip(params, signs):
-        kin = general._perturbed(kin, row, which, s * size_m)
+        kin = general.perturbed(kin, row, which, s * size_m)
     return kin
 
 

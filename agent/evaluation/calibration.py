@@ -38,10 +38,11 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.analysis.run_deltas import deltas_for
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
-from payload_agent.solvers import general
+from payload_agent.solvers import general, wls
 from payload_agent.recording.state import RobotState, write_json_atomic
 
 FORMAT = "payload-agent-gains/1"
@@ -168,8 +169,8 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
         for i in range(len(parts)):
             sl = slice(start[i], start[i + 1])
             r = resid[sl]
-            _, lag = general.autocorrelation_time(r, max_lag=max(1, int(general.HAC_MAX_FRACTION * len(r))))
-            B += general._long_run_scores(X[sl] * r[:, None], lag)
+            _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
+            B += wls.long_run_scores(X[sl] * r[:, None], lag)
         k_var = max(float((XtX_inv @ B @ XtX_inv)[0, 0]), float(XtX_inv[0, 0]) * sigma ** 2) * n / dof
         peak = float(np.max(np.abs(pred)))
         if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
@@ -198,8 +199,6 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
 def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: Sequence[float],
               baseline_dir: Path | None = None) -> GainCalibration:
     """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains."""
-    from payload_agent.evaluation.pipeline import deltas_for  # analysis uses this module: import late
-
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     deltas = deltas_for(Path(run_dir), nominal, baseline_dir)
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics, nominal,

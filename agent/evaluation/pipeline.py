@@ -14,38 +14,17 @@ import numpy as np
 
 from payload_agent.evaluation import quality
 from payload_agent.evaluation.calibration import effective_calibration, effective_gains
-from payload_agent.analysis.combine import add_combined
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.analysis.run_deltas import deltas_for
 from payload_agent.configuration.config import Config
-from payload_agent.analysis.delta import DeltaSweep, subtract_all
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
-from payload_agent.recording.rundata import load_manifest, load_phase
 from payload_agent.solvers import SOLVERS, general
 
 POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
-
-
-def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
-               combine: bool = True, notes: list[str] | None = None) -> dict[SweepKey, DeltaSweep]:
-    """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
-
-    With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
-    combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
-    """
-    manifest = load_manifest(run_dir)
-    loaded = load_phase(run_dir, "loaded", gains, manifest)
-    if not loaded:
-        raise DataError(f"{run_dir}: no complete loaded sweep to analyse")
-    empty_dir = Path(baseline_dir) if baseline_dir is not None else Path(run_dir)
-    empty = load_phase(empty_dir, "empty", gains)
-    deltas = subtract_all(loaded, empty)
-    if combine:
-        deltas, problems = add_combined(deltas)
-        if notes is not None:
-            notes.extend(problems)
-    return deltas
+__all__ = ["deltas_for", "solve_all", "quality_checks", "analyse_run", "POSE_AGREEMENT_Z"]
 
 
 def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,

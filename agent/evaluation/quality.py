@@ -21,7 +21,7 @@ cannot include an unknown gain error): calibrate.
   ``analysis.analyse_run`` does — the drive-gain uncertainty of a calibration and the DH lengths'
   standard uncertainty. Those two are common to both poses (one drive, one arm), so they are
   not added in quadrature: the same gain error ε_j and the same length error δp_k are
-  propagated through both per-pose fits (first order, as in ``general.gain_covariance`` and
+  propagated through both per-pose fits (first order, as in ``wls.gain_covariance`` and
   ``general.kinematic_sensitivities``, the calibration's absorption of length errors included)
   and only the part that moves the two estimates differently enters the difference's covariance;
 - conditioning of the combined fit;
@@ -46,7 +46,7 @@ from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
-from payload_agent.solvers import general
+from payload_agent.solvers import general, wls
 
 POSE_AGREEMENT_Z = 3.0  # |m_b − m_d| / σ above this fails (mass)
 POSE_AGREEMENT_COG_Z = 3.5  # the same per centre-of-mass component (three comparisons)
@@ -84,20 +84,20 @@ def _output_jacobian(theta: np.ndarray) -> np.ndarray:
     return J
 
 
-def _pose_fit(groups: list[general.Group], rows: np.ndarray, dY: list[np.ndarray],
+def _pose_fit(groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
               eps: dict[int, np.ndarray], gain_rel_std: np.ndarray | None) -> dict[str, Any]:
     """One pose's own fit: θ, its noise covariance, and its first-order response to the common errors.
 
-    ``G`` (4 × joints): ∂θ/∂ε_j of a relative gain error of joint j (``general.gain_covariance``);
+    ``G`` (4 × joints): ∂θ/∂ε_j of a relative gain error of joint j (``wls.gain_covariance``);
     ``S`` (K × 4): ∂θ/∂p_k of DH length k, less what the calibration's gain fit absorbed
     (``general.kinematic_sensitivities``); ``rows`` selects this pose's rows of the stacked groups.
     """
-    res = general.fit(groups)
-    theta, w, inv = res["theta"], res["w"], res["inv"]
+    res = wls.fit(groups)
+    theta, w, inv = res.theta, res.weights, res.normal_inverse
     Y = np.vstack([g.Y for g in groups])
     pred = Y @ theta
     joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
-    out = {"res": res, "theta": theta, "cov": res["cov"], "G": None, "S": None}
+    out = {"res": res, "theta": theta, "cov": res.cov, "G": None, "S": None}
     if gain_rel_std is not None:
         G = np.zeros((len(theta), len(gain_rel_std)))
         for j in range(len(gain_rel_std)):
@@ -164,7 +164,7 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
         per_pose[pose] = {"mass_kg": float(theta[0]), "mass_std_kg": float(np.sqrt(max(var[0], 0.0))),
                           "cog_mm": [1000 * float(v) for v in theta[1:] / theta[0]],
                           "cog_std_mm": [1000 * float(np.sqrt(max(v, 0.0))) for v in var[1:]],
-                          "condition_number": f["res"]["cond"]}
+                          "condition_number": f["res"].condition_number}
     q["per_pose"] = per_pose
     q["pose_agreement_sigma"] = ("noise of each pose's own fit (independent)"
                                  + (" + drive-gain uncertainty" if gain_std is not None else "")
@@ -201,14 +201,15 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
 
     # --- the combined general fit: conditioning, mass, residuals, gains -------------------
     try:
-        res = general.fit(groups)
+        res = wls.fit(groups)
     except DataError as exc:
         q["reasons"].append(f"general fit impossible: {exc}")
         res = None
     if res is not None:
-        theta, cov = res["theta"], res["cov"]
-        checks.append(_check("condition number", res["cond"], MAX_CONDITION, res["cond"] <= MAX_CONDITION,
-                             f"ill-conditioned fit (condition number {res['cond']:.3g} > {MAX_CONDITION:g}): "
+        theta, cov = res.theta, res.cov
+        cond = res.condition_number
+        checks.append(_check("condition number", cond, MAX_CONDITION, cond <= MAX_CONDITION,
+                             f"ill-conditioned fit (condition number {cond:.3g} > {MAX_CONDITION:g}): "
                              "the sweeps do not observe every parameter; use a procedure with two tool orientations"))
         m, sm = float(theta[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
         zm = m / sm if sm > 0 else math.inf
@@ -275,9 +276,9 @@ def _difference_std(fa: dict[str, Any], fb: dict[str, Any], gain_std: np.ndarray
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
-def _gain_checks(groups: Iterable[general.Group], theta: np.ndarray) -> list[dict[str, Any]]:
+def _gain_checks(groups: Iterable[wls.Group], theta: np.ndarray) -> list[dict[str, Any]]:
     """Per joint: measured / modelled torque ratio k (LS over all its rows) must be 1 within tolerance."""
-    by_joint: dict[int, list[general.Group]] = {}
+    by_joint: dict[int, list[wls.Group]] = {}
     for g in groups:
         by_joint.setdefault(g.joint, []).append(g)
     out = []
@@ -289,7 +290,7 @@ def _gain_checks(groups: Iterable[general.Group], theta: np.ndarray) -> list[dic
             continue
         k = float(pred @ meas / (pred @ pred))
         r = meas - k * pred
-        tau = max(general.autocorrelation_time(g.y - g.Y @ theta)[0] for g in gs)
+        tau = max(wls.autocorrelation_time(g.y - g.Y @ theta)[0] for g in gs)
         sk = float(np.sqrt(np.mean(r ** 2) * tau / (pred @ pred)))
         limit = GAIN_CONSISTENCY_TOL + 4.0 * sk
         out.append(_check(f"drive gain consistency joint {j + 1}", abs(k - 1.0), limit, abs(k - 1.0) <= limit,

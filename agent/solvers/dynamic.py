@@ -12,7 +12,7 @@ payload's contribution, which is linear in its ten inertial parameters
     θ = [m, m·cx, m·cy, m·cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz]
 
 (first moments and inertia tensor about the flange origin, flange axes, SI). W is the
-payload's Newton–Euler regressor on the DH chain (``payload_regressor``): the flange's
+payload's Newton–Euler regressor on the DH chain (``solvers.regressor.payload_regressor``): the flange's
 angular velocity/acceleration and the linear acceleration of its origin (minus gravity)
 give the wrench the flange exerts on the payload, and joint j carries its component
 about the joint axis. In the static limit it reduces to ``Kinematics.payload_regressor``.
@@ -38,9 +38,10 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.solvers.regressor import payload_regressor
 from payload_agent.solvers.results import Estimate
-from payload_agent.solvers.general import Group, cog_with_covariance, fit
+from payload_agent.solvers.wls import Group, cog_with_covariance, fit
 
 NAME = "dynamic"
 PARAMS = ("m", "m*cx", "m*cy", "m*cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
@@ -58,86 +59,6 @@ class ExcitationRecord:
     q: np.ndarray  # (n, 6) rad
     effort_nm: np.ndarray  # (n, 6) N·m at nominal gains
     source: str = "excitation"
-
-
-def _dh_batch(theta: np.ndarray, a: float, d: float, alpha: float) -> np.ndarray:
-    """Standard-DH transforms for an array of joint angles: (n, 4, 4)."""
-    n = len(theta)
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    T = np.zeros((n, 4, 4))
-    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2], T[:, 0, 3] = ct, -st * ca, st * sa, a * ct
-    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2], T[:, 1, 3] = st, ct * ca, -ct * sa, a * st
-    T[:, 2, 1], T[:, 2, 2], T[:, 2, 3] = sa, ca, d
-    T[:, 3, 3] = 1.0
-    return T
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
-
-
-def _inertia_map(w: np.ndarray) -> np.ndarray:
-    """(n, 3) -> (n, 3, 6): I·w as a linear map of (Ixx, Ixy, Ixz, Iyy, Iyz, Izz)."""
-    L = np.zeros((len(w), 3, 6))
-    L[:, 0, 0], L[:, 0, 1], L[:, 0, 2] = w[:, 0], w[:, 1], w[:, 2]
-    L[:, 1, 1], L[:, 1, 3], L[:, 1, 4] = w[:, 0], w[:, 1], w[:, 2]
-    L[:, 2, 2], L[:, 2, 4], L[:, 2, 5] = w[:, 0], w[:, 1], w[:, 2]
-    return L
-
-
-def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                      g: float = GRAVITY_M_S2) -> np.ndarray:
-    """W with τ_payload[k, j] = W[k, j, :] · θ for every sample k and joint j: shape (n, 6, 10).
-
-    Forward Newton–Euler recursion in the base frame (joint i turns about z of DH frame
-    i−1 through its origin), then the payload's wrench at the flange origin:
-        f = m·a' + ω̇ × (m c) + ω × (ω × (m c)),   a' = a_flange − g⃗_gravity
-        n = I_O·ω̇ + ω × (I_O·ω) + (m c) × a'
-    in flange axes, and τ_j = z_j · (R n + (p − o_j) × R f).
-    """
-    q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
-    n_s, n_j = q.shape
-    frames = [np.broadcast_to(np.eye(4), (n_s, 4, 4))]
-    for i, row in enumerate(kin.rows):
-        frames.append(frames[-1] @ _dh_batch(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
-    z = np.stack([f[:, :3, 2] for f in frames[:-1]], axis=1)  # (n, 6, 3) joint axes
-    o = np.stack([f[:, :3, 3] for f in frames], axis=1)  # (n, 7, 3) frame origins
-    w = np.zeros((n_s, 3))
-    wd = np.zeros((n_s, 3))
-    acc = np.zeros((n_s, 3))
-    for i in range(n_j):
-        zi = z[:, i]
-        w_new = w + qd[:, i:i + 1] * zi
-        wd = wd + qdd[:, i:i + 1] * zi + np.cross(w, qd[:, i:i + 1] * zi)
-        w = w_new
-        r = o[:, i + 1] - o[:, i]
-        acc = acc + np.cross(wd, r) + np.cross(w, np.cross(w, r))
-    R = frames[-1][:, :3, :3]
-    Rt = np.transpose(R, (0, 2, 1))
-    w_f = np.einsum("nij,nj->ni", Rt, w)
-    wd_f = np.einsum("nij,nj->ni", Rt, wd)
-    a_f = np.einsum("nij,nj->ni", Rt, acc + np.array([0.0, 0.0, g]))
-    Sw, Swd, Sa = _skew(w_f), _skew(wd_f), _skew(a_f)
-    Yf = np.zeros((n_s, 3, 10))
-    Yf[:, :, 0] = a_f
-    Yf[:, :, 1:4] = Swd + Sw @ Sw
-    Yn = np.zeros((n_s, 3, 10))
-    Yn[:, :, 1:4] = -Sa
-    Yn[:, :, 4:10] = _inertia_map(wd_f) + Sw @ _inertia_map(w_f)
-    Yf_b = R @ Yf
-    Yn_b = R @ Yn
-    p = o[:, -1]
-    W = np.zeros((n_s, n_j, 10))
-    for j in range(n_j):
-        lever = np.cross(z[:, j], p - o[:, j])  # z·(r × F) = (z × r)·F
-        W[:, j] = np.einsum("ni,nik->nk", z[:, j], Yn_b) + np.einsum("ni,nik->nk", lever, Yf_b)
-    return W
 
 
 def derivatives(t: np.ndarray, q: np.ndarray, window_s: float = SG_WINDOW_S,
@@ -179,7 +100,7 @@ def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
     """Mass and centre of mass (and inertia, in the notes) from loaded − empty along one trajectory.
 
     ``joints`` (0-based) whose torques enter the fit: default all six. ``friction`` adds the
-    per-moving-joint Coulomb/viscous change columns. Weighted LS with the general solver's ``fit``
+    per-moving-joint Coulomb/viscous change columns. Weighted LS with ``payload_agent.solvers.wls.fit``
     (one pass, then weights 1/σ² per joint, autocorrelation-robust covariance per joint);
     the covariance is of all parameters, and the mass / centre-of-mass uncertainty is its
     marginal.
@@ -207,7 +128,7 @@ def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
         # one "sweep" per joint: the rows kept differ between joints (slow samples dropped)
         groups.append(Group(f"excitation/j{j + 1}", f"excitation/j{j + 1}", Y[keep], dtau[keep, j]))
     res = fit(groups)
-    theta, cov = res["theta"], res["cov"]
+    theta, cov = res.theta, res.cov
     mass = float(theta[0])
     if not mass > 0:
         raise DataError(f"dynamic: identified mass {mass:.4f} kg is not positive; is a payload mounted?")
@@ -220,11 +141,11 @@ def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
         solver=NAME,
         mass_kg=mass,
         cog_m=(float(c[0]), float(c[1]), float(c[2])),
-        residual_rms_nm=res["rms"],
+        residual_rms_nm=res.residual_rms_nm,
         samples={g.label: len(g.y) for g in groups},
         mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
         cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)),
         covariance=cov[:4, :4].tolist(),
-        condition_number=res["cond"],
+        condition_number=res.condition_number,
         notes=notes,
     )

@@ -1,0 +1,204 @@
+"""Weighted least squares with an autocorrelation-robust covariance: the fitting core of the solvers.
+
+``fit`` stacks the rows of every ``Group`` (one (sweep, joint) pair, or one joint of an
+excitation run), fits once unweighted, estimates each group's residual variance σ², and fits
+again with weights 1/σ². The samples of one sweep are not independent (interpolation onto a
+combined grid, friction ripple, unmodelled slow effects), so the textbook s²·(YᵀWY)⁻¹ is too
+optimistic: the covariance is a sandwich A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance
+of the weighted scores, estimated sweep by sweep with a Bartlett (Newey–West) kernel whose
+bandwidth follows the residuals' own autocorrelation length (``autocorrelation_time``); it
+never goes below the independent-noise covariance. An optional relative drive-gain
+uncertainty per joint is propagated on top (``gain_covariance``).
+
+Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
+drive-gain calibration (``long_run_scores`` for the standard error of a gain scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+from payload_agent.errors import DataError
+
+SIGMA_FLOOR_NM = 1e-9  # noise-free data: keep the weights finite
+HAC_WINDOW_C = 5.0  # Sokal's automatic window: smallest lag M with M >= C·τ_int
+HAC_MAX_FRACTION = 0.25  # bandwidth at most this fraction of a sweep's samples
+
+
+@dataclass
+class Group:
+    """The rows of one (sweep, joint) pair."""
+
+    label: str
+    sweep: str
+    Y: np.ndarray  # (n, p)
+    y: np.ndarray  # (n,)
+    joint: int = -1  # 0-based joint of these rows (-1: unknown)
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What ``fit`` returns: the estimate, its covariances and the fit's diagnostics."""
+
+    theta: np.ndarray  # (p,) parameters
+    cov: np.ndarray  # (p, p) autocorrelation-robust covariance (+ drive-gain term when asked)
+    cov_iid: np.ndarray  # (p, p) textbook s²·(YᵀWY)⁻¹ for independent noise
+    sigma_nm: dict[str, float]  # residual σ of each group (first pass), by group label
+    weights: np.ndarray  # (n,) row weights 1/σ²
+    normal_inverse: np.ndarray  # (p, p) (YᵀWY)⁻¹, for propagating systematic errors
+    residual_rms_nm: dict[str, float]  # final residual RMS of each group, by label
+    condition_number: float  # of the column-scaled normal matrix
+    s2: float  # weighted residual variance per degree of freedom
+    n: int  # rows
+    tau: dict[str, float]  # integrated autocorrelation time of each sweep's residuals
+    inflation: float  # largest ratio of robust to independent-noise standard deviation
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviation of every parameter (from ``cov``)."""
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+
+def autocorrelation_time(x: np.ndarray, *, c: float = HAC_WINDOW_C, max_lag: int | None = None) -> tuple[float, int]:
+    """Integrated autocorrelation time τ = 1 + 2·Σρ_k of a series, and the window M it used.
+
+    Sokal's automatic window: the smallest M with M >= c·τ(M). τ ≈ 1 for independent
+    samples; a series whose samples come in correlated runs of length L has τ ≈ L, i.e. it
+    carries as much information as n/τ independent samples.
+    """
+    x = np.asarray(x, float) - np.mean(x)
+    n = len(x)
+    max_lag = n // 2 if max_lag is None else min(max_lag, n - 1)
+    var = float(x @ x)
+    if n < 3 or var <= 0.0 or max_lag < 1:
+        return 1.0, 0
+    f = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[: max_lag + 1] / var
+    tau = 1.0
+    for m in range(1, max_lag + 1):
+        tau += 2.0 * acf[m]
+        if m >= c * tau:
+            return max(tau, 1.0), m
+    return max(tau, 1.0), max_lag
+
+
+def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
+    """Σ_l k(l)·Σ_i u_i u_{i+l}ᵀ (both signs of l) with the Bartlett kernel k(l) = 1 − |l|/(L+1).
+
+    ``U``: (n, p) scores of consecutive samples; the long-run (HAC) variance of their sum.
+    """
+    B = U.T @ U
+    for lag in range(1, bandwidth + 1):
+        G = U[lag:].T @ U[:-lag]
+        B += (1.0 - lag / (bandwidth + 1.0)) * (G + G.T)
+    return B
+
+
+def weighted_lstsq(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted LS via a column-scaled lstsq; returns θ and (YᵀWY)⁻¹."""
+    sw = np.sqrt(w)
+    A = Y * sw[:, None]
+    b = y * sw
+    scale = np.sqrt(np.sum(A ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    As = A / scale
+    theta_s, *_ = np.linalg.lstsq(As, b, rcond=None)
+    theta = theta_s / scale
+    normal_s = As.T @ As
+    inv = np.linalg.pinv(normal_s) / np.outer(scale, scale)
+    return theta, inv
+
+
+def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> FitResult:
+    """Two-pass weighted fit with the autocorrelation-robust covariance (see the module docstring).
+
+    ``gain_rel_std`` (per joint, 0-based, relative): the standard uncertainty of each drive
+    gain, added to ``cov`` through ∂θ/∂gain (``gain_covariance``).
+    """
+    if not groups:
+        raise DataError("general: no sweep carries any payload torque (no usable joint rows)")
+    Y = np.vstack([g.Y for g in groups])
+    y = np.concatenate([g.y for g in groups])
+    n, p = Y.shape
+    if n <= p:
+        raise DataError(f"general: only {n} samples for {p} unknowns")
+    idx = np.repeat(np.arange(len(groups)), [len(g.y) for g in groups])
+
+    theta0, _ = weighted_lstsq(Y, y, np.ones(n))
+    r0 = y - Y @ theta0
+    dof_factor = n / (n - p)
+    sigma = np.array([np.sqrt(np.mean(r0[idx == i] ** 2) * dof_factor) for i in range(len(groups))])
+    sigma = np.maximum(sigma, SIGMA_FLOOR_NM)
+    w = 1.0 / sigma[idx] ** 2
+
+    theta, inv = weighted_lstsq(Y, y, w)
+    r = y - Y @ theta
+    s2 = float(r @ (w * r) / (n - p))
+    cov_iid = s2 * inv
+
+    # sandwich: long-run variance of the weighted scores, sweep by sweep (the joints of one
+    # sample share its instant, so their scores are summed before the lags are taken)
+    B = np.zeros((p, p))
+    tau: dict[str, float] = {}
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    for sweep in dict.fromkeys(g.sweep for g in groups):
+        members = [i for i, g in enumerate(groups) if g.sweep == sweep]
+        U = sum(groups[i].Y * (w[starts[i]:starts[i + 1]] * r[starts[i]:starts[i + 1]])[:, None] for i in members)
+        z = sum(r[starts[i]:starts[i + 1]] / sigma[i] for i in members)  # normalised residual per instant
+        m = len(z)
+        t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
+        tau[sweep] = t
+        B += long_run_scores(U, lag) * dof_factor
+    cov = inv @ B @ inv
+    # never below the independent-noise covariance (the kernel estimate is itself noisy)
+    ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
+    if np.any(ratio < 1.0):
+        f = np.sqrt(np.maximum(1.0 / ratio, 1.0))
+        cov = cov * np.outer(f, f)
+    if gain_rel_std is not None:
+        cov = cov + gain_covariance(groups, Y, w, inv, theta, gain_rel_std)
+
+    normal = (Y * w[:, None]).T @ Y
+    d = 1.0 / np.sqrt(np.diag(normal))
+    cond = float(np.linalg.cond(normal * np.outer(d, d)))
+    rms = {g.label: float(np.sqrt(np.mean(r[idx == i] ** 2))) for i, g in enumerate(groups)}
+    return FitResult(
+        theta=theta, cov=cov, cov_iid=cov_iid, sigma_nm=dict(zip([g.label for g in groups], sigma.tolist())),
+        weights=w, normal_inverse=inv, residual_rms_nm=rms, condition_number=cond, s2=s2, n=n, tau=tau,
+        inflation=float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300)))))
+
+
+def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
+                    gain_rel_std: Iterable[float]) -> np.ndarray:
+    """Covariance of θ from independent relative drive-gain uncertainties (one per joint).
+
+    A relative gain error ε_j multiplies every measured Δτ on joint j by (1 + ε_j), so
+    ∂θ/∂ε_j = (YᵀWY)⁻¹·YᵀW·y_j with y_j the measured torques of joint j (0 elsewhere);
+    the fitted model's prediction is used for y_j so that noise does not enter twice.
+    """
+    std = np.asarray(list(gain_rel_std), float)
+    pred = Y @ theta
+    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+    cov = np.zeros((len(theta), len(theta)))
+    for j, sj in enumerate(std):
+        if sj <= 0:
+            continue
+        rows = joint_of_row == j
+        if not rows.any():
+            continue
+        dth = inv @ (Y[rows].T @ (w[rows] * pred[rows]))
+        cov += sj ** 2 * np.outer(dth, dth)
+    return cov
+
+
+def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """c = θ[1:]/θ[0] and its 3×3 covariance (delta method)."""
+    m = theta[0]
+    c = theta[1:] / m
+    J = np.zeros((3, 4))
+    J[:, 0] = -theta[1:] / m ** 2
+    J[:, 1:] = np.eye(3) / m
+    return c, J @ cov @ J.T
