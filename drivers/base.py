@@ -312,6 +312,12 @@ class Driver(abc.ABC):
             raise CommunicationError(f"the {self.name} driver is not connected")
         if self._stream_error is not None:
             raise CommunicationError(f"the sample stream has failed, refusing to move blind: {self._stream_error}")
+        latest = self._latest
+        age = None if latest is None else time.monotonic() - latest.t_recv
+        if age is None or age > self.gap_limit_s:
+            raise CommunicationError(f"no fresh sample from the controller ({self.describe_endpoint()}): "
+                                     + ("none yet" if age is None else f"the newest is {1000 * age:.0f} ms old")
+                                     + "; refusing to move blind")
         self._trip_report = None
         self._tripped.clear()
         self._armed_since = time.monotonic()

@@ -112,3 +112,22 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     if gain_rel_std is not None:
         extra["gains_rel_std"] = list(gain_rel_std)
     return RunResult(config.robot.name, str(run_dir), primary, others, quality=quality_result, extra=extra)
+
+
+def check_baseline_segmentation(config: Config, run_dir: Path) -> None:
+    """Raise DataError unless every sweep of the run's empty phase is complete and segments.
+
+    A baseline is stored only after this passes, so a broken empty run never becomes the
+    reference of later identifications.
+    """
+    from payload_agent.analysis.delta import window_of
+    from payload_agent.recording.rundata import load_manifest, load_phase
+
+    manifest = load_manifest(run_dir)
+    entries = manifest.get("phases", {}).get("empty", {}).get("sweeps", [])
+    bad = [e.get("name", "?") for e in entries if e.get("status") != "complete"]
+    if not entries or bad:
+        raise DataError(f"{run_dir}: the empty-flange run is not complete (sweeps {', '.join(bad) or 'none'}); "
+                        "it was not stored as the baseline")
+    for key, sweep in load_phase(run_dir, "empty", np.ones(6), manifest).items():
+        window_of(sweep)  # DataError naming the sweep when it has no constant-speed window

@@ -90,8 +90,9 @@ class RunRecorder:
             self.last_sample = s
             if self._file is None:
                 return
-            t_ctrl = "" if s.t_ctrl is None else repr(s.t_ctrl)
-            self._file.write(",".join([t_ctrl, repr(s.t_recv), *map(repr, s.q), *map(repr, s.effort)]) + "\n")
+            t_ctrl = "" if s.t_ctrl is None else repr(float(s.t_ctrl))
+            self._file.write(",".join([t_ctrl, repr(float(s.t_recv)), *(repr(float(v)) for v in s.q),
+                                       *(repr(float(v)) for v in s.effort)]) + "\n")
             self._entry["samples"] += 1
             now = time.monotonic()
             if now - self._last_flush > FLUSH_EVERY_S:

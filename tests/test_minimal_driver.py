@@ -1,0 +1,92 @@
+"""The driver contract carries a new protocol family end to end: tests/inproc_driver.py, run by the runner."""
+
+import threading
+import time
+
+import pytest
+
+from conftest import tweak
+from inproc_driver import CONTROLLERS, InProcessDriver
+from payload_agent.configuration.config import parse_config
+from payload_agent.drivers import registry
+from payload_agent.errors import ConfigError, SafetyError, SupervisionTrip
+from payload_agent.motion.planner import make_plan
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.session.runner import RunOptions, run_identification
+
+registry.register("inproc", InProcessDriver)
+
+
+def inproc_config(data, tmp_path, name, effort_unit="Nm", **safety):
+    data = tweak(data, "driver", {"type": "inproc", "name": name})
+    data = tweak(data, "effort", {"unit": effort_unit, "gains_nm_per_unit": 1.0})
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    data["safety"].update(safety)
+    data.pop("watch", None)
+    return parse_config(data, source="inproc.yaml")
+
+
+def quiet(**kw):
+    return RunOptions(assume_yes=True, progress=False, report=False, out=lambda s: None, **kw)
+
+
+def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
+    data = tweak(sim_ec66_data, "simulation.payload", {"mass_kg": 1.7, "cog_mm": [-30, 45, 60]})
+    outcome = run_identification(inproc_config(data, tmp_path, "e2e"), quiet())
+    est = outcome.result.primary
+    assert abs(est.mass_kg - 1.7) < 0.03
+    assert max(abs(a - b) for a, b in zip(est.cog_mm, (-30, 45, 60))) < 5.0
+    manifest = load_manifest(outcome.run_dir)
+    sweeps = [s for ph in manifest["phases"].values() for s in ph["sweeps"]]
+    assert sweeps and all(s["status"] == "complete" and 0.9 < s["stream"]["count"] / s["samples"] < 1.1 for s in sweeps)
+    assert all(s["stream"]["achieved_rate_hz"] > 0 and not s["stream"]["gaps"] for s in sweeps)
+    assert manifest["status"] == "complete"
+
+
+def test_stalled_stream_stops_the_arm_and_keeps_the_data(sim_ec66_data, tmp_path):
+    data = tweak(sim_ec66_data, "simulation.time_scale", 5)  # sweeps long enough to stall in the middle
+    config = inproc_config(data, tmp_path, "stall", max_stream_gap_ms=100)
+    first_sweep = next(i for i, m in enumerate(make_plan(config).moves) if m.sweep is not None)
+    seen = {}
+
+    def on_cell(cell):
+        def stall_in_first_sweep():
+            ctrl = cell.controller
+            while sum(e.kind == "move" for e in ctrl.events) <= first_sweep or not ctrl.robot.snapshot().moving:
+                time.sleep(0.002)
+            seen["fault_t"] = time.monotonic()
+            ctrl.inject_fault("stall_stream")
+        seen["cell"] = cell
+        threading.Thread(target=stall_in_first_sweep, daemon=True).start()
+
+    with pytest.raises(SupervisionTrip) as err:
+        run_identification(config, quiet(on_cell=on_cell))
+    report = err.value.stop_report
+    assert report is not None and report.acknowledged and "stalled" in report.reason
+    ctrl = seen["cell"].controller
+    stop = ctrl.first_event_after("stop", seen["fault_t"])
+    assert stop is not None and stop.t - seen["fault_t"] < 0.5
+    assert ctrl.first_event_after("move", seen["fault_t"]) is None  # nothing moved after the fault
+    run_dir = next((tmp_path / "runs").iterdir())
+    manifest = load_manifest(run_dir)
+    assert manifest["status"] == "incomplete" and "stalled" in manifest["stopped_because"]
+    sweeps = [s for ph in manifest["phases"].values() for s in ph["sweeps"]]
+    assert sweeps[-1]["status"] == "aborted" and sweeps[-1]["samples"] > 0
+    assert (run_dir / sweeps[-1]["file"]).read_text().count("\n") == sweeps[-1]["samples"] + 1
+
+
+def test_unattended_run_without_a_pose_check_needs_the_acknowledgement(sim_ec66_data, tmp_path):
+    moved = []
+    with pytest.raises(SafetyError, match="unattended_without_pose_check"):
+        run_identification(inproc_config(sim_ec66_data, tmp_path, "ack"),
+                           RunOptions(unattended=True, fresh_baseline=True, progress=False, report=False,
+                                      out=lambda s: None, on_cell=lambda c: moved.append(c)))
+    assert not any(e.kind == "move" for e in moved[0].controller.events)
+    assert "ack" not in CONTROLLERS  # the simulated controller was closed
+
+
+def test_effort_unit_must_match_the_driver_before_connecting(sim_ec66_data, tmp_path):
+    config = inproc_config(sim_ec66_data, tmp_path, "unit", effort_unit="A")
+    with pytest.raises(ConfigError, match="effort.unit"):
+        run_identification(config, quiet())
+    assert "unit" not in CONTROLLERS and not (tmp_path / "runs").exists()
