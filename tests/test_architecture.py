@@ -1,0 +1,105 @@
+"""The layout keeps its shape: no import cycles, no oversized modules, analysis never imports the fakes.
+
+Imports are read with ``ast`` (including imports inside functions, which is where cycles hide;
+``if TYPE_CHECKING:`` blocks are not imports at run time and are skipped).
+"""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLDERS = {"agent": "payload_agent", "drivers": "payload_agent.drivers", "fakes": "payload_agent.fakes",
+           "procedures": "payload_agent.procedures"}
+MAX_LINES = 500
+# stages that must never see a simulated controller (the registry names fakes by string only)
+NO_FAKES = ("payload_agent.model", "payload_agent.configuration", "payload_agent.motion",
+            "payload_agent.recording", "payload_agent.analysis", "payload_agent.solvers",
+            "payload_agent.evaluation", "payload_agent.output", "payload_agent.types", "payload_agent.errors",
+            "payload_agent.drivers")
+
+
+def project_modules() -> dict[str, Path]:
+    mods = {}
+    for folder, pkg in FOLDERS.items():
+        for path in (ROOT / folder).rglob("*.py"):
+            rel = path.relative_to(ROOT / folder).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            mods[".".join([pkg, *parts])] = path
+    return mods
+
+
+def _runtime_imports(tree: ast.AST):
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    for node in ast.walk(tree):
+        if id(node) not in skip and isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+
+
+def import_graph() -> dict[str, set[str]]:
+    mods = project_modules()
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, path in mods.items():
+        is_pkg = path.name == "__init__.py"
+        for node in _runtime_imports(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                base = node.module or ""
+                if node.level:
+                    anchor = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                    anchor = anchor[:len(anchor) - node.level + 1]
+                    base = ".".join(anchor + ([base] if base else []))
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base for a in node.names]
+            for t in targets:
+                while t and t not in mods:
+                    t = t.rpartition(".")[0]
+                if t and t != mod:
+                    graph[mod].add(t)
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph[n]):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m not in state and (c := visit(m)):
+                return c
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if n not in state and (c := visit(n)):
+            return c
+    return None
+
+
+def test_no_import_cycle():
+    cycle = find_cycle(import_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_cycle_finder_finds_cycles():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_module_over_the_size_limit():
+    big = {str(p.relative_to(ROOT)): n for p in project_modules().values()
+           if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
+    assert not big, f"modules over {MAX_LINES} lines: {big}"
+
+
+def test_agent_stages_never_import_the_fakes():
+    offenders = {m: sorted(t for t in deps if t.startswith("payload_agent.fakes"))
+                 for m, deps in import_graph().items() if m.startswith(NO_FAKES)}
+    assert not {m: d for m, d in offenders.items() if d}
