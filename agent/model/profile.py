@@ -1,15 +1,72 @@
-"""Synchronized trapezoidal PTP profiles, as industrial controllers run joint moves.
+"""Synchronised trapezoidal PTP profiles, as industrial controllers run joint moves.
 
 All joints move along the straight joint-space segment from start to target and
 arrive together; the leading joint (largest travel) follows a trapezoidal speed
 profile within the speed and acceleration caps.
+
+This is the one place that math lives. Drivers use it to turn a leading-joint speed
+into the percentage a controller's PTP command takes (``percent_for_lead``) and to
+predict durations (``trapezoid_duration``); simulated controllers use it the other way
+(``lead_from_percent``) and to run the motion (``JointPath``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class LeadCaps:
+    """The leading joint's speed and acceleration when every joint runs at its own 100 %."""
+
+    speed_rad_s: float
+    accel_rad_s2: float
+
+
+def lead_joint_caps(q_from: Sequence[float], q_to: Sequence[float], max_speed_rad_s: Sequence[float],
+                    max_accel_rad_s2: Sequence[float]) -> LeadCaps:
+    """How fast the leading joint of a synchronised move from ``q_from`` to ``q_to`` may go.
+
+    Joint j travels |Δq_j| / max|Δq| of the leading joint's distance, so it turns at that
+    fraction of the leading joint's speed; the leading joint's cap is the smallest
+    ``max_speed_j / fraction_j`` over the joints that move (same for acceleration). A move
+    of zero length has the smallest joint maximum as its cap.
+    """
+    vmax = np.broadcast_to(np.asarray(max_speed_rad_s, float), np.shape(q_from))
+    amax = np.broadcast_to(np.asarray(max_accel_rad_s2, float), np.shape(q_from))
+    d = np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))
+    lead = float(d.max()) if d.size else 0.0
+    if lead <= 0.0:
+        return LeadCaps(float(vmax.min()), float(amax.min()))
+    scale = d / lead
+    mask = scale > 1e-12
+    return LeadCaps(float(np.min(vmax[mask] / scale[mask])), float(np.min(amax[mask] / scale[mask])))
+
+
+def lead_from_percent(caps: LeadCaps, speed_percent: float, accel_percent: float) -> tuple[float, float]:
+    """The leading joint's speed (rad/s) and acceleration (rad/s²) for a PTP command's percentages."""
+    return caps.speed_rad_s * speed_percent / 100.0, caps.accel_rad_s2 * accel_percent / 100.0
+
+
+def percent_for_lead(caps: LeadCaps, speed_rad_s: float, accel_rad_s2: float) -> tuple[float, float]:
+    """The inverse of ``lead_from_percent``: the percentages (unclamped) that give this leading-joint motion."""
+    return speed_rad_s / caps.speed_rad_s * 100.0, accel_rad_s2 / caps.accel_rad_s2 * 100.0
+
+
+def trapezoid_duration(length_rad: float, speed_rad_s: float, accel_rad_s2: float) -> float:
+    """Duration of a trapezoidal (or, if too short to cruise, triangular) profile over ``length_rad``."""
+    L = abs(float(length_rad))
+    if speed_rad_s <= 0 or accel_rad_s2 <= 0:
+        raise ValueError("speed and acceleration must be positive")
+    if L == 0.0:
+        return 0.0
+    if L < speed_rad_s * speed_rad_s / accel_rad_s2:
+        return 2.0 * math.sqrt(L / accel_rad_s2)
+    return L / speed_rad_s + speed_rad_s / accel_rad_s2
 
 
 @dataclass(frozen=True)
@@ -38,12 +95,9 @@ class JointPath:
         self.length = float(np.max(np.abs(delta)))
         self.direction = delta / self.length if self.length > 0 else np.zeros_like(delta)
         # the leading joint's caps, limited so no joint exceeds its own
-        scale = np.abs(self.direction)
-        with np.errstate(divide="ignore"):
-            v_cap = np.min(np.where(scale > 0, max_speed / np.where(scale > 0, scale, 1), np.inf))
-            a_cap = np.min(np.where(scale > 0, max_accel / np.where(scale > 0, scale, 1), np.inf))
-        v = min(speed, v_cap)
-        a = min(accel, a_cap)
+        caps = lead_joint_caps(self.start, self.target, max_speed, max_accel)
+        v = min(speed, caps.speed_rad_s)
+        a = min(accel, caps.accel_rad_s2)
         if v <= 0 or a <= 0:
             raise ValueError("speed and acceleration must be positive")
         L = self.length
