@@ -69,6 +69,23 @@ def trapezoid_duration(length_rad: float, speed_rad_s: float, accel_rad_s2: floa
     return L / speed_rad_s + speed_rad_s / accel_rad_s2
 
 
+def synchronised_joint_rates(q_from: Sequence[float], q_to: Sequence[float], lead_speed_rad_s: float,
+                             lead_accel_rad_s2: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint speed and acceleration (≥ 0) that make independent trapezoids arrive together.
+
+    For controllers that run one profile per joint (CANopen drives in profile position mode):
+    joint j gets the leading joint's speed and acceleration times its travel fraction
+    |Δq_j| / max|Δq|, so every joint's trapezoid has the leading joint's timing and the arm
+    follows the straight joint-space segment, as ``JointPath`` does. Joints that do not move get 0.
+    """
+    d = np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))
+    lead = float(d.max()) if d.size else 0.0
+    if lead <= 0.0:
+        return np.zeros_like(d), np.zeros_like(d)
+    scale = d / lead
+    return scale * float(lead_speed_rad_s), scale * float(lead_accel_rad_s2)
+
+
 @dataclass(frozen=True)
 class PathPhase:
     """s(t) = s0 + v0·t + a·t²/2 for t in [t0, t0 + duration)."""
