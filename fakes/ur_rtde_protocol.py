@@ -1,6 +1,6 @@
 """Universal Robots RTDE wire format: package types, field types and packing.
 
-Shared by the fake UR controller (``payload_agent.fakes.ur_controller``) and its
+Shared by the fake UR controller (``payload_agent.fakes.ur``) and its
 tests. Everything is big-endian. A package is ``uint16 size`` (header included) +
 ``uint8 type`` + payload.
 
@@ -82,6 +82,7 @@ OUTPUT_TYPES: dict[str, str] = {
     "actual_TCP_force": "VECTOR6D",
     "target_TCP_pose": "VECTOR6D",
     "target_TCP_speed": "VECTOR6D",
+    "tcp_offset": "VECTOR6D",  # the installation's TCP in the flange frame (UR client library's RTDE type table)
     "actual_digital_input_bits": "UINT64",
     "joint_temperatures": "VECTOR6D",
     "actual_execution_time": "DOUBLE",

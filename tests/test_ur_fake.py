@@ -16,7 +16,7 @@ rtde_control = pytest.importorskip("rtde_control")
 
 from payload_agent.fakes import ur_rtde_protocol as rp  # noqa: E402
 from payload_agent.fakes.physics import PayloadTruth  # noqa: E402
-from payload_agent.fakes.ur_controller import DEFAULT_GAINS_NM_PER_A, FakeURController  # noqa: E402
+from payload_agent.fakes.ur import DEFAULT_GAINS_NM_PER_A, FakeURController  # noqa: E402
 
 HOME = [0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0]
 
