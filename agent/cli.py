@@ -24,7 +24,8 @@ def _run_options(args, mode: str, **extra):
                       solver=getattr(args, "solver", None), tool=getattr(args, "tool", None),
                       fresh_baseline=getattr(args, "fresh_baseline", False),
                       report=not getattr(args, "no_report", False),
-                      retry_sweeps=getattr(args, "retry_sweeps", 0) or 0, **extra)
+                      retry_sweeps=getattr(args, "retry_sweeps", 0) or 0,
+                      resume=Path(args.resume) if getattr(args, "resume", None) else None, **extra)
 
 
 def _cmd_run(args) -> int:
@@ -194,6 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-report", action="store_true", help="do not write report.html")
     run.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                      help="redo a sweep whose sample stream had a gap, up to N times per run phase (default 0: abort)")
+    run.add_argument("--resume", metavar="RUN_DIR",
+                     help="finish an incomplete run folder: same robot, YAML and plan; only unfinished sweeps are "
+                          "recorded")
     run.set_defaults(func=_cmd_run)
 
     base = sub.add_parser("baseline", help="record and store the empty-flange run (remove the tool first)")

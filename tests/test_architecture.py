@@ -103,3 +103,23 @@ def test_agent_stages_never_import_the_fakes():
     offenders = {m: sorted(t for t in deps if t.startswith("payload_agent.fakes"))
                  for m, deps in import_graph().items() if m.startswith(NO_FAKES)}
     assert not {m: d for m, d in offenders.items() if d}
+
+
+MOTION_CALLS = {"move_joints", "_move_joints", "redo_last_sweep"}
+# who may call what: the gate calls the driver's move_joints; the base class calls the hook
+ALLOWED = {"move_joints": {"payload_agent.motion.safety"},
+           "_move_joints": {"payload_agent.drivers.base"},
+           "redo_last_sweep": {"payload_agent.session.phases"}}
+
+
+def test_motion_is_commanded_only_through_the_safety_gate():
+    """Every call that can command motion, anywhere in the agent and the drivers, is the gate's."""
+    offenders = []
+    for mod, path in project_modules().items():
+        if mod.startswith("payload_agent.fakes"):
+            continue  # the simulated controllers move their own simulated arm
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in MOTION_CALLS:
+                if mod not in ALLOWED[node.func.attr]:
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {node.func.attr}")
+    assert not offenders, "motion commanded outside the safety gate: " + "; ".join(offenders)

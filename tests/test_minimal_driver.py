@@ -9,7 +9,7 @@ from conftest import tweak
 from inproc_driver import CONTROLLERS, InProcessDriver
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers import registry
-from payload_agent.errors import ConfigError, SafetyError, SupervisionTrip
+from payload_agent.errors import ConfigError, MotionAbortedError, SafetyError, SupervisionTrip
 from payload_agent.motion.planner import make_plan
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.runner import RunOptions, run_identification
@@ -38,7 +38,7 @@ def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
     assert max(abs(a - b) for a, b in zip(est.cog_mm, (-30, 45, 60))) < 5.0
     manifest = load_manifest(outcome.run_dir)
     sweeps = [s for ph in manifest["phases"].values() for s in ph["sweeps"]]
-    assert sweeps and all(s["status"] == "complete" and 0.9 < s["stream"]["count"] / s["samples"] < 1.1 for s in sweeps)
+    assert sweeps and all(s["status"] == "complete" and 0.8 < s["stream"]["count"] / s["samples"] < 1.25 for s in sweeps)
     assert all(s["stream"]["achieved_rate_hz"] > 0 and not s["stream"]["gaps"] for s in sweeps)
     assert manifest["status"] == "complete"
 
@@ -90,3 +90,47 @@ def test_effort_unit_must_match_the_driver_before_connecting(sim_ec66_data, tmp_
     with pytest.raises(ConfigError, match="effort.unit"):
         run_identification(config, quiet())
     assert "unit" not in CONTROLLERS and not (tmp_path / "runs").exists()
+
+
+def test_resume_records_only_the_unfinished_sweeps(sim_ec66_data, tmp_path):
+    data = tweak(sim_ec66_data, "simulation.payload", {"mass_kg": 2.2, "cog_mm": [35, -20, 50]})
+    config = inproc_config(data, tmp_path, "resume")
+    plan = make_plan(config)
+
+    def stop_in_loaded_run(cell):
+        def watch():
+            ctrl = cell.controller
+            n = len(plan.moves) + 3  # the whole empty run, then into the loaded run's second sweep
+            while sum(e.kind == "move" for e in ctrl.events) < n or not ctrl.robot.snapshot().moving:
+                time.sleep(0.002)
+            ctrl.inject_fault("protective_stop")
+        threading.Thread(target=watch, daemon=True).start()
+
+    with pytest.raises(MotionAbortedError):
+        run_identification(config, quiet(on_cell=stop_in_loaded_run))
+    run_dir = next((tmp_path / "runs").iterdir())
+    first = load_manifest(run_dir)
+    assert first["status"] == "incomplete"
+    done_before = {s["name"] for s in first["phases"]["loaded"]["sweeps"] if s["status"] == "complete"}
+    assert first["phases"]["empty"]["status"] == "complete" and 0 < len(done_before) < len(plan.sweeps)
+
+    moves = []
+    outcome = run_identification(config, quiet(resume=run_dir, on_cell=lambda c: moves.append(c)))
+    assert outcome.run_dir == run_dir
+    sweep_moves = sum(e.kind == "move" for e in moves[0].controller.events)
+    left = len(plan.sweeps) - len(done_before)
+    assert sweep_moves <= 2 * left + 1  # the remaining sweeps and the moves to their starts, nothing else
+    final = load_manifest(run_dir)
+    assert final["status"] == "complete" and final["resumed_utc"]
+    assert {s["name"] for s in final["phases"]["loaded"]["sweeps"]} == {m.sweep.name for m in plan.sweeps}
+    est = outcome.result.primary
+    assert abs(est.mass_kg - 2.2) < 0.03 and max(abs(a - b) for a, b in zip(est.cog_mm, (35, -20, 50))) < 5.0
+
+
+def test_resume_refuses_a_changed_yaml(sim_ec66_data, tmp_path):
+    config = inproc_config(sim_ec66_data, tmp_path, "changed")
+    run_dir = tmp_path / "runs" / "x"
+    run_dir.mkdir(parents=True)
+    (run_dir / "manifest.json").write_text('{"status": "incomplete", "config_fingerprint": "0", "phases": {}}')
+    with pytest.raises(ConfigError, match="changed"):
+        run_identification(config, quiet(resume=run_dir))

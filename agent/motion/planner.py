@@ -122,3 +122,25 @@ def expected_durations(plan: Plan, start_q: np.ndarray | None) -> list[float]:
         out.append(float("nan") if prev is None else move_duration_s(prev, tgt, m.speed_rad_s, m.accel_rad_s2))
         prev = tgt
     return out
+
+
+def remaining_plan(config: Config, plan: Plan, done: set[str]) -> Plan:
+    """The moves that record only the sweeps not in ``done`` (sweep names), for resuming a run.
+
+    Each remaining sweep is preceded by a move to its start (at travel speed) unless the arm is
+    already there; the first move is the slow approach. The safety gate checks the result whole,
+    like any plan.
+    """
+    pc, robot = config.procedure, config.robot
+    travel = robot.max_joint_speed_rad_s * pc.travel_speed_percent / 100.0
+    approach = robot.max_joint_speed_rad_s * config.safety.approach_speed_percent / 100.0
+    moves: list[Move] = []
+    for i, m in enumerate(plan.moves):
+        if m.sweep is None or m.sweep.name in done:
+            continue
+        start = plan.moves[i - 1].target_rad
+        if not moves or moves[-1].target_rad != start:
+            kind, speed = ("approach", approach) if not moves else ("travel", travel)
+            moves.append(Move(f"to {m.sweep.name} start", kind, start, speed, m.accel_rad_s2))
+        moves.append(m)
+    return Plan(plan.procedure, tuple(moves))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
 import time
 from datetime import datetime, timezone
@@ -19,7 +20,7 @@ from payload_agent.types import Sample
 from payload_agent.motion.planner import Move
 
 CSV_COLUMNS = ["t_ctrl_s", "t_recv_s"] + [f"q{j}_rad" for j in range(1, 7)] + [f"effort{j}" for j in range(1, 7)]
-FLUSH_EVERY_S = 0.25
+FLUSH_EVERY_S = 0.25  # samples reach the OS at least this often; each sweep's file is fsynced at its end
 
 
 def utc_now() -> str:
@@ -33,20 +34,43 @@ class RunRecorder:
         self.manifest = dict(manifest)
         self.manifest.setdefault("phases", {})
         self.manifest.setdefault("created_utc", utc_now())
+        self._init_state()
+        self.write_manifest()
+
+    # -- phases and sweeps ------------------------------------------------------------------
+    @classmethod
+    def reopen(cls, run_dir: Path) -> "RunRecorder":
+        """An existing run folder, to resume it: its manifest is kept and extended."""
+        rec = cls.__new__(cls)
+        rec.run_dir = Path(run_dir)
+        rec.manifest = json.loads((rec.run_dir / "manifest.json").read_text(encoding="utf-8"))
+        rec.manifest.setdefault("phases", {})
+        rec._init_state()
+        return rec
+
+    def _init_state(self) -> None:
         self._lock = threading.Lock()
+        self._manifest_lock = threading.Lock()
         self._phase: str | None = None
         self._file: TextIO | None = None
         self._entry: dict[str, Any] | None = None
         self._last_flush = 0.0
         self.samples_seen = 0
         self.last_sample: Sample | None = None
-        self.write_manifest()
 
-    # -- phases and sweeps ------------------------------------------------------------------
-    def begin_phase(self, name: str, **info: Any) -> None:
+    def begin_phase(self, name: str, resume: bool = False, **info: Any) -> None:
+        """Start recording a phase; with ``resume``, keep its complete sweeps and set the others aside."""
         (self.run_dir / name).mkdir(exist_ok=True)
         self._phase = name
-        self.manifest["phases"][name] = {"started_utc": utc_now(), "sweeps": [], **info}
+        old = self.manifest["phases"].get(name)
+        if resume and old is not None:
+            for entry in old.get("sweeps", []):
+                if entry.get("status") != "complete" and (self.run_dir / entry["file"]).exists():
+                    (self.run_dir / entry["file"]).replace(self.run_dir / (entry["file"] + ".incomplete"))
+            old["sweeps"] = [e for e in old.get("sweeps", []) if e.get("status") == "complete"]
+            old.update(resumed_utc=utc_now(), status="recording", **info)
+        else:
+            self.manifest["phases"][name] = {"started_utc": utc_now(), "sweeps": [], **info}
         self.write_manifest()
 
     def end_phase(self, status: str) -> None:
@@ -76,7 +100,11 @@ class RunRecorder:
             f, entry = self._file, self._entry
             self._file = self._entry = None
         if f is not None:
-            f.close()
+            try:
+                f.flush()
+                os.fsync(f.fileno())
+            finally:
+                f.close()
         if entry is not None:
             entry.update(status=status, ended_utc=utc_now())
             if stream is not None:
@@ -106,8 +134,11 @@ class RunRecorder:
 
     def write_manifest(self) -> None:
         tmp = self.run_dir / "manifest.json.tmp"
-        tmp.write_text(json.dumps(self.manifest, indent=2, default=str), encoding="utf-8")
-        tmp.replace(self.run_dir / "manifest.json")
+        with self._manifest_lock, open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(json.dumps(self.manifest, indent=2, default=str))
+            fh.flush()
+            os.fsync(fh.fileno())
+            os.replace(tmp, self.run_dir / "manifest.json")
 
     def close(self) -> None:
         self.end_sweep("aborted") if self._file is not None else None

@@ -84,11 +84,11 @@ class PhaseRunner:
                                          f"{SAMPLE_WAIT_S:.0f} s after the controller reported it finished")
             time.sleep(0.002)
 
-    def run_phase(self, name: str, plan: Plan) -> None:
+    def run_phase(self, name: str, plan: Plan, resume: bool = False) -> None:
         start_q = self.current_q()
         self.gate.approve(plan, start_q)  # the approach path starts wherever the robot stands now
         check_kinematics(self.config, self.driver, start_q, f"before the {name} run")
-        self.recorder.begin_phase(name, joint_temperatures_c={"start": joint_temperatures(self.driver)})
+        self.recorder.begin_phase(name, resume, joint_temperatures_c={"start": joint_temperatures(self.driver)})
         if self.progress is not None:
             self.progress.begin_phase(name)
         n = len(plan.moves)
@@ -101,8 +101,8 @@ class PhaseRunner:
                 if move.sweep is not None:
                     check_kinematics(self.config, self.driver, q_now, f"at the start of sweep {move.label}")
                     self.pose_checks += 1
-                    self.recorder.begin_sweep(move)
                     self.driver.begin_stats()
+                    self.recorder.begin_sweep(move)
                 self.out(f"  [{name}] {i + 1}/{n} {move.label}")
                 if self.progress is not None:
                     self.progress.begin_move(i + 1, move, q_now)

@@ -15,6 +15,7 @@ written to the controller unless the quality gates passed and the operator asked
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, RobotNotReadyError, SafetyError)
-from payload_agent.motion.planner import Plan, expected_durations, make_plan
+from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
@@ -37,6 +38,7 @@ from payload_agent.session.apply import apply_result
 from payload_agent.session.connection import build_driver, simulated_cell
 from payload_agent.session.manifest import RunManifest, new_run_dir
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
+from payload_agent.session.resume import ResumeState, config_fingerprint, load_resume
 from payload_agent.solvers.results import RunResult, format_table
 from payload_agent.types import PayloadSetting
 
@@ -62,6 +64,7 @@ class RunOptions:
     on_cell: Callable[[object], None] | None = None  # tests: sees the SimulatedCell once it runs
     cell: Any = None  # an already started SimulatedCell to use (left running afterwards)
     retry_sweeps: int = 0  # redo a sweep whose sample stream had a gap, up to this many times per phase
+    resume: Path | None = None  # an incomplete run folder to finish (only its unfinished sweeps are recorded)
 
 
 @dataclass
@@ -123,6 +126,10 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         raise PayloadAgentError("calibrate needs the reference payload (--known-mass, --known-cog)")
     plan = make_plan(config)
     build_driver(config)  # a bad driver section or effort unit is refused before anything starts
+    resume = None
+    if opts.resume is not None:
+        resume = load_resume(config, plan, opts.resume)
+        opts = dataclasses.replace(opts, mode=resume.mode)
     with simulated_cell(config, opts.cell) as cell:
         driver = build_driver(config, cell.options if cell else None)
         if cell is not None:
@@ -130,10 +137,11 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
                 opts.on_cell(cell)
             opts.out(f"Simulated {config.simulation.arm if config.simulation else ''} controller at "
                      f"{driver.describe_endpoint()}; payload truth {cell.truth_json}")
-        return _run_connected(config, opts, plan, cell, driver)
+        return _run_connected(config, opts, plan, cell, driver, resume)
 
 
-def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: Driver) -> RunOutcome:
+def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: Driver,
+                   resume: ResumeState | None) -> RunOutcome:
     out = opts.out
     gate = SafetyGate(config)
     state = RobotState.for_config(config)
@@ -158,12 +166,22 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
         if pose_check is not None:
             out(f"Kinematic cross-check: YAML model and controller agree within "
                 f"{1000 * pose_check.position_error_m:.1f} mm, {math.degrees(pose_check.rotation_error_rad):.2f}°")
-        current = baselines.describe_for(config, plan, info, source_run=Path("."),
-                                         joint_temperatures_c=joint_temperatures(driver))
-        phases, stored_info, store_empty = _phases_for(config, opts, state, current, out)
-        verdict = gate.check(plan, start_q)
-        durations = expected_durations(plan, start_q)
-        out(describe_plan(plan, durations))
+        if resume is None:
+            current = baselines.describe_for(config, plan, info, source_run=Path("."),
+                                             joint_temperatures_c=joint_temperatures(driver))
+            phases, stored_info, store_empty = _phases_for(config, opts, state, current, out)
+            todo = [(p, m, plan) for p, m in phases]
+        else:
+            resume.check_controller(info)
+            phases = [(p, m) for p, m, _ in resume.phases]
+            stored_info, store_empty = resume.stored_info, resume.store_empty
+            todo = [(p, m, remaining_plan(config, plan, done)) for p, m, done in resume.phases]
+            out(f"Resuming {resume.run_dir}: " + "; ".join(
+                f"{p} run, {len(sub.sweeps)} of {len(plan.sweeps)} sweeps left" for p, _, sub in todo))
+        shown = todo[0][2]
+        verdict = gate.check(shown, start_q)
+        durations = expected_durations(shown, start_q)
+        out(describe_plan(shown, durations))
         out("Safety gate: " + verdict.describe())
         if not verdict.ok:
             gate.approve(plan, start_q)  # raises SafetyError with every problem listed
@@ -173,23 +191,29 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
             answer = opts.ask(f"Record {what} now? The robot will move. [y/N] ")
             if answer.strip().lower() not in ("y", "yes"):
                 raise MotionAbortedError("the operator declined; nothing moved")
-        recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")),
-                               RunManifest(config, plan, opts.mode, baselines.controller_identity(info),
-                                           driver.effort_unit, opts.tool,
-                                           None if stored_info is None else {"dir": str(state.baseline_dir),
-                                                                             **stored_info.to_json()},
-                                           opts.reference, cell.truth_json if cell else None,
-                                           None if pose_check is None else pose_check.to_json()).to_json())
-        if stored_info is not None:  # the run folder keeps its own copy: it stays self-contained
+        if resume is not None:
+            recorder = RunRecorder.reopen(resume.run_dir)
+            recorder.update(status="recording", resumed_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+        else:
+            recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")), {
+                **RunManifest(config, plan, opts.mode, baselines.controller_identity(info), driver.effort_unit,
+                              opts.tool, None if stored_info is None else {"dir": str(state.baseline_dir),
+                                                                          **stored_info.to_json()},
+                              opts.reference, cell.truth_json if cell else None,
+                              None if pose_check is None else pose_check.to_json()).to_json(),
+                "config_fingerprint": config_fingerprint(config), "phases_planned": phases,
+                "store_empty": store_empty})
+        out(f"Run folder: {recorder.run_dir}")
+        if stored_info is not None and resume is None:  # the run folder keeps its own copy: self-contained
             recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
             recorder.write_manifest()
         phase_runner = PhaseRunner(config, driver, gate, recorder, out,
                                    _make_progress(opts, config, plan, durations, [p for p, _ in phases]),
                                    retry_sweeps=opts.retry_sweeps)
         driver.start_stream(phase_runner.sink)
-        for phase, mounted in phases:
+        for phase, mounted, phase_plan in todo:
             _prepare_tool(phase, mounted, cell, opts, out, changing=len(phases) > 1 or opts.mode == "baseline")
-            phase_runner.run_phase(phase, plan)
+            phase_runner.run_phase(phase, phase_plan, resume=resume is not None)
         if phase_runner.progress is not None:
             phase_runner.progress.close()
         driver.stop_stream()

@@ -1,0 +1,67 @@
+"""Resuming an incomplete run (`payload-agent run --resume RUN_DIR`): what is left, and whether it still fits.
+
+A run folder may be resumed only by the same robot (controller identity), with the same robot
+YAML (every section that decides motion or analysis) and the same plan; then only the sweeps
+that did not finish are recorded again, into the same folder.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from payload_agent.configuration.config import Config
+from payload_agent.errors import ConfigError, RobotNotReadyError
+from payload_agent.motion.planner import Plan
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.session.baseline import BaselineInfo, controller_identity
+from payload_agent.types import ControllerInfo
+
+FINGERPRINT_SECTIONS = ("robot", "effort", "driver", "procedure", "safety")
+
+
+def config_fingerprint(config: Config) -> str:
+    return config.fingerprint(*FINGERPRINT_SECTIONS)
+
+
+@dataclass
+class ResumeState:
+    run_dir: Path
+    manifest: dict
+    mode: str
+    phases: list[tuple[str, bool, set[str]]]  # phase, tool mounted, names of its sweeps already complete
+    store_empty: bool
+    stored_info: BaselineInfo | None
+
+    def check_controller(self, info: ControllerInfo) -> None:
+        then, now = self.manifest.get("controller") or {}, controller_identity(info)
+        if then != now:
+            raise RobotNotReadyError(f"{self.run_dir} was recorded on {then}, this controller is {now}: "
+                                     "a run can only be resumed on the robot that started it")
+
+
+def load_resume(config: Config, plan: Plan, run_dir: Path) -> ResumeState:
+    """What is left of an incomplete run; ConfigError when the YAML or the plan changed since."""
+    run_dir = Path(run_dir)
+    manifest = load_manifest(run_dir)
+    if manifest.get("status") == "complete":
+        raise ConfigError("--resume", f"{run_dir} is complete; nothing to resume")
+    if manifest.get("config_fingerprint") != config_fingerprint(config):
+        raise ConfigError("--resume", f"the robot YAML changed since {run_dir} was recorded "
+                                      f"(sections {', '.join(FINGERPRINT_SECTIONS)}); start a new run instead")
+    if manifest.get("plan_fingerprint") != plan.fingerprint():
+        raise ConfigError("--resume", f"the plan changed since {run_dir} was recorded; start a new run instead")
+    all_sweeps = {m.sweep.name for m in plan.sweeps}
+    phases = []
+    for phase, mounted in manifest.get("phases_planned") or []:
+        entry = manifest.get("phases", {}).get(phase, {})
+        done = {s["name"] for s in entry.get("sweeps", []) if s.get("status") == "complete"}
+        if done != all_sweeps:
+            phases.append((phase, bool(mounted), done))
+    if not phases:
+        raise ConfigError("--resume", f"{run_dir} has every sweep recorded; analyse it with "
+                                      f"`payload-agent solve {run_dir}`")
+    base = manifest.get("baseline")
+    stored = BaselineInfo.from_json(base) if base else None
+    return ResumeState(run_dir, manifest, manifest.get("mode", "identify"), phases,
+                       bool(manifest.get("store_empty")), stored)
