@@ -54,3 +54,19 @@ def ur5e_spec() -> ArmSpec:
 
 
 SPECS = {"ec66": ec66_spec, "ur5e": ur5e_spec}
+
+
+def canopen_arm_spec() -> ArmSpec:
+    """The simulated CANopen arm (fakes/canopen): UR3e geometry and masses on six CiA 402 drives."""
+    return ArmSpec(
+        name="canopen_arm",
+        dh=_dh(_data.CANOPEN_ARM_DH),
+        links=_links(_data.CANOPEN_ARM_LINKS),
+        max_speed_rad_s=tuple(math.radians(v) for v in _data.CANOPEN_ARM_MAX_SPEED_DEG_S),
+        max_accel_rad_s2=(8.0,) * 6,
+        armature_kgm2=(0.05, 0.05, 0.03, 0.01, 0.01, 0.01),
+        rated_torque_nm=tuple(float(v) for v in _data.CANOPEN_ARM_RATED_TORQUE_NM),
+    )
+
+
+SPECS["canopen_arm"] = canopen_arm_spec

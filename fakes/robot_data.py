@@ -132,3 +132,44 @@ UR5E_MAX_SPEED_DEG_S = [180.0, 180.0, 180.0, 180.0, 180.0, 180.0]
 # Maximum joint torques 150/150/150/28/28/28 N*m: UR article "Max. joint torques", as cited in the same
 # joint_limits.yaml (max_effort).
 UR5E_MAX_TORQUE_NM = [150.0, 150.0, 150.0, 28.0, 28.0, 28.0]
+
+# ---------------------------------------------------------------------------------------------
+# CANopen arm: a 6-axis arm with Universal Robots UR3e geometry and masses, built from CiA 402
+# servo drives (the simulated CANopen arm, fakes/canopen; arms.canopen_arm_spec)
+# ---------------------------------------------------------------------------------------------
+# Kinematics, masses and centres of mass: Universal Robots, "DH Parameters for calculations of
+# kinematics and dynamics" (the page cited for the UR5e above), UR3e table: d1=0.15185, a2=-0.24355,
+# a3=-0.2132, d4=0.13105, d5=0.08535, d6=0.0921 m, alpha = [pi/2, 0, 0, pi/2, -pi/2, 0], theta = 0;
+# link masses 1.98, 3.4445, 1.437, 0.871, 0.805, 0.261 kg; COMs in the DH frames, copied unchanged.
+CANOPEN_ARM_DH = [
+    (0.0, 0.15185, math.pi / 2, 0.0),
+    (-0.24355, 0.0, 0.0, 0.0),
+    (-0.2132, 0.0, 0.0, 0.0),
+    (0.0, 0.13105, math.pi / 2, 0.0),
+    (0.0, 0.08535, -math.pi / 2, 0.0),
+    (0.0, 0.0921, 0.0, 0.0),
+]
+
+# inertia_kgm2: APPROXIMATION.  The principal moments of github.com/UniversalRobots/
+# Universal_Robots_ROS2_Description config/ur3e/physical_parameters.yaml (commit 3426d674), assigned to
+# the DH axes with that file's own COM axis mapping (shoulder and wrist 1: URDF y = -DH z, URDF z = DH y;
+# wrist 2: URDF y = DH z, URDF z = -DH y; the others share the DH axes); its products of inertia
+# (all below 0.0015 kg*m^2) are dropped.  UR's page calls the UR3e inertias negligible.
+CANOPEN_ARM_LINKS = [
+    {"mass_kg": 1.98, "com_m": (0.0, -0.02, 0.0), "inertia_kgm2": (0.0027657, 0.0025626, 0.0021501, 0.0, 0.0, 0.0)},
+    {"mass_kg": 3.4445, "com_m": (0.13, 0.0, 0.1157),
+     "inertia_kgm2": (0.0042623, 0.0460284, 0.0448947, 0.0, 0.0, 0.0)},
+    {"mass_kg": 1.437, "com_m": (0.05, 0.0, 0.0238),
+     "inertia_kgm2": (0.0010511, 0.0113396, 0.0110895, 0.0, 0.0, 0.0)},
+    {"mass_kg": 0.871, "com_m": (0.0, 0.0, 0.01), "inertia_kgm2": (0.0008174, 0.0005497, 0.0006844, 0.0, 0.0, 0.0)},
+    {"mass_kg": 0.805, "com_m": (0.0, 0.0, 0.01), "inertia_kgm2": (0.0006059, 0.0003831, 0.0005837, 0.0, 0.0, 0.0)},
+    {"mass_kg": 0.261, "com_m": (0.0, 0.0, -0.02), "inertia_kgm2": (0.0001080, 0.0001086, 0.0001371, 0.0, 0.0, 0.0)},
+]
+
+# Joint speed limits 180/180/180/360/360/360 deg/s and maximum joint torques 56/56/28/12/12/12 N*m:
+# UR3e User Manual (e-Series, v5.8) and the UR article "Max. joint torques", both as cited in
+# Universal_Robots_ROS2_Description config/ur3e/joint_limits.yaml (commit 8ef39b34).
+CANOPEN_ARM_MAX_SPEED_DEG_S = [180.0, 180.0, 180.0, 360.0, 360.0, 360.0]
+# ESTIMATE, not a rating: the simulated drives use the maximum joint torques above as their rated torque
+# (0x6076, the scale of the per-mille torque actual value 0x6077).
+CANOPEN_ARM_RATED_TORQUE_NM = [56.0, 56.0, 28.0, 12.0, 12.0, 12.0]
