@@ -18,6 +18,8 @@ every fake through the same few calls:
 from __future__ import annotations
 
 import abc
+import ipaddress
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -126,12 +128,26 @@ class SimulatedController(abc.ABC):
         return next((e for e in self.events if e.kind == kind and e.t >= t), None)
 
 
+def require_loopback(host: str) -> str:
+    """Simulated controllers serve loopback only: refuse any other address before binding."""
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except OSError as exc:
+        raise OSError(f"simulated controller: cannot resolve {host!r}: {exc}") from None
+    for info in infos:
+        if not ipaddress.ip_address(info[4][0]).is_loopback:
+            raise OSError(f"simulated controllers listen on loopback addresses only (127.0.0.0/8, ::1), "
+                          f"not {host!r}")
+    return host
+
+
 def sim_robot_kwargs(config: "Config") -> dict[str, Any]:
     """The SimRobot keyword arguments a robot YAML's ``simulation`` section asks for."""
+    from payload_agent.fakes.effects import from_simulation as effects_from_simulation
     from payload_agent.fakes.physics import FrictionParams
 
     sim = config.simulation
     return dict(
         q0_rad=np.radians(sim.start_deg), time_scale=sim.time_scale,
         friction=FrictionParams(np.array(sim.coulomb_nm), np.array(sim.viscous_nm_s_rad), np.array(sim.load_ratio)),
-        noise_nm=np.array(sim.noise_nm), seed=sim.seed, payload=None)
+        noise_nm=np.array(sim.noise_nm), seed=sim.seed, payload=None, effects=effects_from_simulation(sim))

@@ -23,6 +23,8 @@ import socket
 import threading
 from typing import Callable, Iterator
 
+from payload_agent.fakes.base import require_loopback
+
 Handler = Callable[[socket.socket, tuple], None]
 
 ACCEPT_POLL_S = 0.2  # the accept loop re-checks `closing` this often (portable wake-up)
@@ -38,6 +40,7 @@ class TCPServer:
         self._handler = handler
         self._on_error = on_error
         self.errors: list[str] = []
+        require_loopback(host)
         ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a restarted fake may rebind at once
         try:
