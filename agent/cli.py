@@ -148,7 +148,11 @@ def _cmd_plan(args) -> int:
     print(status_line(RobotState.for_config(config), config, plan))
     verdict = SafetyGate(config).check(plan, start)
     print("Safety gate: " + verdict.describe())
-    return 0 if verdict.ok or (start is None and len(verdict.problems) == 1) else 2
+    if verdict.ok or (start is None and len(verdict.problems) == 1):
+        return 0
+    print(f"payload-agent: error: {config.source}: the safety gate refused the plan:\n"
+          + "\n".join(f"  - {p}" for p in verdict.problems), file=sys.stderr)
+    return 2
 
 
 def _run_config(args, run_dir: Path, manifest: dict):

@@ -123,3 +123,10 @@ def test_motion_is_commanded_only_through_the_safety_gate():
                 if mod not in ALLOWED[node.func.attr]:
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {node.func.attr}")
     assert not offenders, "motion commanded outside the safety gate: " + "; ".join(offenders)
+
+
+def test_the_configuration_knows_every_simulated_arm():
+    from payload_agent.configuration.simulation import SIMULATED_ARMS
+    from payload_agent.fakes.arms import SPECS
+
+    assert set(SIMULATED_ARMS) == set(SPECS)

@@ -13,12 +13,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
 from payload_agent.errors import ConfigError
 from payload_agent.model.kinematics import DHRow, Kinematics
+from payload_agent.configuration import units
+from payload_agent.configuration.paths import resolve_against, state_home
+from payload_agent.configuration.procedure import load_procedure
 from payload_agent.configuration.simulation import SimulationConfig, parse_simulation
-from payload_agent.configuration.yamlcheck import Node
+from payload_agent.configuration.yamlcheck import Node, check_numbers, load_yaml
 from payload_agent.drivers.base import DriverOptions
 from payload_agent.drivers.registry import parse_driver_options
 
@@ -136,34 +137,62 @@ class Config:
         return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def load_config(path: str | Path) -> Config:
+SECTIONS = ("robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch")
+ROBOT_KEYS = ("name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s", "max_joint_accel_deg_s2")
+KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm")
+DH_KEYS = ("a_mm", "d_mm", "alpha_deg", "offset_deg")
+EFFORT_KEYS = ("unit", "gains_nm_per_unit")
+PROCEDURE_KEYS = ("name", "speed_percent", "travel_speed_percent", "accel_percent", "base_deg", "sweep_deg",
+                  "bidirectional", "solver")
+SAFETY_KEYS = ("joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm", "reach_box_mm",
+               "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s", "pose_tolerance_mm",
+               "pose_tolerance_deg", "unattended_without_pose_check")
+STORAGE_KEYS = ("runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c")
+# driver keys that were removed, and what replaces them (a stale YAML gets told, not ignored)
+REMOVED_DRIVER_KEYS = {
+    "max_joint_accel_rad_s2": "there is one acceleration setting, robot.max_joint_accel_deg_s2 (deg/s²); the "
+                              "driver derives its controller's acceleration scale from it. Delete this key",
+}
+
+
+def read_config_file(path: str | Path) -> Any:
+    """The parsed YAML of a robot file (strict: duplicate keys are errors naming the key)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError("<file>", f"cannot read {path}: {exc.strerror or exc}", str(path)) from None
+    return load_yaml(text, str(path))
+
+
+def load_config(path: str | Path) -> Config:
+    path = Path(path)
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
-        raise ConfigError("<file>", f"not valid YAML ({where}): {getattr(exc, 'problem', exc)}", str(path)) from None
-    return parse_config(data, source=str(path), base_dir=path.parent)
+        return parse_config(read_config_file(path), source=str(path), base_dir=path.resolve().parent)
+    except ConfigError as exc:  # raised by a plugin (driver registry, procedure file) without the file name
+        if exc.source is None:
+            raise ConfigError(exc.key_path, exc.problem, str(path)) from None
+        raise
 
 
 def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = None) -> Config:
-    top = Node(data, "", source)
-    robot = _robot(top.child("robot"))
-    effort = _effort(top.child("effort"))
-    driver, driver_options = _driver(top.child("driver"))
-    procedure = _procedure(top.child("procedure"))
-    safety = _safety(top.child("safety"), robot)
-    storage = _storage(top.child("storage", required=False), base_dir)
+    """Validate a robot YAML (already parsed); relative paths in it are resolved against ``base_dir``."""
+    top = Node(data, "", source).allow(SECTIONS)
+    robot = _robot(top.child("robot", keys=ROBOT_KEYS))
+    effort = _effort(top.child("effort", keys=EFFORT_KEYS))
+    driver_node = top.child("driver")
+    for key, why in REMOVED_DRIVER_KEYS.items():
+        if driver_node.has(key):
+            raise driver_node.error(key, f"no longer exists: {why}")
+    driver, driver_options = _driver(driver_node)
+    procedure = _procedure(top.child("procedure", keys=PROCEDURE_KEYS))
+    safety = _safety(top.child("safety", keys=SAFETY_KEYS), robot)
+    storage = _storage(top.child("storage", required=False, keys=STORAGE_KEYS), base_dir, robot.name)
     sim_node = top.child("simulation", required=False)
     simulation = parse_simulation(sim_node) if sim_node is not None else None
     watch_node = top.child("watch", required=False)
     watch = _watch(watch_node, base_dir) if watch_node is not None else None
-    top.reject_unknown(["robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch"])
+    top.reject_unknown(SECTIONS)
     if procedure.speed_percent > safety.max_speed_percent:
         raise ConfigError("procedure.speed_percent",
                           f"{procedure.speed_percent:g} % exceeds safety.max_speed_percent "
@@ -176,49 +205,61 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
                   raw=data)
 
 
-def _robot(node: Node) -> RobotConfig:
-    name = node.string("name")
-    model = node.string("model")
-    kin = node.child("kinematics")
+def parse_kinematics(kin: Node) -> tuple[tuple[DHRow, ...], float]:
+    """``robot.kinematics``: the DH rows (offset_deg required, units checked) and the length uncertainty, mm."""
     kin.string("convention", choices=["standard_dh"])
     rows_raw = kin.raw("dh")
     if not isinstance(rows_raw, list) or len(rows_raw) != N_JOINTS:
         raise kin.error("dh", f"expected a list of {N_JOINTS} rows (one per joint), got {rows_raw!r:.60}")
-    rows = []
+    rows, raw_rows = [], []
     for i, row in enumerate(rows_raw):
-        r = Node(row, kin.key(f"dh[{i}]"), node.source)
-        rows.append(DHRow(
-            a_m=r.number("a_mm", min=-5000, max=5000) / 1000.0,
-            d_m=r.number("d_mm", min=-5000, max=5000) / 1000.0,
-            alpha_rad=math.radians(r.number("alpha_deg", min=-360, max=360)),
-            offset_rad=math.radians(r.number("offset_deg", 0.0, min=-360, max=360)),
-        ))
-        r.reject_unknown(["a_mm", "d_mm", "alpha_deg", "offset_deg"])
+        r = Node(row, kin.key(f"dh[{i}]"), kin.source).allow(DH_KEYS)
+        a_mm = r.number("a_mm", min=-5000, max=5000)
+        d_mm = r.number("d_mm", min=-5000, max=5000)
+        alpha = r.number("alpha_deg", min=-360, max=360)
+        if not r.has("offset_deg") or r.data["offset_deg"] is None:  # it changes where the robot goes: no default
+            r.raw("offset_deg", None)  # a misspelt key is named first
+            raise r.error("offset_deg", "is required: the joint's zero offset in degrees (DH θ = controller angle "
+                                        "+ offset_deg). Write 0 explicitly if the controller's zero is the DH zero; "
+                                        "a wrong value moves the robot somewhere else")
+        offset = r.number("offset_deg", min=-360, max=360)
+        r.reject_unknown()
+        raw_rows.append((a_mm, d_mm, alpha, offset))
+        rows.append(DHRow(a_m=a_mm / 1000.0, d_m=d_mm / 1000.0, alpha_rad=math.radians(alpha),
+                          offset_rad=math.radians(offset)))
+    units.check_dh(raw_rows, kin.key("dh"), kin.source)
     length_std_mm = kin.number("length_uncertainty_mm", DEFAULT_LENGTH_UNCERTAINTY_MM, min=0, max=50)
-    kin.reject_unknown(["convention", "dh", "length_uncertainty_mm"])
+    kin.reject_unknown()
+    return tuple(rows), length_std_mm
+
+
+def _robot(node: Node) -> RobotConfig:
+    name = node.string("name")
+    model = node.string("model")
+    rows, length_std_mm = parse_kinematics(node.child("kinematics", keys=KINEMATICS_KEYS))
     limits_raw = node.raw("joint_limits_deg")
     if not isinstance(limits_raw, list) or len(limits_raw) != N_JOINTS:
         raise node.error("joint_limits_deg", f"expected {N_JOINTS} [min, max] pairs, got {limits_raw!r:.60}")
     limits = []
     for i, pair in enumerate(limits_raw):
-        from payload_agent.configuration.yamlcheck import check_numbers
-
-        lo, hi = check_numbers(pair, node.key(f"joint_limits_deg[{i}]"), 2, source=node.source, min=-720, max=720)
+        lo, hi = check_numbers(pair, node.key(f"joint_limits_deg[{i}]"), 2, source=node.source)
+        units.check_joint_limit(lo, hi, node.key(f"joint_limits_deg[{i}]"), node.source)
         if lo >= hi:
             raise node.error(f"joint_limits_deg[{i}]", f"min ({lo:g}) must be below max ({hi:g})")
-        limits.append((math.radians(lo), math.radians(hi)))
+        limits.append((lo, hi))
+    units.check_joint_limits_unit(limits, node.key("joint_limits_deg"), node.source)
+    limits = [(math.radians(lo), math.radians(hi)) for lo, hi in limits]
     speed = node.number("max_joint_speed_deg_s", gt=0, max=1000)
     accel = node.number("max_joint_accel_deg_s2", gt=0, max=10000)
-    node.reject_unknown(["name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s",
-                         "max_joint_accel_deg_s2"])
-    return RobotConfig(name, model, tuple(rows), tuple(limits), math.radians(speed), math.radians(accel),
+    node.reject_unknown()
+    return RobotConfig(name, model, rows, tuple(limits), math.radians(speed), math.radians(accel),
                        length_std_mm / 1000.0)
 
 
 def _effort(node: Node) -> EffortConfig:
     unit = node.string("unit", choices=EFFORT_UNITS)
     gains = node.per_joint("gains_nm_per_unit", N_JOINTS, gt=0)
-    node.reject_unknown(["unit", "gains_nm_per_unit"])
+    node.reject_unknown()
     return EffortConfig(unit, gains)
 
 
@@ -229,6 +270,10 @@ def _driver(node: Node) -> tuple[Mapping[str, Any], DriverOptions]:
 
 def _procedure(node: Node) -> ProcedureConfig:
     name = node.string("name")
+    try:
+        load_procedure(name)  # `plan` refuses an unknown procedure as `run` would
+    except ConfigError as exc:
+        raise node.error("name", exc.problem) from None
     speed = node.number("speed_percent", gt=0, max=100)
     travel = node.number("travel_speed_percent", gt=0, max=100)
     accel = node.number("accel_percent", gt=0, max=100)
@@ -238,8 +283,7 @@ def _procedure(node: Node) -> ProcedureConfig:
         raise node.error("sweep_deg", f"needs at least 10 degrees of travel from first to second value, got {sweep}")
     bidirectional = node.boolean("bidirectional")
     solver = node.string("solver", choices=["three-step", "general"])
-    node.reject_unknown(["name", "speed_percent", "travel_speed_percent", "accel_percent", "base_deg",
-                         "sweep_deg", "bidirectional", "solver"])
+    node.reject_unknown()
     return ProcedureConfig(name, speed, travel, accel, base, sweep[0], sweep[1], bidirectional, solver)
 
 
@@ -248,7 +292,7 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
     max_speed = node.number("max_speed_percent", gt=0, max=100)
     approach = node.number("approach_speed_percent", gt=0, max=100)
     floor = node.number("floor_z_mm", min=-5000, max=5000)
-    box = node.child("reach_box_mm")
+    box = node.child("reach_box_mm", keys=("x", "y", "z"))
     axes = []
     for axis in ("x", "y", "z"):
         lo, hi = box.numbers(axis, 2, min=-5000, max=5000)
@@ -262,9 +306,7 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
     pose_mm = node.number("pose_tolerance_mm", 5.0, gt=0, max=50)
     pose_deg = node.number("pose_tolerance_deg", 1.0, gt=0, max=10)
     no_pose_ok = node.boolean("unattended_without_pose_check", False)
-    node.reject_unknown(["joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm",
-                         "reach_box_mm", "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s",
-                         "pose_tolerance_mm", "pose_tolerance_deg", "unattended_without_pose_check"])
+    node.reject_unknown()
     if approach > max_speed:
         raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
     return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout,
@@ -272,15 +314,17 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
                         no_pose_ok)
 
 
-def _storage(node: Node | None, base_dir: Path | None) -> StorageConfig:
+def _storage(node: Node | None, base_dir: Path | None, robot_name: str) -> StorageConfig:
+    """Default: state in ``$XDG_STATE_HOME/payload-agent/<robot>/``, runs in its ``runs/`` (see paths)."""
     if node is None:
-        return StorageConfig(Path("runs"), Path("state"), DEFAULT_BASELINE_MAX_AGE_DAYS,
-                             DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C)
-    runs = Path(node.string("runs_dir", "runs"))
-    state = Path(node.string("state_dir", "state"))
+        node = Node({}, "storage").allow(STORAGE_KEYS)
+    state_raw = node.string("state_dir", None) if node.has("state_dir") else None
+    runs_raw = node.string("runs_dir", None) if node.has("runs_dir") else None
+    state = resolve_against(state_raw, base_dir) if state_raw is not None else state_home()
+    runs = resolve_against(runs_raw, base_dir) if runs_raw is not None else state / robot_name / "runs"
     age = node.number("baseline_max_age_days", DEFAULT_BASELINE_MAX_AGE_DAYS, gt=0, max=3650)
     dtemp = node.number("baseline_max_temperature_delta_c", DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C, gt=0, max=100)
-    node.reject_unknown(["runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c"])
+    node.reject_unknown()
     return StorageConfig(runs, state, age, dtemp)
 
 
@@ -289,7 +333,7 @@ def _watch(node: Node, base_dir: Path | None) -> WatchConfig:
     kind = t.string("type", choices=WATCH_TRIGGERS)
     path = index = None
     if kind == "file":
-        path = Path(t.string("path"))
+        path = resolve_against(t.string("path"), base_dir)
         t.reject_unknown(["type", "path"])
     else:
         index = t.integer("index", min=0, max=255)

@@ -34,11 +34,11 @@ def parse_options(cls: type, data: Any, key_path: str, source: str | None = None
     node = Node(data, key_path, source)
     hints = typing.get_type_hints(cls)
     values: dict[str, Any] = {}
-    names = []
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    node.reject_unknown(names + list(ignore))  # a misspelt key first: "did you mean", not "x is missing"
     for f in dataclasses.fields(cls):
         if not f.init:
             continue
-        names.append(f.name)
         has_default = f.default is not _REQUIRED or f.default_factory is not _REQUIRED  # type: ignore[misc]
         if not node.has(f.name) or node.data[f.name] is None:
             node.raw(f.name, None)  # mark as read
@@ -47,7 +47,6 @@ def parse_options(cls: type, data: Any, key_path: str, source: str | None = None
                                                                       if f.metadata.get("help") else ""))
             continue
         values[f.name] = _convert(node, f.name, hints[f.name], f.metadata)
-    node.reject_unknown(names + list(ignore))
     return cls(**values)
 
 

@@ -6,17 +6,75 @@ Only simulated runs have it; the agent starts the driver's simulated controller 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from payload_agent.configuration.yamlcheck import Node
 
 N_JOINTS = 6
+# the arms the physics core simulates (payload_agent.fakes.arms.SPECS; a test keeps the two equal)
+SIMULATED_ARMS = ("ec66", "ur5e", "canopen_arm")
+ZEROS = (0.0,) * N_JOINTS
 
 
 @dataclass(frozen=True)
 class SimPayload:
     mass_kg: float
     cog_mm: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class SimEffects:
+    """``simulation.effects``: the error sources of a real arm the payload model does not have.
+
+    All optional; absent means the ideal arm. Read by ``payload_agent.fakes.effects.from_simulation``
+    (units as in the YAML; the physics core's docstrings say what each one does).
+    """
+
+    zero_offset_deg: tuple[float, ...] = ZEROS
+    stiffness_nm_per_rad: tuple[float, ...] = ZEROS  # 0 = rigid
+    coulomb_asymmetry: tuple[float, ...] = ZEROS
+    friction_per_c: float = 0.0
+    tool_warmup_c: float = 0.0
+    ripple_amplitude_nm: tuple[float, ...] = ZEROS
+    ripple_load_ratio: tuple[float, ...] = ZEROS
+    gear_ratio: tuple[float, ...] = (100.0,) * N_JOINTS
+    effort_quantum_nm: tuple[float, ...] = ZEROS
+    cable_stiffness_nm_per_rad: tuple[float, ...] = (0.0, 0.0, 0.0)  # joints 4-6
+    cable_rest_deg: tuple[float, ...] | None = None  # None: where the tool is mounted
+    cable_preload_nm: tuple[float, ...] = (0.0, 0.0, 0.0)
+
+
+EFFECT_KEYS = ("zero_offset_deg", "stiffness_nm_per_rad", "coulomb_asymmetry", "temperature", "torque_ripple",
+               "effort_quantum_nm", "tool_cable")
+
+
+def parse_effects(node: Node | None) -> SimEffects:
+    if node is None:
+        return SimEffects()
+    node.allow(EFFECT_KEYS)
+    zero = node.per_joint("zero_offset_deg", N_JOINTS, 0.0, min=-5, max=5)
+    stiff = node.per_joint("stiffness_nm_per_rad", N_JOINTS, 0.0, min=0, max=1e8)
+    asym = node.per_joint("coulomb_asymmetry", N_JOINTS, 0.0, min=-0.9, max=0.9)
+    quantum = node.per_joint("effort_quantum_nm", N_JOINTS, 0.0, min=0, max=50)
+    temp = node.child("temperature", required=False, keys=("friction_per_c", "tool_warmup_c"))
+    per_c = temp.number("friction_per_c", 0.0, min=-0.05, max=0.05) if temp else 0.0
+    warm = temp.number("tool_warmup_c", 0.0, min=-50, max=50) if temp else 0.0
+    if temp:
+        temp.reject_unknown()
+    rip = node.child("torque_ripple", required=False, keys=("amplitude_nm", "load_ratio", "gear_ratio"))
+    amp = rip.per_joint("amplitude_nm", N_JOINTS, 0.0, min=0, max=20) if rip else ZEROS
+    lr = rip.per_joint("load_ratio", N_JOINTS, 0.0, min=0, max=0.2) if rip else ZEROS
+    ratio = rip.per_joint("gear_ratio", N_JOINTS, 100.0, gt=0, max=1000) if rip else (100.0,) * N_JOINTS
+    if rip:
+        rip.reject_unknown()
+    cab = node.child("tool_cable", required=False, keys=("stiffness_nm_per_rad", "rest_deg", "preload_nm"))
+    k_c = cab.per_joint("stiffness_nm_per_rad", 3, 0.0, min=0, max=100) if cab else (0.0, 0.0, 0.0)
+    rest = cab.numbers("rest_deg", 3, None, min=-360, max=360) if cab and cab.has("rest_deg") else None
+    pre = cab.per_joint("preload_nm", 3, 0.0, min=-50, max=50) if cab else (0.0, 0.0, 0.0)
+    if cab:
+        cab.reject_unknown()
+    node.reject_unknown()
+    return SimEffects(zero, stiff, asym, per_c, warm, amp, lr, ratio, quantum, k_c, rest, pre)
 
 
 @dataclass(frozen=True)
@@ -34,10 +92,13 @@ class SimulationConfig:
     time_scale: float
     seed: int
     start_deg: tuple[float, ...]  # where the simulated robot stands when the controller starts
+    angle_noise_rad: tuple[float, ...] = ZEROS  # reported joint angles: Gaussian noise per joint
+    time_jitter_s: float = 0.0  # reported sample timestamps: Gaussian jitter (standard deviation)
+    effects: SimEffects = field(default_factory=SimEffects)
 
 
 def parse_simulation(node: Node) -> SimulationConfig:
-    arm = node.string("arm")  # a name in payload_agent.fakes.arms.SPECS, checked when the simulation starts
+    arm = node.string("arm", choices=SIMULATED_ARMS)
     p = node.child("payload")
     payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000))
     p.reject_unknown(["mass_kg", "cog_mm"])
@@ -52,6 +113,10 @@ def parse_simulation(node: Node) -> SimulationConfig:
     scale = node.number("time_scale", gt=0, max=1000)
     seed = node.integer("seed", 0)
     start = node.numbers("start_deg", N_JOINTS, min=-360, max=360)
+    angle_noise = node.per_joint("angle_noise_rad", N_JOINTS, 0.0, min=0, max=0.01)
+    jitter_ms = node.number("timestamp_jitter_ms", 0.0, min=0, max=100)
+    effects = parse_effects(node.child("effects", required=False))
     node.reject_unknown(["arm", "payload", "noise_nm", "friction", "drive_gain_error", "time_scale", "seed",
-                         "start_deg"])
-    return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start)
+                         "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects"])
+    return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start,
+                            angle_noise, jitter_ms / 1000.0, effects)

@@ -91,7 +91,8 @@ class SafetyGate:
                 x, y, z = self.kin.flange(q)[:3, 3]
                 if z < s.floor_z_m:
                     problems.append(f"{where}: flange at z = {1000 * z:.0f} mm, below the floor "
-                                    f"({1000 * s.floor_z_m:.0f} mm)")
+                                    f"({1000 * s.floor_z_m:.0f} mm); narrow procedure.sweep_deg or change "
+                                    "procedure.base_deg, or check safety.floor_z_mm")
                     break
                 if not (xlo <= x <= xhi and ylo <= y <= yhi and zlo <= z <= zhi):
                     problems.append(f"{where}: flange at ({1000 * x:.0f}, {1000 * y:.0f}, {1000 * z:.0f}) mm leaves "

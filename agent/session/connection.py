@@ -16,6 +16,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver, DriverOptions, MotionLimits, Supervision
 from payload_agent.drivers.registry import make_driver
+from payload_agent.errors import ConfigError
 
 SAMPLE_WAIT_S = 5.0
 
@@ -31,7 +32,10 @@ def supervision(config: Config) -> Supervision:
 def build_driver(config: Config, options: DriverOptions | None = None) -> Driver:
     """The driver for ``config`` (not connected); ConfigError if its effort unit is not the YAML's."""
     driver = make_driver(options or config.driver_options, motion_limits(config), supervision(config))
-    driver.check_effort_unit(config.effort.unit)
+    try:
+        driver.check_effort_unit(config.effort.unit)
+    except ConfigError as exc:
+        raise ConfigError(exc.key_path, exc.problem, config.source) from None
     return driver
 
 
