@@ -1,0 +1,203 @@
+"""Fault matrix: every driver family x every fault its simulated controller can inject, mid-sweep.
+
+Not a test: it prints the matrix and exits non-zero if any cell fails. Run
+``.venv/bin/python -m benchmarks.fault_matrix [--drivers elite_ec,ur_rtde] [--faults stall_stream,...]``.
+The test suite runs a fast subset (tests/test_fault_matrix.py).
+
+Each cell runs a real session (the runner, the driver, the simulated controller over its real
+protocol) and injects the fault through the simulated controllers' common fault interface
+once the first sweep is under way. It then asserts all of:
+
+- a stop reached the controller, and how long after the fault (the controller's own log);
+- no motion command reached the controller after the fault;
+- the samples up to the fault are on disk (the aborted sweep's file holds them);
+- the manifest marks the run incomplete with the reason;
+- the exit code and message are the documented ones (README: exit codes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import yaml
+
+from payload_agent.configuration.config import parse_config
+from payload_agent.errors import PayloadAgentError
+from payload_agent.motion.planner import make_plan
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.session.runner import RunOptions, run_identification
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM_CONFIGS = {"elite_ec": "configs/sim-ec66.yaml", "ur_rtde": "configs/sim-ur5e.yaml",
+               "modbus": "configs/sim-ur5e-modbus.yaml", "canopen": "configs/sim-canopen-arm.yaml"}
+# documented exit codes: 4 motion aborted (stops, timeouts), 6 communication failure
+EXPECTED_EXIT = {"drop_connections": 6, "stall_stream": 6, "garbage": 6, "nan_values": 6,
+                 "protective_stop": 4, "emergency_stop": 4, "leave_remote": 4, "slow_reply": (4, 6),
+                 "no_reply": (4, 6), "never_finish": 4}
+MESSAGE = {"drop_connections": ("connection", "closed", "lost", "reach"), "stall_stream": ("stall", "no sample"),
+           "garbage": ("stream", "parse", "garbage", "malformed", "frame"), "nan_values": ("finite", "nan"),
+           "protective_stop": ("protective", "collision", "stop"), "emergency_stop": ("emergency", "e-stop"),
+           "leave_remote": ("remote", "teach", "local", "mode"), "slow_reply": ("reply", "time", "respond"),
+           "no_reply": ("reply", "time", "respond"), "never_finish": ("finish", "within", "time")}
+STOP_DEADLINE_S = 0.5
+TIME_SCALE = 5.0  # sweeps last long enough to fault in the middle of one
+
+
+@dataclasses.dataclass
+class Cell:
+    driver: str
+    fault: str
+    passed: bool = False
+    stop_s: float | None = None
+    exit_code: int | None = None
+    problems: list[str] = dataclasses.field(default_factory=list)
+    message: str = ""
+
+
+def load_sim_config(driver: str, storage: Path):
+    data = yaml.safe_load((ROOT / SIM_CONFIGS[driver]).read_text())
+    data["simulation"]["time_scale"] = min(float(data["simulation"]["time_scale"]), TIME_SCALE)
+    data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
+    data.pop("watch", None)
+    return parse_config(data, source=SIM_CONFIGS[driver], base_dir=ROOT / "configs")
+
+
+def run_cell(driver: str, fault: str, storage: Path) -> Cell:
+    cell = Cell(driver, fault)
+    config = load_sim_config(driver, storage)
+    first_sweep = next(i for i, m in enumerate(make_plan(config).moves) if m.sweep is not None)
+    seen: dict = {}
+
+    def inject_mid_sweep(sim_cell) -> None:
+        ctrl = sim_cell.controller
+        seen["ctrl"] = ctrl
+        if fault not in ctrl.faults:
+            return
+
+        def watch() -> None:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline:
+                if sum(e.kind == "move" for e in ctrl.events) > first_sweep and ctrl.robot.snapshot().moving:
+                    time.sleep(0.1)
+                    seen["fault_t"] = time.monotonic()
+                    ctrl.inject_fault(fault)
+                    return
+                time.sleep(0.005)
+        threading.Thread(target=watch, daemon=True, name="fault-injector").start()
+
+    lines: list[str] = []
+    try:
+        run_identification(config, RunOptions(assume_yes=True, progress=False, report=False, out=lines.append,
+                                              on_cell=inject_mid_sweep))
+        cell.problems.append("the run finished although the fault was injected")
+    except PayloadAgentError as exc:
+        cell.exit_code, cell.message = exc.exit_code, str(exc)
+    except Exception as exc:  # noqa: BLE001 - an unexpected exception is itself a failed cell
+        cell.exit_code, cell.message = 1, f"{type(exc).__name__}: {exc}"
+    ctrl = seen.get("ctrl")
+    if ctrl is None or fault not in ctrl.faults:
+        cell.problems.append("not applicable")
+        return cell
+    fault_t = seen.get("fault_t")
+    if fault_t is None:
+        cell.problems.append("the fault was never injected (no sweep started)")
+        return cell
+    stop = ctrl.first_event_after("stop", fault_t)
+    if stop is None:
+        cell.problems.append("no stop reached the controller")
+    else:
+        cell.stop_s = stop.t - fault_t
+        if cell.stop_s > STOP_DEADLINE_S:
+            cell.problems.append(f"stop after {cell.stop_s:.3f} s (limit {STOP_DEADLINE_S} s)")
+    late = [e for e in ctrl.events if e.kind == "move" and e.t > fault_t]
+    if late:
+        cell.problems.append(f"{len(late)} motion command(s) after the fault")
+    expected = EXPECTED_EXIT[fault]
+    if cell.exit_code not in (expected if isinstance(expected, tuple) else (expected,)):
+        cell.problems.append(f"exit code {cell.exit_code}, expected {expected}")
+    if not any(w in cell.message.lower() for w in MESSAGE[fault]):
+        cell.problems.append(f"message does not say what happened: {cell.message[:120]!r}")
+    cell.problems += _check_run_folder(storage / "runs")
+    cell.passed = not cell.problems
+    return cell
+
+
+def _check_run_folder(runs: Path) -> list[str]:
+    dirs = sorted(runs.iterdir()) if runs.exists() else []
+    if not dirs:
+        return ["no run folder was kept"]
+    manifest = load_manifest(dirs[-1])
+    problems = []
+    if manifest.get("status") != "incomplete" or not manifest.get("stopped_because"):
+        problems.append(f"manifest status {manifest.get('status')!r} without the reason")
+    sweeps = [s for ph in manifest.get("phases", {}).values() for s in ph.get("sweeps", [])]
+    if not sweeps or sweeps[-1].get("status") == "complete":
+        problems.append("no aborted sweep in the manifest")
+    else:
+        last = sweeps[-1]
+        rows = (dirs[-1] / last["file"]).read_text().count("\n") - 1
+        if last.get("samples", 0) <= 0 or rows != last["samples"]:
+            problems.append(f"aborted sweep: {rows} rows on disk, manifest says {last.get('samples')}")
+    return problems
+
+
+def available_drivers() -> list[str]:
+    return [d for d, path in SIM_CONFIGS.items() if (ROOT / path).exists()]
+
+
+def faults_of(driver: str) -> list[str]:
+    from payload_agent.drivers.registry import simulator_class
+
+    from payload_agent.fakes.base import FAULTS
+
+    return [f for f in FAULTS if f in simulator_class(driver).faults]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--drivers", help="comma-separated driver names (default: every driver with a sim config)")
+    p.add_argument("--faults", help="comma-separated fault names (default: every fault each controller supports)")
+    args = p.parse_args(argv)
+    drivers = args.drivers.split(",") if args.drivers else available_drivers()
+    cells: list[Cell] = []
+    for driver in drivers:
+        faults = args.faults.split(",") if args.faults else faults_of(driver)
+        for fault in faults:
+            with tempfile.TemporaryDirectory(prefix="fault-matrix-") as tmp:
+                c = run_cell(driver, fault, Path(tmp))
+            cells.append(c)
+            print(f"  {driver:9s} {fault:17s} {'pass' if c.passed else 'FAIL'}"
+                  + (f"  stop {1000 * c.stop_s:.0f} ms" if c.stop_s is not None else "")
+                  + ("" if c.passed else f"  {'; '.join(c.problems)}"), flush=True)
+    print_matrix(cells)
+    return 0 if cells and all(c.passed for c in cells) else 1
+
+
+def print_matrix(cells: list[Cell]) -> None:
+    drivers = list(dict.fromkeys(c.driver for c in cells))
+    faults = list(dict.fromkeys(c.fault for c in cells))
+    by = {(c.driver, c.fault): c for c in cells}
+    print("\n| fault | " + " | ".join(drivers) + " |")
+    print("|---" * (len(drivers) + 1) + "|")
+    for f in faults:
+        row = []
+        for d in drivers:
+            c = by.get((d, f))
+            if c is None:
+                row.append("n/a")
+            else:
+                stop = f" {1000 * c.stop_s:.0f} ms" if c.stop_s is not None else ""
+                row.append(("pass" if c.passed else "FAIL") + stop)
+        print(f"| {f} | " + " | ".join(row) + " |")
+    failed = [c for c in cells if not c.passed]
+    print(f"\n{len(cells) - len(failed)} passed, {len(failed)} failed")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
