@@ -20,6 +20,15 @@ class ConfigError(PayloadAgentError):
         super().__init__(f"{where}{key_path}: {problem}")
 
 
+class NoTerminalError(PayloadAgentError):
+    """A question had to be asked but there is no one to answer it (stdin closed, not a terminal).
+
+    Nothing moves; the message says which flag answers the question instead (--yes, --unattended).
+    """
+
+    exit_code = 2
+
+
 class PlanError(PayloadAgentError):
     """The procedure cannot be turned into joint targets for this robot."""
 

@@ -1,11 +1,20 @@
 import copy
 import math
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# State follows the robot into $XDG_STATE_HOME (payload_agent.configuration.paths): the suite gets its
+# own, so it never reads or writes the user's baselines, calibrations or history (subprocesses inherit it).
+_XDG = Path(tempfile.mkdtemp(prefix="payload-agent-tests-"))
+os.environ["XDG_STATE_HOME"] = str(_XDG / "state")
+os.environ["XDG_CONFIG_HOME"] = str(_XDG / "config")
+os.environ.pop("PAYLOAD_AGENT_ROBOTS", None)
 
 
 @pytest.fixture

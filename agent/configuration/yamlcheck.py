@@ -1,13 +1,92 @@
-"""Small readers that pull typed values out of parsed YAML and name the key path on error."""
+"""Reading YAML strictly, and small readers that pull typed values out of it naming the key path on error.
+
+``load_yaml`` rejects duplicate keys (PyYAML lets the last value silently win, which once
+changed a sweep speed) and names the key path and both lines. ``Node`` reads typed values
+and, for an unknown or a missing key, suggests the closest allowed spelling ("did you mean").
+"""
 
 from __future__ import annotations
 
+import difflib
 import math
 from typing import Any, Mapping, Sequence
+
+import yaml
 
 from payload_agent.errors import ConfigError
 
 _MISSING = object()
+
+
+class StrictSafeLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader that refuses a mapping with the same key twice (anywhere in the tree)."""
+
+    def construct_mapping(self, node, deep=False):  # noqa: D102 (PyYAML hook)
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r} (first on line {seen[key] + 1})", key_node.start_mark)
+                seen[key] = key_node.start_mark.line
+            except TypeError:  # an unhashable key: PyYAML reports it itself below
+                continue
+        return super().construct_mapping(node, deep=deep)
+
+
+def _duplicate_keys(node: yaml.Node, path: str, source: str | None, _seen: set[int] | None = None) -> None:
+    """Walk a composed YAML tree; ConfigError naming the key path of the first duplicate key."""
+    _seen = set() if _seen is None else _seen
+    if id(node) in _seen:  # an alias of a node already checked (or a recursive anchor)
+        return
+    _seen.add(id(node))
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            key = str(key_node.value) if isinstance(key_node, yaml.ScalarNode) else None
+            child = f"{path}.{key}" if path else str(key)
+            if key is not None:
+                if key in seen:
+                    raise ConfigError(child, f"appears twice (lines {seen[key] + 1} and "
+                                             f"{key_node.start_mark.line + 1}); remove one: YAML would silently "
+                                             "use the last value", source)
+                seen[key] = key_node.start_mark.line
+            _duplicate_keys(value_node, child, source, _seen)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _duplicate_keys(item, f"{path}[{i}]", source, _seen)
+
+
+def load_yaml(text: str, source: str | None = None) -> Any:
+    """Parse YAML safely and strictly: no Python tags, no duplicate keys (ConfigError names the key)."""
+    loader = StrictSafeLoader(text)
+    try:
+        try:
+            node = loader.get_single_node()
+        except yaml.YAMLError as exc:
+            raise _yaml_error(exc, source) from None
+        if node is None:
+            return None
+        _duplicate_keys(node, "", source)
+        try:
+            return loader.construct_document(node)
+        except yaml.YAMLError as exc:
+            raise _yaml_error(exc, source) from None
+    finally:
+        loader.dispose()
+
+
+def _yaml_error(exc: yaml.YAMLError, source: str | None) -> ConfigError:
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "somewhere"
+    return ConfigError("<file>", f"not valid YAML ({where}): {getattr(exc, 'problem', None) or exc}", source)
+
+
+def did_you_mean(name: str, allowed: Sequence[str]) -> str | None:
+    """The allowed key closest to a misspelt ``name`` (``speed_percnt`` -> ``speed_percent``), or None."""
+    match = difflib.get_close_matches(str(name), [str(a) for a in allowed], n=1, cutoff=0.75)
+    return match[0] if match else None
 
 
 class Node:
@@ -20,6 +99,7 @@ class Node:
         self.path = path
         self.source = source
         self._used: set[str] = set()
+        self._allowed: tuple[str, ...] = ()
 
     def key(self, name: str) -> str:
         return f"{self.path}.{name}" if self.path else name
@@ -30,19 +110,38 @@ class Node:
     def has(self, name: str) -> bool:
         return name in self.data
 
+    def allow(self, names: Sequence[str]) -> "Node":
+        """Declare every key this mapping may hold, before reading it: a missing key can then be
+        traced to a misspelt one ("did you mean"), and ``reject_unknown()`` checks against it."""
+        self._allowed = tuple(names)
+        return self
+
     def raw(self, name: str, default: Any = _MISSING) -> Any:
         self._used.add(name)
         if name not in self.data or self.data[name] is None:
+            if name not in self.data:
+                self._misspelt(name)
             if default is _MISSING:
                 raise self.error(name, "is required but missing")
             return default
         return self.data[name]
 
-    def child(self, name: str, required: bool = True) -> "Node | None":
+    def _misspelt(self, name: str) -> None:
+        """``name`` is absent: if an unknown key present looks like it, that key is the mistake."""
+        allowed = getattr(self, "_allowed", None)
+        if not allowed:
+            return
+        for other in self.data:
+            if other not in allowed and did_you_mean(str(other), [name]) == name:
+                raise self.error(str(other), f"unknown key; did you mean {name!r}?")
+
+    def child(self, name: str, required: bool = True, *, keys: Sequence[str] | None = None) -> "Node | None":
+        """The mapping under ``name`` (None if absent and not ``required``); ``keys``: its allowed keys."""
         if not required and name not in self.data:
-            self._used.add(name)
+            self.raw(name, None)
             return None
-        return Node(self.raw(name), self.key(name), self.source)
+        node = Node(self.raw(name), self.key(name), self.source)
+        return node.allow(keys) if keys is not None else node
 
     def number(self, name: str, default: Any = _MISSING, *, min: float | None = None, max: float | None = None,
                gt: float | None = None) -> float:
@@ -84,10 +183,12 @@ class Node:
 
     def reject_unknown(self, allowed: Sequence[str] | None = None) -> None:
         """Unknown keys are errors: a misspelt safety key must not silently fall back to a default."""
-        allowed_set = set(allowed) if allowed is not None else self._used
+        allowed_set = set(allowed) if allowed is not None else set(self._allowed or self._used)
         for name in self.data:
             if name not in allowed_set:
-                raise self.error(str(name), f"unknown key; expected one of: {', '.join(sorted(allowed_set))}")
+                guess = did_you_mean(str(name), sorted(allowed_set))
+                hint = f"did you mean {guess!r}? " if guess else ""
+                raise self.error(str(name), f"unknown key; {hint}expected one of: {', '.join(sorted(allowed_set))}")
 
 
 def _kind(value: Any) -> str:
