@@ -219,6 +219,13 @@ class MonitorServer:
                         c.counted = True
                         self.dropped_clients += 1
 
+    def drop_connections(self) -> None:
+        """Close every client connection; the port keeps accepting new ones."""
+        with self._lock:
+            clients, self._clients = self._clients, []
+        for c in clients:
+            c.drop()
+
     def close(self) -> None:
         with self._lock:
             self._closed = True

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import json
 import socket
+import threading
+import time
 from typing import Any, Callable
 
-from payload_agent.fakes.tcp_server import TCPServer, read_lines
+from payload_agent.fakes.tcp_server import TCPServer, read_lines, shutdown_socket
 
 PARSE_ERROR = -32700
 INVALID_REQUEST = -32600
@@ -54,16 +56,44 @@ class LineJsonRpcServer:
         self._raw_override = raw_override  # test hook: answer a method with a raw (broken) line
         self._server = TCPServer(host, port, self._serve, name=name)
         self.port = self._server.port
+        self._socks: set[socket.socket] = set()
+        self._socks_lock = threading.Lock()
+        # faults (set by the controller): every reply held back this long; every request swallowed
+        self.reply_delay_s = 0.0
+        self.swallow_requests = False
 
     def start(self) -> None:
         self._server.start()
 
     def _serve(self, sock: socket.socket, addr) -> None:
-        # a line that never ends (longer than MAX_LINE) drops the client
-        for line in read_lines(sock, lambda: self._server.closing, max_line=MAX_LINE):
-            reply = self._handle_line(line)
-            if reply is not None:
-                sock.sendall(reply)
+        with self._socks_lock:
+            self._socks.add(sock)
+        try:
+            # a line that never ends (longer than MAX_LINE) drops the client
+            for line in read_lines(sock, lambda: self._server.closing, max_line=MAX_LINE):
+                if self.swallow_requests:
+                    continue
+                reply = self._handle_line(line)  # executed now; with a delay, only the answer comes late
+                if reply is not None:
+                    delay = self.reply_delay_s
+                    if delay > 0:
+                        time.sleep(delay)
+                    sock.sendall(reply)
+        finally:
+            with self._socks_lock:
+                self._socks.discard(sock)
+
+    @property
+    def connection_count(self) -> int:
+        with self._socks_lock:
+            return len(self._socks)
+
+    def drop_connections(self) -> None:
+        """Close every client connection (the port keeps listening, as after a controller-side reset)."""
+        with self._socks_lock:
+            socks = list(self._socks)
+        for sock in socks:
+            shutdown_socket(sock)
 
     def _handle_line(self, line: bytes) -> bytes | None:
         text = line.strip()

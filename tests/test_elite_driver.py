@@ -11,15 +11,17 @@ import time
 import numpy as np
 import pytest
 
-from payload_agent.types import PayloadSetting, Sample
-from payload_agent.drivers.elite_ec import EliteECDriver
-from payload_agent.drivers.registry import driver_class
+from payload_agent.drivers.base import MotionLimits, Supervision
+from payload_agent.drivers.elite_ec import EliteECDriver, EliteECOptions
+from payload_agent.drivers.registry import driver_class, simulator_class
 from payload_agent.errors import (
     CommunicationError,
     ConfigError,
     MotionAbortedError,
     RobotNotReadyError,
+    SupervisionTrip,
 )
+from payload_agent.types import PayloadSetting, Sample
 
 pytest.importorskip("mujoco")
 
@@ -27,11 +29,13 @@ from conftest import EC66_Q0, EC66_TIME_SCALE  # noqa: E402
 from payload_agent.fakes.arms import ec66_spec  # noqa: E402
 from payload_agent.fakes.elite_ec import FakeEliteController  # noqa: E402
 from payload_agent.fakes.elite_ec_monitor import pack_frame  # noqa: E402
+from payload_agent.model.kinematics import Kinematics  # noqa: E402
 
 Q0 = EC66_Q0
 SPEC = ec66_spec()
 JOINT_MAX_DEG_S = [math.degrees(v) for v in SPEC.max_speed_rad_s]
 MAX_SPEED = max(SPEC.max_speed_rad_s)
+LIMITS = MotionLimits(MAX_SPEED, max(SPEC.max_accel_rad_s2))
 TIME_SCALE = EC66_TIME_SCALE
 
 
@@ -48,42 +52,74 @@ def ctrl(sim):
     c.close()
 
 
-def make_driver(ctrl, **extra) -> EliteECDriver:
+def options(ctrl, **extra) -> EliteECOptions:
     opts = {"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port, "monitor_port": ctrl.monitor_port,
             "joint_max_speed_deg_s": JOINT_MAX_DEG_S, "max_joint_accel_rad_s2": max(SPEC.max_accel_rad_s2),
             "reply_timeout_s": 2.0}
     opts.update(extra)
-    return EliteECDriver(opts, max_joint_speed_rad_s=MAX_SPEED)
+    return EliteECDriver.parse_options(opts)
+
+
+# The fast simulated arm (40x wall time) pushes 5000 monitor frames a second; on a loaded machine the
+# Python threads on both ends can fall 50 ms behind, so tests on it allow a larger stream gap than the
+# default max(5 periods, 50 ms). The supervision tests below run the arm in real time.
+FAST_SIM_SUPERVISION = Supervision(max_stream_gap_s=0.3)
+
+
+def make_driver(ctrl, supervision: Supervision | None = FAST_SIM_SUPERVISION, **extra) -> EliteECDriver:
+    return EliteECDriver(options(ctrl, **extra), LIMITS, supervision)
+
+
+def connected(d: EliteECDriver) -> EliteECDriver:
+    """Connect and wait for the first sample (the base refuses to move without a fresh one)."""
+    d.connect()
+    d.wait_sample(5.0)
+    return d
 
 
 @pytest.fixture
 def drv(ctrl):
-    d = make_driver(ctrl)
-    d.connect()
+    d = connected(make_driver(ctrl))
     yield d
     d.close()
 
 
-def test_registry_finds_driver():
+def test_registry_finds_driver_and_its_simulator(ctrl):
     assert driver_class("elite_ec") is EliteECDriver
-    assert EliteECDriver.effort_unit == "percent_rated"
+    assert simulator_class("elite_ec") is FakeEliteController
+    d = make_driver(ctrl)
+    assert d.effort_unit == "percent_rated" and d.nominal_period_s == pytest.approx(0.008)
+    assert make_driver(ctrl, sample_source="poll", poll_rate_hz=40).nominal_period_s == pytest.approx(0.025)
+    assert EliteECDriver.reports_flange_pose
 
 
 def test_connect_identify_state(drv):
     info = drv.identify()
     assert info.vendor == "Elite Robots" and info.model == "EC66" and info.firmware
     st = drv.state()
-    assert st.mode == "remote" and st.servo_on and not st.estop and not st.protective_stop and not st.moving
-    assert st.fault is None
+    assert st.motion_allowed and st.reason == ""
+    assert not st.estop and not st.protective_stop and not st.moving
+    assert "remote" in st.detail
 
 
-def test_state_reports_estop_and_collision(drv, ctrl):
+@pytest.mark.parametrize("mode", [0, 1])
+def test_state_outside_remote_says_what_to_do(drv, ctrl, mode):
+    ctrl.set_mode(mode)
+    st = drv.state()
+    assert not st.motion_allowed and "REMOTE" in st.reason and "mode key" in st.reason
+
+
+def test_state_reports_estop_collision_servo(drv, ctrl):
+    ctrl.set_servo(False)
+    st = drv.state()
+    assert not st.motion_allowed and "servos are off" in st.reason
+    ctrl.set_servo(True)
     ctrl.trigger_collision()
     st = drv.state()
-    assert st.protective_stop and st.fault
+    assert st.protective_stop and not st.motion_allowed and "collision" in st.reason and "clear" in st.reason
     ctrl.press_estop()
     st = drv.state()
-    assert st.estop and not st.servo_on
+    assert st.estop and not st.motion_allowed and "emergency stop" in st.reason
 
 
 def test_move_reaches_target_and_samples_stream(drv, sim):
@@ -182,9 +218,9 @@ def test_payload_write_read_back(drv, ctrl):
 
 
 def test_poll_fallback(ctrl, sim):
-    d = make_driver(ctrl, sample_source="poll", poll_rate_hz=100)
-    d.connect()
+    d = connected(make_driver(ctrl, sample_source="poll", poll_rate_hz=100))
     try:
+        assert ctrl.rpc_connection_count == 2  # polling has its own connection: never between a command and its reply
         samples: list[Sample] = []
         d.start_stream(samples.append)
         target = np.array(Q0) + np.radians([0, 0, 0, 0, 0, 15.0])
@@ -218,7 +254,7 @@ def test_bad_result_string_is_communication_error(drv, ctrl):
 def test_stop_never_raises(ctrl):
     d = make_driver(ctrl)
     d.stop()  # not connected
-    d.connect()
+    connected(d)
     ctrl.close()
     d.stop()  # controller gone
     d.close()
@@ -229,8 +265,8 @@ def test_connect_failure_names_host_and_port():
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
-    d = EliteECDriver({"host": "127.0.0.1", "rpc_port": port, "connect_timeout_s": 1.0},
-                      max_joint_speed_rad_s=MAX_SPEED)
+    d = EliteECDriver(EliteECDriver.parse_options({"type": "elite_ec", "host": "127.0.0.1", "rpc_port": port,
+                                                   "connect_timeout_s": 1.0}), LIMITS)
     with pytest.raises(CommunicationError, match=f"127.0.0.1:{port}"):
         d.connect()
 
@@ -238,7 +274,8 @@ def test_connect_failure_names_host_and_port():
 @pytest.mark.parametrize("opts,key", [
     ({}, "driver.host"),
     ({"host": ""}, "driver.host"),
-    ({"host": "h", "rpc_port": 0}, "driver.rpc_port"),
+    ({"host": "h", "rpc_port": -1}, "driver.rpc_port"),
+    ({"host": "h", "rpc_port": 70000}, "driver.rpc_port"),
     ({"host": "h", "monitor_port": "8056"}, "driver.monitor_port"),
     ({"host": "h", "sample_source": "rtde"}, "driver.sample_source"),
     ({"host": "h", "poll_rate_hz": 0}, "driver.poll_rate_hz"),
@@ -250,23 +287,35 @@ def test_connect_failure_names_host_and_port():
 ])
 def test_config_validation(opts, key):
     with pytest.raises(ConfigError) as ei:
-        EliteECDriver(opts, max_joint_speed_rad_s=MAX_SPEED)
+        EliteECDriver.parse_options({"type": "elite_ec", **opts})
     assert ei.value.key_path == key
+
+
+def test_port_zero_parses_for_a_simulator_but_never_connects():
+    opts = EliteECDriver.parse_options({"type": "elite_ec", "host": "127.0.0.1", "rpc_port": 0})
+    d = EliteECDriver(opts, LIMITS)  # the constructor never connects
+    with pytest.raises(ConfigError) as ei:
+        d.connect()
+    assert ei.value.key_path == "driver.rpc_port" and "simulated" in str(ei.value)
 
 
 class _ChunkedMonitor:
     """A stand-in monitor port that sends frames in odd-size pieces."""
 
-    def __init__(self, frames: list[bytes], chunk_sizes=(5, 1, 700, 2000, 3, 1024)):
+    def __init__(self, frames: list[bytes], chunk_sizes=(5, 1, 700, 2000, 3, 1024), go_later: bool = False):
         self.data = b"".join(frames)
         self.chunks = chunk_sizes
         self.srv = socket.create_server(("127.0.0.1", 0))
         self.port = self.srv.getsockname()[1]
+        self.go = threading.Event()  # send once the test is listening (set at once unless go_later)
+        if not go_later:
+            self.go.set()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
     def _run(self):
         conn, _ = self.srv.accept()
+        self.go.wait(5.0)
         i = pos = 0
         while pos < len(self.data):
             n = self.chunks[i % len(self.chunks)]
@@ -282,12 +331,13 @@ class _ChunkedMonitor:
 def test_driver_frames_monitor_on_message_size(ctrl):
     frames = [pack_frame({"TimeStamp": 1000 + 8 * k, "machinePos": [k, -90, 90, 0, 90, 0, 0, 0],
                           "torque": [0, 10 + k, -5, 1, 0, 0, 0, 0], "robotMode": 2}) for k in range(12)]
-    mon = _ChunkedMonitor(frames)
+    mon = _ChunkedMonitor(frames, go_later=True)
     d = make_driver(ctrl, monitor_port=mon.port)
     got: list[Sample] = []
     d.connect()
     try:
         d.start_stream(got.append)
+        mon.go.set()
         deadline = time.monotonic() + 5
         while len(got) < 12 and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -318,7 +368,7 @@ def test_joint_temperatures_from_monitor_frame(drv, ctrl):
     ctrl.set_joint_temperatures(want)
     got = _wait_temps(drv, want)
     assert got == pytest.approx(want) and all(isinstance(v, float) for v in got)
-    assert drv.latest_monitor["joint_temperature"] == pytest.approx(want)
+    assert drv.latest_monitor.joint_temperature == pytest.approx(want)
     assert ctrl.joint_temperatures() == pytest.approx(want)  # without steady= they stay put
     with pytest.raises(ValueError):
         ctrl.set_joint_temperatures([30.0] * 5)
@@ -361,9 +411,9 @@ def test_joint_temperatures_decoded_at_offset_607(ctrl, kind):
     d.connect()
     try:
         deadline = time.monotonic() + 5
-        while d._frames < 2 and time.monotonic() < deadline:
+        while d.frames_received < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert d._frames == 2
+        assert d.frames_received == 2
         got = d.joint_temperatures_c()
     finally:
         d.close()
@@ -371,3 +421,143 @@ def test_joint_temperatures_decoded_at_offset_607(ctrl, kind):
         assert got == pytest.approx(temps)
     else:
         assert got is None
+
+
+# -- flange pose (kinematic cross-check) ----------------------------------------------------------
+
+@pytest.mark.parametrize("source", ["monitor", "poll"])
+def test_flange_pose_matches_forward_kinematics_of_the_simulated_arm(ctrl, sim, source):
+    d = connected(make_driver(ctrl, sample_source=source))
+    try:
+        kin = Kinematics(SPEC.dh)
+        for delta_deg in ([0, 0, 0, 0, 0, 0], [25.0, 10.0, -20.0, 30.0, -15.0, 45.0]):
+            target = np.array(Q0) + np.radians(delta_deg)
+            if any(delta_deg):
+                d.move_joints(target, math.radians(90), 6.0, timeout_s=10.0)
+            d.wait_sample(2.0, after=time.monotonic())  # a frame taken after the arm came to rest
+            pose = d.flange_pose()
+            fk = kin.flange(sim.snapshot().q)
+            assert np.max(np.abs(np.asarray(pose.position_m) - fk[:3, 3])) < 1e-4  # 0.1 mm
+            assert np.max(np.abs(np.asarray(pose.rotation) - fk[:3, :3])) < 1e-6
+    finally:
+        d.close()
+
+
+# -- supervision: faults during a move ------------------------------------------------------------
+
+GAP_LIMIT_S = 0.2  # generous against a loaded scheduler; the stop must still reach the controller within 0.5 s
+STOP_DEADLINE_S = 0.5
+
+
+@pytest.fixture
+def rt_ctrl():
+    """A simulated EC66 in real time (monitor frames at 125 Hz of wall time), its controller started."""
+    from payload_agent.fakes.sim_robot import SimRobot
+
+    robot = SimRobot(SPEC, q0_rad=Q0, tick_s=0.008, time_scale=1.0).start()
+    c = FakeEliteController(robot, rpc_port=0, monitor_port=0).start()
+    yield c
+    c.close()
+    robot.close()
+
+
+def move_with_fault(ctrl, d, fault: str, after_s: float = 0.3, **params):
+    """A 40-degree move of joint 1 (2 s); ``fault`` injected ``after_s`` into it. -> (error, fault time, target)."""
+    target = np.array(Q0) + np.radians([40.0, 0, 0, 0, 0, 0])
+    fault_t: list[float] = []
+
+    def inject():
+        fault_t.append(time.monotonic())
+        ctrl.inject_fault(fault, **params)
+
+    timer = threading.Timer(after_s, inject)
+    timer.start()
+    try:
+        with pytest.raises((MotionAbortedError, CommunicationError)) as ei:
+            d.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
+    finally:
+        timer.join()
+    assert fault_t, "the move ended before the fault was injected"
+    return ei.value, fault_t[0], target
+
+
+def assert_stopped_in_time(ctrl, fault_t: float, target) -> None:
+    stop = ctrl.first_event_after("stop", fault_t)
+    assert stop is not None, f"the controller never received a stop; events: {ctrl.events}"
+    assert stop.t - fault_t < STOP_DEADLINE_S, f"stop {1000 * (stop.t - fault_t):.0f} ms after the fault"
+    assert ctrl.first_event_after("move", fault_t) is None  # no motion command after the fault
+    deadline = time.monotonic() + 3.0
+    while ctrl.robot.snapshot().moving and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not ctrl.robot.snapshot().moving
+    assert ctrl.robot.snapshot().q[0] < target[0] - math.radians(5)  # it stopped well short of the target
+
+
+@pytest.mark.parametrize("fault,via", [("drop_connections", "new connection"), ("garbage", "command channel"),
+                                       ("stall_stream", "command channel"), ("nan_values", "command channel")])
+def test_stream_or_connection_fault_mid_move_stops_the_arm_within_half_a_second(rt_ctrl, fault, via):
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S)))
+    try:
+        err, fault_t, target = move_with_fault(rt_ctrl, d, fault)
+        assert isinstance(err, SupervisionTrip), err
+        report = err.stop_report
+        assert report is not None and report.acknowledged and report.via == via, report
+        assert_stopped_in_time(rt_ctrl, fault_t, target)
+        if fault == "stall_stream":
+            assert "stalled" in report.reason
+    finally:
+        d.close()
+
+
+def test_slow_replies_trip_the_supervision_and_say_the_stop_was_not_acknowledged(rt_ctrl):
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S, stop_ack_timeout_s=0.6),
+                              reply_timeout_s=0.2))
+    try:
+        err, fault_t, target = move_with_fault(rt_ctrl, d, "slow_reply", delay_s=0.5)
+        assert isinstance(err, SupervisionTrip) and "no reply" in str(err)
+        assert not err.stop_report.acknowledged and "NOT acknowledged" in str(err)
+        stop = rt_ctrl.first_event_after("stop", fault_t)  # executed on arrival, only the answer is late
+        # noticed when a state query goes unanswered for reply_timeout_s, then stopped at once
+        assert stop is not None and stop.t - fault_t < 0.2 + STOP_DEADLINE_S
+    finally:
+        rt_ctrl.clear_faults()
+        d.close()
+
+
+def test_no_reply_trips_and_reports_the_stop_unheard(rt_ctrl):
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S, stop_ack_timeout_s=0.6),
+                              reply_timeout_s=0.2))
+    try:
+        err, fault_t, _ = move_with_fault(rt_ctrl, d, "no_reply")
+        assert isinstance(err, SupervisionTrip)
+        report = err.stop_report
+        assert not report.acknowledged and report.attempts >= 2 and "NOT acknowledged" in str(err)
+        assert rt_ctrl.first_event_after("stop", fault_t) is None  # swallowed: the controller never took it
+    finally:
+        rt_ctrl.clear_faults()
+        d.close()
+
+
+@pytest.mark.parametrize("fault,words", [("protective_stop", "collision"), ("emergency_stop", "emergency stop"),
+                                         ("leave_remote", "REMOTE")])
+def test_controller_side_stops_abort_the_move_with_what_to_do(rt_ctrl, fault, words):
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S)))
+    try:
+        err, _, target = move_with_fault(rt_ctrl, d, fault, after_s=0.2)
+        assert type(err) is MotionAbortedError and words in str(err), err
+        assert rt_ctrl.robot.snapshot().q[0] < target[0] - math.radians(5)
+    finally:
+        d.close()
+
+
+def test_a_move_that_never_finishes_times_out_and_is_stopped(drv, ctrl, sim):
+    ctrl.inject_fault("never_finish")
+    target = np.array(Q0) + np.radians([5.0, 0, 0, 0, 0, 0])
+    t0 = time.monotonic()
+    with pytest.raises(MotionAbortedError, match="did not finish"):
+        drv.move_joints(target, math.radians(60), 6.0, timeout_s=1.0)
+    assert ctrl.first_event_after("stop", t0) is not None
+    deadline = time.monotonic() + 2.0
+    while not (st := drv.state()).motion_allowed and time.monotonic() < deadline:
+        time.sleep(0.01)  # the controller's state follows on its next cycle
+    assert st.motion_allowed, st  # the stop ended the "running" state

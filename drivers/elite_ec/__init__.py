@@ -1,0 +1,11 @@
+"""Elite Robots EC series driver: JSON-RPC on 8055 (``rpc``), monitor frames on 8056 (``monitor``).
+
+``EliteECDriver`` (``driver``) fills the driver contract's hooks; ``EliteECOptions``
+(``options``) is its YAML ``driver`` section.
+"""
+
+from payload_agent.drivers.elite_ec.driver import EliteECDriver
+from payload_agent.drivers.elite_ec.options import EliteECOptions
+from payload_agent.drivers.elite_ec.rpc import EliteRPCError
+
+__all__ = ["EliteECDriver", "EliteECOptions", "EliteRPCError"]
