@@ -21,6 +21,7 @@ ENTRY_POINT_GROUP = "payload_agent.drivers"
 BUILTIN: dict[str, str] = {
     "elite_ec": "payload_agent.drivers.elite_ec:EliteECDriver",
     "ur_rtde": "payload_agent.drivers.ur_rtde:URRTDEDriver",
+    "modbus": "payload_agent.drivers.modbus.driver:ModbusDriver",
 }
 
 _table: dict[str, str | type[Driver]] = {}

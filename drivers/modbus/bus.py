@@ -1,0 +1,184 @@
+"""One Modbus connection (TCP socket or RTU serial line) through pymodbus' synchronous clients.
+
+It reads ``Block``s and writes entries, and turns every way a request can fail into a
+``CommunicationError`` that names the request: an exception reply (with the Modbus exception
+code and its name), no reply within the timeout, or a connection the device closed.
+pymodbus is pinned (3.16.1): its client API changed between 3.x minors.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Sequence
+
+from payload_agent.drivers.modbus.registers import Block, Entry, group_writes
+from payload_agent.errors import CommunicationError, ConfigError
+
+try:
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+    from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+except ImportError as _exc:  # only this driver needs it
+    raise ConfigError("driver.type", "the modbus driver needs pymodbus 3.16.1 and pyserial: "
+                                     f"pip install 'payload-agent[modbus]' (import failed: {_exc})") from _exc
+
+# Modbus application protocol v1.1b, section 7
+EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+                   4: "server device failure", 5: "acknowledge", 6: "server device busy",
+                   8: "memory parity error", 10: "gateway path unavailable",
+                   11: "gateway target device failed to respond"}
+
+
+class ModbusReplyError(CommunicationError):
+    """The device answered with a Modbus exception."""
+
+    def __init__(self, message: str, code: int):
+        self.code = code
+        super().__init__(message)
+
+
+class ModbusTimeout(CommunicationError):
+    """No reply within the timeout (the request may or may not have reached the device)."""
+
+
+class ConnectionLost(CommunicationError):
+    """The connection is closed or could not be opened."""
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where and how to connect (from the driver options)."""
+
+    transport: str  # "tcp" | "rtu"
+    host: str | None
+    port: int
+    serial_port: str | None
+    baudrate: int
+    parity: str
+    stopbits: int
+    bytesize: int
+    device_id: int
+    timeout_s: float
+    retries: int
+
+    def describe(self) -> str:
+        if self.transport == "tcp":
+            return f"{self.host}:{self.port} (Modbus TCP, unit {self.device_id})"
+        return f"{self.serial_port} (Modbus RTU {self.baudrate} baud, unit {self.device_id})"
+
+
+class ModbusBus:
+    """One client connection; thread-safe (one request at a time)."""
+
+    def __init__(self, endpoint: Endpoint, role: str = "connection"):
+        self.endpoint = endpoint
+        self.role = role
+        self._lock = threading.RLock()
+        self._client: ModbusTcpClient | ModbusSerialClient | None = None
+        self._lost: str | None = None
+
+    # -- connection ---------------------------------------------------------------------------
+    def open(self) -> None:
+        ep = self.endpoint
+        with self._lock:
+            if ep.transport == "tcp":
+                client = ModbusTcpClient(ep.host, port=ep.port, timeout=ep.timeout_s, retries=ep.retries,
+                                         reconnect_delay=0, reconnect_delay_max=0)
+            else:
+                client = ModbusSerialClient(ep.serial_port, framer=FramerType.RTU, baudrate=ep.baudrate,
+                                            parity=ep.parity, stopbits=ep.stopbits, bytesize=ep.bytesize,
+                                            timeout=ep.timeout_s, retries=ep.retries, reconnect_delay=0,
+                                            reconnect_delay_max=0)
+            try:
+                ok = client.connect()
+            except Exception as exc:  # pyserial raises for a missing device
+                ok = False
+                self._lost = str(exc)
+            if not ok:
+                client.close()
+                raise ConnectionLost(f"cannot open the Modbus {self.role} to {ep.describe()}"
+                                     + (f": {self._lost}" if self._lost else ""))
+            self._client = client
+            self._lost = None
+
+    def close(self) -> None:
+        with self._lock:
+            client, self._client = self._client, None
+        if client is not None:
+            try:
+                client.close()
+            except Exception:
+                pass
+
+    @property
+    def alive(self) -> bool:
+        """Open and not known to be broken (no round trip)."""
+        client = self._client
+        return client is not None and self._lost is None and bool(client.connected)
+
+    # -- requests -----------------------------------------------------------------------------
+    def read(self, block: Block) -> list[int] | list[bool]:
+        """The words of ``block``; CommunicationError naming the block on any failure."""
+        what = f"read of {block.describe()} ({', '.join(e.name for e in block.entries)})"
+        fn = {"holding": "read_holding_registers", "input": "read_input_registers", "coil": "read_coils",
+              "discrete_input": "read_discrete_inputs"}[block.table]
+        resp = self._execute(what, fn, block.address, count=block.count, device_id=self.endpoint.device_id)
+        if block.table in ("coil", "discrete_input"):
+            bits = list(resp.bits)[:block.count]
+            if len(bits) != block.count:
+                raise CommunicationError(f"the {what} returned {len(bits)} bits, expected {block.count}")
+            return bits
+        regs = list(resp.registers)
+        if len(regs) != block.count:
+            raise CommunicationError(f"the {what} returned {len(regs)} registers, expected {block.count}")
+        return regs
+
+    def write(self, entries: Sequence[tuple[Entry, Sequence[float]]]) -> None:
+        """Encode and write entries; adjacent ones share a request, in address order."""
+        words = {e.name: e.encode(v) for e, v in entries}
+        for block in group_writes([e for e, _ in entries]):
+            data: list = []
+            for e in block.entries:
+                data.extend(words[e.name])
+            what = f"write of {block.describe()} ({', '.join(e.name for e in block.entries)})"
+            dev = self.endpoint.device_id
+            if block.table == "coil":
+                if len(data) == 1:
+                    self._execute(what, "write_coil", block.address, bool(data[0]), device_id=dev)
+                else:
+                    self._execute(what, "write_coils", block.address, [bool(b) for b in data], device_id=dev)
+            elif len(data) == 1:
+                self._execute(what, "write_register", block.address, int(data[0]), device_id=dev)
+            else:
+                self._execute(what, "write_registers", block.address, [int(w) for w in data], device_id=dev)
+
+    def _execute(self, what: str, fn: str, *args, **kwargs):
+        with self._lock:
+            client = self._client
+            if client is None:
+                raise ConnectionLost(f"the Modbus {self.role} to {self.endpoint.describe()} is closed ({what})")
+            try:
+                resp = getattr(client, fn)(*args, **kwargs)
+            except ConnectionException as exc:
+                self._lost = str(exc)
+                raise ConnectionLost(f"the {what} failed: the connection to {self.endpoint.describe()} "
+                                     f"is lost ({exc})") from None
+            except ModbusIOException as exc:
+                if not client.connected:
+                    self._lost = str(exc)
+                    raise ConnectionLost(f"the {what} failed: {self.endpoint.describe()} stopped answering "
+                                         f"and the connection was closed") from None
+                raise ModbusTimeout(f"no reply to the {what} from {self.endpoint.describe()} within "
+                                    f"{self.endpoint.timeout_s:g} s") from None
+            except (ModbusException, OSError, ValueError) as exc:
+                self._lost = str(exc)
+                raise ConnectionLost(f"the {what} failed: {type(exc).__name__}: {exc}") from None
+        if resp is None:
+            raise ModbusTimeout(f"no reply to the {what}")
+        if resp.isError():
+            code = int(getattr(resp, "exception_code", 0) or 0)
+            name = EXCEPTION_NAMES.get(code, "unknown exception")
+            raise ModbusReplyError(f"{self.endpoint.describe()} answered the {what} with Modbus exception "
+                                   f"{code} ({name})", code)
+        return resp

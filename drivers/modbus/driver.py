@@ -1,0 +1,383 @@
+"""Modbus TCP and RTU driver: register maps as data, motion through a program on the robot.
+
+The base class (``payload_agent.drivers.base``) runs the sample stream and the motion
+supervision; this module fills the hooks:
+
+* ``_read_sample``: one block read per sample where the map allows (``registers.group_reads``),
+  timestamped on receipt, paced at ``sample_rate_hz``. A block identical to the previous one is
+  not a new sample (the device has not refreshed it yet, or it stalled); the watchdog then sees
+  the gap. Decoded angles beyond ``max_abs_angle_deg`` and non-finite values are garbage: the
+  stream fails and names the register.
+* ``_move_joints``: the handshake of ``handshake.py`` (fields first, sequence number last; wait
+  for busy, then done or error; heartbeat and safety state watched while waiting).
+* ``_stop_command`` writes ``stop_request`` over the command connection and waits for
+  ``stop_ack``; ``_stop_fresh`` does the same over a new connection (for RTU, the serial port
+  reopened).
+
+Over TCP the sample stream and the commands use two connections (a Modbus server serves
+several clients); over RTU they share the one serial line.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from payload_agent.drivers.base import (ControllerInfo, ControllerState, Driver, FlangePose, MotionLimits,
+                                        PayloadSetting, Sample)
+from payload_agent.drivers.modbus import handshake as hs
+from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
+from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, parse_modbus_options, resolve_map
+from payload_agent.drivers.modbus.registers import EncodingError, Entry, group_reads, int_range
+from payload_agent.drivers.modbus.regmap import si_factor
+from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, RobotNotReadyError,
+                                  UnsupportedCapability)
+
+STATUS_SIGNALS = ("robot_mode", "power_on", "protective_stop", "emergency_stop", "fault_code")
+
+
+class ModbusDriver(Driver):
+    name = "modbus"
+    options_class = ModbusOptions
+    simulator = "payload_agent.fakes.modbus.controller:SimulatedModbusRobot"
+
+    @classmethod
+    def parse_options(cls, data, key_path: str = "driver", source: str | None = None) -> ModbusOptions:
+        return parse_modbus_options(data, key_path, source)
+
+    def __init__(self, options: ModbusOptions, limits: MotionLimits, supervision=None):
+        super().__init__(options, limits, supervision)
+        self.map = resolve_map(options)
+        if limits.n_joints != 6:
+            raise ConfigError("robot", f"the modbus driver's maps carry 6 joints, the robot has {limits.n_joints}")
+        self.effort_unit = self.map.effort_unit
+        update = self.map.update_hz
+        self.poll_period_s = 1.0 / options.sample_rate_hz
+        self.nominal_period_s = max(self.poll_period_s, 1.0 / update if update else 0.0)
+        rtu = options.transport == "rtu"
+        self.command_poll_s = options.command_poll_s or (0.05 if rtu else 0.01)
+        self.reports_flange_pose = self.map.has_all("tcp_position", "tcp_rotation")
+        self.endpoint = endpoint(options)
+        gaps = self.map.bridge_gaps
+        names = [n for n in ("joint_angles", "joint_revolutions", "joint_efforts", "timestamp") if n in self.map]
+        self._sample_blocks = group_reads([self.map[n] for n in names], gaps)
+        self._status_blocks = group_reads([self.map[n] for n in STATUS_SIGNALS if n in self.map], gaps)
+        if rtu:  # a sample cannot come faster than the line carries it (request + reply, 10 bits a byte)
+            line_bytes = sum(8 + 5 + (b.count if b.table in ("coil", "discrete_input") else 2 * b.count)
+                             for b in self._sample_blocks)
+            self.nominal_period_s = max(self.nominal_period_s, 1.5 * line_bytes * 10.0 / options.baudrate)
+        self.handshake = hs.Handshake(self.map, gaps)
+        self._stream: ModbusBus | None = None
+        self._cmd: ModbusBus | None = None
+        self._next_poll = 0.0
+        self._last_raw: tuple | None = None
+        self._t_wrap = 0.0
+        self._t_last: float | None = None
+        self._tol_rad = math.radians(options.target_tolerance_deg)
+        self._max_angle = math.radians(options.max_abs_angle_deg)
+
+    def describe_endpoint(self) -> str:
+        return self.endpoint.describe()
+
+    # -- connection ---------------------------------------------------------------------------
+    def _open(self) -> None:
+        self._cmd = ModbusBus(self.endpoint, "command connection")
+        self._cmd.open()
+        if self.endpoint.transport == "tcp":
+            self._stream = ModbusBus(self.endpoint, "sample connection")
+            try:
+                self._stream.open()
+            except CommunicationError:
+                self._cmd.close()
+                raise
+        else:  # one serial line for both
+            self._stream = self._cmd
+        self._last_raw = None
+        self._next_poll = time.monotonic()
+
+    def _close(self) -> None:
+        for bus in (self._stream, self._cmd):
+            if bus is not None:
+                bus.close()
+
+    def _command_alive(self) -> bool:
+        return self._cmd is not None and self._cmd.alive
+
+    # -- sample stream ------------------------------------------------------------------------
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        now = time.monotonic()
+        if now < self._next_poll:
+            time.sleep(min(timeout_s, self._next_poll - now))
+            if time.monotonic() < self._next_poll:
+                return None
+        self._next_poll = max(self._next_poll + self.poll_period_s, time.monotonic())
+        try:
+            words = [self._stream.read(b) for b in self._sample_blocks]
+        except ModbusTimeout:
+            return None  # a late reply is a gap; the watchdog judges it
+        t_recv = time.monotonic()
+        raw = tuple(tuple(w) for w in words)
+        if self.options.repeat_is_stale and raw == self._last_raw:
+            return None
+        self._last_raw = raw
+        values = self._decode(self._sample_blocks, words)
+        q = np.asarray(values["joint_angles"]) * si_factor(self.map["joint_angles"])
+        if "joint_revolutions" in values:
+            q = q + np.asarray(values["joint_revolutions"]) * si_factor(self.map["joint_revolutions"])
+        for j, v in enumerate(q):
+            if not (math.isfinite(v) and abs(v) <= self._max_angle):
+                raise CommunicationError(self._garbage_text("joint_angles", j, v, "rad"))
+        effort = values["joint_efforts"]
+        for j, v in enumerate(effort):
+            if not math.isfinite(v):
+                raise CommunicationError(self._garbage_text("joint_efforts", j, v, self.effort_unit))
+        t_ctrl = self._controller_time(values["timestamp"][0]) if "timestamp" in values else None
+        return Sample(t_ctrl, t_recv, tuple(float(v) for v in q), tuple(float(v) for v in effort))
+
+    def _garbage_text(self, name: str, j: int, value: float, unit: str) -> str:
+        e = self.map[name]
+        regs = f"register {e.register_of(j)}" + (f" (and revolution counter {self.map['joint_revolutions'].register_of(j)})"
+                                                 if name == "joint_angles" and "joint_revolutions" in self.map else "")
+        return (f"{self.endpoint.describe()} sent an impossible {name}[{j}] = {value!r} {unit} in {e.table} {regs}: "
+                f"the register map does not match the device, or the device sends garbage")
+
+    def _controller_time(self, t: float) -> float:
+        e = self.map["timestamp"]
+        if e.is_integer and self._t_last is not None and t < self._t_last - 1.0:
+            lo, hi = int_range(e.type)
+            self._t_wrap += (hi - lo + 1) * e.scale
+        self._t_last = t
+        return t + self._t_wrap
+
+    @staticmethod
+    def _decode(blocks, words) -> dict[str, list[float]]:
+        out: dict[str, list[float]] = {}
+        for block, w in zip(blocks, words):
+            for e in block.entries:
+                out[e.name] = e.decode(block.slice_for(e, w))
+        return out
+
+    def _read(self, *names: str) -> dict[str, list[float]]:
+        """Decoded values of some signals over the command connection (grouped reads)."""
+        entries = [self.map[n] for n in names if n in self.map]
+        blocks = group_reads(entries, self.map.bridge_gaps)
+        return self._decode(blocks, [self._cmd.read(b) for b in blocks])
+
+    # -- motion -------------------------------------------------------------------------------
+    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+        m = self.map
+        fields: list[tuple[Entry, list[float]]] = [
+            (m["cmd_target"], list(target / si_factor(m["cmd_target"]))),
+            (m["cmd_speed"], [speed_rad_s / si_factor(m["cmd_speed"])]),
+            (m["cmd_accel"], [accel_rad_s2 / si_factor(m["cmd_accel"])])]
+        if "cmd_kind" in m:
+            fields.append((m["cmd_kind"], [hs.KIND_MOVE]))
+        answer = self.handshake.read_answer(self._cmd)
+        if answer.status == hs.STATUS_BUSY:
+            raise MotionAbortedError(f"the robot program is still busy with command {answer.ack_seq}; nothing was sent")
+        try:
+            seq = self.handshake.send(self._cmd, fields)
+        except EncodingError as exc:
+            raise MotionAbortedError(f"cannot send the move through the register map: {exc}; nothing was sent") \
+                from None
+        t_done = self._wait_command(seq, "move", timeout_s)
+        sample = self.wait_sample(max(1.0, 20 * self.nominal_period_s), after=t_done)
+        err = np.abs(np.asarray(sample.q) - target)
+        if float(err.max()) > self._tol_rad:
+            j = int(err.argmax())
+            raise MotionAbortedError(f"the robot program reported move {seq} done, but joint {j + 1} is "
+                                     f"{math.degrees(err[j]):.2f}° from the target (tolerance "
+                                     f"{self.options.target_tolerance_deg:g}°)")
+
+    def _wait_command(self, seq: int, what: str, timeout_s: float) -> float:
+        """Wait until the program reports command ``seq`` done; returns the time it did."""
+        t0 = time.monotonic()
+        taken = False
+        beat, beat_t = None, t0
+        while True:
+            self.check_supervision()
+            ans = self.handshake.read_answer(self._cmd)
+            now = ans.t
+            if ans.heartbeat is not None and ans.heartbeat != beat:
+                beat, beat_t = ans.heartbeat, now
+            if ans.ack_seq == seq:
+                if ans.status == hs.STATUS_DONE:
+                    return now
+                if ans.status == hs.STATUS_ERROR:
+                    if ans.error_code == hs.ERR_STOPPED and self._armed:
+                        # the watchdog may be stopping the arm right now: report its trip, not our abort
+                        self._tripped.wait(self.options.stop_ack_wait_s + 0.5)
+                        self.check_supervision()
+                    raise MotionAbortedError(f"the robot program ended {what} {seq} with "
+                                             f"{hs.error_text(ans.error_code)}")
+                taken = taken or ans.status == hs.STATUS_BUSY
+            fault = self._safety_fault()
+            if fault:
+                self.stop()
+                raise MotionAbortedError(f"{what} {seq} aborted: {fault}")
+            if "heartbeat" in self.map and now - beat_t > self.options.heartbeat_timeout_s:
+                self.stop()
+                raise MotionAbortedError(f"the robot program stopped during {what} {seq}: its heartbeat "
+                                         f"(register {self.map['heartbeat'].address}) has not changed for "
+                                         f"{now - beat_t:.1f} s; check the pendant")
+            if not taken and now - t0 > self.options.ack_timeout_s:
+                self.stop()
+                raise MotionAbortedError(f"the robot program did not take {what} {seq} within "
+                                         f"{self.options.ack_timeout_s:g} s ({ans.describe()}): is "
+                                         f"payload-agent's handshake program running on the controller?")
+            if now - t0 > timeout_s:
+                self.stop()
+                raise MotionAbortedError(f"{what} {seq} did not finish within {timeout_s:.1f} s; the robot was "
+                                         f"told to stop")
+            time.sleep(self.command_poll_s)
+
+    def _stop_command(self) -> bool:
+        value = self.handshake.request_stop(self._cmd)
+        return self.handshake.wait_stop_ack(self._cmd, value, self.options.stop_ack_wait_s)
+
+    def _stop_fresh(self) -> bool:
+        if self.endpoint.transport == "rtu":  # one line: reopen it in place (the stream shares it)
+            bus = self._cmd
+            bus.close()
+            bus.open()
+            value = self.handshake.request_stop(bus)
+            return self.handshake.wait_stop_ack(bus, value, self.options.stop_ack_wait_s)
+        bus = ModbusBus(self.endpoint, "stop connection")
+        try:
+            bus.open()
+            value = self.handshake.request_stop(bus)
+            return self.handshake.wait_stop_ack(bus, value, self.options.stop_ack_wait_s)
+        finally:
+            bus.close()
+
+    # -- state --------------------------------------------------------------------------------
+    def _status(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for block in self._status_blocks:
+            words = self._cmd.read(block)
+            for e in block.entries:
+                out[e.name] = int(e.raw_values(block.slice_for(e, words))[0])
+        return out
+
+    def _safety_fault(self) -> str | None:
+        st = self._status()
+        if st.get("emergency_stop"):
+            return "the emergency stop is active: release it and reset the robot at the pendant"
+        if st.get("protective_stop"):
+            return "the robot is in a protective stop: find the cause, then clear it at the pendant"
+        if "power_on" in st and not st["power_on"]:
+            return "the arm is not powered: power it on and release the brakes at the pendant"
+        if "robot_mode" in st:
+            e = self.map["robot_mode"]
+            if e.ok_values is not None and st["robot_mode"] not in e.ok_values:
+                want = " or ".join(e.value_names.get(v, str(v)) for v in e.ok_values)
+                have = e.value_names.get(st["robot_mode"], "unknown")
+                return f"the robot mode is {have} ({st['robot_mode']}); motion needs {want}"
+        if st.get("fault_code"):
+            e = self.map["fault_code"]
+            return f"the controller reports fault {st['fault_code']} ({e.value_names.get(st['fault_code'], '?')})"
+        return None
+
+    def _program_running(self) -> bool:
+        if "heartbeat" not in self.map:
+            return True
+        first = self.handshake.read_answer(self._cmd).heartbeat
+        deadline = time.monotonic() + self.options.heartbeat_timeout_s
+        while time.monotonic() < deadline:
+            time.sleep(0.01)
+            if self.handshake.read_answer(self._cmd).heartbeat != first:
+                return True
+        return False
+
+    def state(self) -> ControllerState:
+        st = self._status()
+        ans = self.handshake.read_answer(self._cmd)
+        detail = ", ".join(f"{k}={v}" for k, v in st.items()) + f", program {ans.describe()}"
+        fault = self._safety_fault()
+        estop, prot = bool(st.get("emergency_stop")), bool(st.get("protective_stop"))
+        moving = ans.status == hs.STATUS_BUSY
+        if fault:
+            return ControllerState(False, fault, estop, prot, moving, detail)
+        if not self._program_running():
+            return ControllerState(False, f"payload-agent's handshake program is not running: its heartbeat "
+                                          f"(register {self.map['heartbeat'].address}) did not change for "
+                                          f"{self.options.heartbeat_timeout_s:g} s. Start it on the controller "
+                                          f"(see docs/modbus.md)", estop, prot, moving, detail)
+        return ControllerState(True, "", estop, prot, moving, detail)
+
+    def identify(self) -> ControllerInfo:
+        fw = ""
+        if self.map.has_all("firmware_major", "firmware_minor"):
+            v = self._read("firmware_major", "firmware_minor")
+            fw = f"{int(v['firmware_major'][0])}.{int(v['firmware_minor'][0])}"
+        return ControllerInfo(self.map.vendor or "Modbus device", self.map.model or (self.map.preset or "custom map"),
+                              fw, self.endpoint.describe())
+
+    # -- pose, payload, inputs ----------------------------------------------------------------
+    def flange_pose(self) -> FlangePose | None:
+        if not self.reports_flange_pose:
+            return None
+        names = ("tcp_position", "tcp_rotation", "tcp_offset_position", "tcp_offset_rotation")
+        v = self._read(*names)
+        p = np.asarray(v["tcp_position"]) * si_factor(self.map["tcp_position"])
+        R = rotvec_matrix(np.asarray(v["tcp_rotation"]) * si_factor(self.map["tcp_rotation"]))
+        if "tcp_offset_position" in v:
+            po = np.asarray(v["tcp_offset_position"]) * si_factor(self.map["tcp_offset_position"])
+            Ro = rotvec_matrix(np.asarray(v["tcp_offset_rotation"]) * si_factor(self.map["tcp_offset_rotation"]))
+            R = R @ Ro.T  # T_flange = T_tcp · T_offset⁻¹
+            p = p - R @ po
+        return FlangePose(tuple(float(x) for x in p), tuple(tuple(float(x) for x in row) for row in R))
+
+    def read_payload(self) -> PayloadSetting:
+        if not self.map.has_all("payload_readback_mass", "payload_readback_cog"):
+            raise UnsupportedCapability("the register map has no payload_readback_mass/_cog: the payload cannot "
+                                        "be read back")
+        v = self._read("payload_readback_mass", "payload_readback_cog")
+        cog = np.asarray(v["payload_readback_cog"]) * si_factor(self.map["payload_readback_cog"])
+        return PayloadSetting(v["payload_readback_mass"][0] * si_factor(self.map["payload_readback_mass"]),
+                              tuple(float(c) for c in cog))
+
+    def write_payload(self, payload: PayloadSetting) -> None:
+        m = self.map
+        if not m.has_all("payload_mass", "payload_cog", "cmd_kind"):
+            raise UnsupportedCapability("the register map has no payload_mass/payload_cog: the payload cannot be "
+                                        "written through it")
+        fields = [(m["payload_mass"], [payload.mass_kg / si_factor(m["payload_mass"])]),
+                  (m["payload_cog"], [c / si_factor(m["payload_cog"]) for c in payload.cog_m]),
+                  (m["cmd_kind"], [hs.KIND_PAYLOAD])]
+        try:
+            seq = self.handshake.send(self._cmd, fields)
+        except EncodingError as exc:
+            raise RobotNotReadyError(f"cannot write the payload through the register map: {exc}") from None
+        try:
+            self._wait_command(seq, "payload command", 5.0)
+        except MotionAbortedError as exc:
+            raise RobotNotReadyError(str(exc)) from None
+
+    def read_digital_input(self, index: int) -> bool:
+        if "digital_inputs" not in self.map:
+            raise UnsupportedCapability("the register map has no digital_inputs entry")
+        e = self.map["digital_inputs"]
+        bits = 16 * e.width
+        if not 0 <= index < bits:
+            raise UnsupportedCapability(f"digital input {index} is not in {e.describe()} (bits 0-{bits - 1})")
+        raw = int(e.raw_values(self._cmd.read(group_reads([e])[0]))[0])
+        return bool((raw >> index) & 1)
+
+    def read_tool_change(self) -> bool:
+        """The map's tool-change trigger register (non-zero: a tool change happened)."""
+        if "tool_change" not in self.map:
+            raise UnsupportedCapability("the register map has no tool_change entry")
+        return bool(self._read("tool_change")["tool_change"][0])
+
+
+def rotvec_matrix(r: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (axis × angle), Rodrigues' formula."""
+    theta = float(np.linalg.norm(r))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = r / theta
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * K @ K
