@@ -19,6 +19,7 @@ from payload_agent.errors import ConfigError
 ENTRY_POINT_GROUP = "payload_agent.drivers"
 
 BUILTIN: dict[str, str] = {
+    "canopen": "payload_agent.drivers.canopen:CANopenDriver",
     "elite_ec": "payload_agent.drivers.elite_ec:EliteECDriver",
     "ur_rtde": "payload_agent.drivers.ur_rtde:URRTDEDriver",
     "modbus": "payload_agent.drivers.modbus.driver:ModbusDriver",

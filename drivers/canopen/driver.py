@@ -1,0 +1,360 @@
+"""CANopen CiA 402 servo drives, one per joint, through the canopen library on python-can.
+
+Connect (``_open``): open the bus, put every drive in NMT PRE-OPERATIONAL, check it is a CiA 402
+drive (0x1000), read its identity, write its producer heartbeat (0x1017), its PDO layout
+(``pdo.configure_pdos``), its quick stop deceleration and target window, read its rated torque
+or current (0x6076 / 0x6075), start NMT and the SYNC producer, and wait for every drive's first
+TPDO. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
+named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
+state's detail: never silently.
+
+Motion (``_move_joints``, see ``motion``): the first move enables the drives through the CiA 402
+power state machine in profile position mode (0x6060 = 1); each move writes profile velocity
+and acceleration/deceleration (0x6081/0x6083/0x6084) scaled so all joints arrive together
+(``model.profile.synchronised_joint_rates``), sends every target (0x607A) with the new-set-point
+bit in one synchronous RPDO batch, waits for each drive's set-point acknowledge, completes the
+handshake and waits for target reached (statusword bit 10), polling the supervision.
+
+Stream: one Sample per SYNC from the six TPDO1 frames (``pdo.TpdoCollector``); ``t_ctrl`` is the
+earliest frame's bus timestamp (``msg.timestamp``). SDO is used for configuration only.
+
+Stop: the quick stop controlword to every drive in an asynchronous RPDO, confirmed from their
+statuswords (TPDO, else SDO); over a new bus object when the old one is gone. The drives report
+no Cartesian pose (``reports_flange_pose = False``).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+from typing import Any
+
+import canopen
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from payload_agent.drivers.base import Driver, MotionLimits, Supervision
+from payload_agent.drivers.canopen import motion
+from payload_agent.drivers.canopen import objects as obj
+from payload_agent.drivers.canopen.bus import SyncProducer, open_bus
+from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
+                                                  QUICK_STOP_ACTIVE, SW_TARGET_REACHED, describe_code, state_of)
+from payload_agent.drivers.canopen.monitor import DriveMonitor
+from payload_agent.drivers.canopen.options import CANopenOptions, check_options
+from payload_agent.drivers.canopen.pdo import (RPDO2_COB, RPDO_COMMAND, TPDO1, Frame, TpdoCollector,
+                                               configure_pdos)
+from payload_agent.errors import CommunicationError, ConfigError, RobotNotReadyError
+from payload_agent.types import ControllerInfo, ControllerState, Sample
+
+log = logging.getLogger(__name__)
+
+CIA402_PROFILE = 402  # 0x1000 device type, low 16 bits
+FIRST_TPDO_WAIT_S = 1.0
+RATED_MISMATCH = 0.01  # a YAML rated value more than 1 % off the drive's is refused
+
+
+class CANopenDriver(Driver):
+    name = "canopen"
+    options_class = CANopenOptions
+    simulator = "payload_agent.fakes.canopen:SimulatedCANopenArm"
+    reports_flange_pose = False
+
+    def __init__(self, options: CANopenOptions, limits: MotionLimits, supervision: Supervision | None = None):
+        super().__init__(options, limits, supervision)
+        self.options: CANopenOptions = options
+        self.effort_unit = options.effort_unit
+        self.nominal_period_s = 1.0 / options.sync_rate_hz
+        self.n = len(options.node_ids)
+        self.labels = [options.joint_label(j) for j in range(self.n)]
+        self.network: canopen.Network | None = None
+        self.nodes: list[canopen.RemoteNode] = []
+        self.sync: SyncProducer | None = None
+        self.monitor = DriveMonitor(options)
+        self.tpdo = TpdoCollector(self.n)
+        self.effort_per_permille = [1.0] * self.n
+        self.enabled = False
+        self.fault_codes: dict[int, int] = {}  # joint -> 0x603F of drives found in FAULT at connect
+        self.cleared_faults: list[str] = []
+        self.profile_cache: dict[tuple[int, int], int] = {}
+        self._sdo_locks = [threading.Lock() for _ in range(self.n)]
+        self._info: ControllerInfo | None = None
+
+    @classmethod
+    def parse_options(cls, data: Any, key_path: str = "driver", source: str | None = None) -> CANopenOptions:
+        if isinstance(data, dict) and isinstance(data.get("channel"), int) and not isinstance(data["channel"], bool):
+            data = {**data, "channel": str(data["channel"])}  # kvaser & co. number their channels
+        return check_options(super().parse_options(data, key_path, source), key_path, source)
+
+    def describe_endpoint(self) -> str:
+        o = self.options
+        return f"{o.interface} {o.channel}, nodes {', '.join(map(str, o.node_ids))}"
+
+    # -- SDO (configuration only) ----------------------------------------------------------
+    def sdo_read(self, j: int, index: int, sub: int | None = None, lock_timeout: float = -1) -> Any:
+        return self._sdo(j, index, sub, None, lock_timeout)
+
+    def sdo_write(self, j: int, index: int, value: Any, sub: int | None = None) -> None:
+        self._sdo(j, index, sub, value, -1)
+
+    def _sdo(self, j: int, index: int, sub: int | None, value: Any, lock_timeout: float) -> Any:
+        lock = self._sdo_locks[j]
+        if not lock.acquire(timeout=lock_timeout):
+            raise CommunicationError(f"{self.labels[j]}: its SDO channel is busy")
+        try:
+            var = self.nodes[j].sdo[index] if sub is None else self.nodes[j].sdo[index][sub]
+            if value is None:
+                return var.raw
+            var.raw = value
+            return None
+        except SdoCommunicationError as exc:
+            raise CommunicationError(f"{self.labels[j]} did not answer an SDO request for 0x{index:04X} within "
+                                     f"{self.options.sdo_timeout_s:g} s ({exc}): check its node id, the bit rate, "
+                                     "the wiring and that it is powered") from exc
+        except SdoAbortedError as exc:
+            what = "read" if value is None else f"write {value!r} to"
+            raise CommunicationError(f"{self.labels[j]} refused to {what} object 0x{index:04X}"
+                                     f"{'' if sub is None else f' sub {sub}'}: SDO abort {exc}") from exc
+        finally:
+            lock.release()
+
+    # -- connection --------------------------------------------------------------------------
+    def _open(self) -> None:
+        opts = self.options
+        self.monitor = DriveMonitor(opts)
+        self.tpdo = TpdoCollector(self.n)
+        self.enabled = False
+        self.profile_cache.clear()
+        self.network = canopen.Network(open_bus(opts))
+        try:
+            self.network.connect()
+            self.nodes = []
+            for j, nid in enumerate(opts.node_ids):
+                node = canopen.RemoteNode(nid, obj.cia402_dictionary())
+                self.network.add_node(node)
+                node.sdo.RESPONSE_TIMEOUT = opts.sdo_timeout_s
+                node.nmt.add_heartbeat_callback(functools.partial(self.monitor.on_heartbeat, j))
+                node.emcy.add_callback(functools.partial(self._on_emcy, j))
+                self.nodes.append(node)
+            for node in self.nodes:
+                node.nmt.state = "PRE-OPERATIONAL"
+            for j in range(self.n):
+                self._configure(j)
+            self._subscribe_tpdos()
+            self._info = self._identity()
+            self.monitor.heartbeat_since = time.monotonic()
+            for node in self.nodes:
+                node.nmt.state = "OPERATIONAL"
+            self.monitor.expect_operational = True
+            self.sync = SyncProducer(self.network.send_message, self.nominal_period_s).start()
+            self._wait_first_tpdos()
+            self._check_faults_at_connect()
+        except BaseException:
+            self._close()
+            raise
+
+    def _configure(self, j: int) -> None:
+        opts = self.options
+        device_type = self.sdo_read(j, 0x1000)
+        if device_type & 0xFFFF != CIA402_PROFILE:
+            raise CommunicationError(f"{self.labels[j]} is not a CiA 402 drive: its device type (0x1000) is "
+                                     f"0x{device_type:08X}, profile {device_type & 0xFFFF} instead of 402")
+        self.sdo_write(j, obj.PRODUCER_HEARTBEAT, opts.heartbeat_ms)
+        effort_index = obj.TORQUE_ACTUAL if opts.effort_object == "torque" else obj.CURRENT_ACTUAL
+        try:
+            configure_pdos(self.nodes[j], effort_index)
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise CommunicationError(f"{self.labels[j]} refused the PDO layout (statusword, position actual, "
+                                     f"0x{effort_index:04X} on TPDO1; controlword and target on RPDO1/2): {exc}") from exc
+        cpr = opts.counts_per_rad[j]
+        self.sdo_write(j, obj.QUICK_STOP_DECELERATION, max(1, round(opts.quick_stop_decel_rad_s2 * cpr)))
+        self.sdo_write(j, obj.POSITION_WINDOW, max(1, round(opts.position_window_deg * 0.017453292519943295 * cpr)))
+        self.effort_per_permille[j] = self._effort_scale(j)
+
+    def _effort_scale(self, j: int) -> float:
+        """Effort unit per per-mille: rated torque (N·m) or current (A) / 1000, or 1 for raw per mille."""
+        opts = self.options
+        if opts.effort_scaling == "permille":
+            return 1.0
+        torque = opts.effort_object == "torque"
+        index, unit, key = ((obj.RATED_TORQUE, "N·m", "rated_torque_nm") if torque else
+                            (obj.RATED_CURRENT, "A", "rated_current_a"))
+        yaml_values = opts.rated_torque_nm if torque else opts.rated_current_a
+        try:
+            drive = self.sdo_read(j, index) / 1000.0  # mN·m / mA
+        except CommunicationError as exc:
+            if not isinstance(exc.__cause__, SdoAbortedError):
+                raise
+            drive = 0.0  # the drive has no such object
+        yaml_value = None if yaml_values is None else yaml_values[j]
+        if drive > 0 and yaml_value is not None and abs(yaml_value - drive) > RATED_MISMATCH * drive:
+            raise ConfigError(f"driver.{key}[{j}]", f"{yaml_value:g} {unit}, but {self.labels[j]} reports "
+                                                    f"{drive:g} {unit} in 0x{index:04X}: remove the YAML value or "
+                                                    "check which drive is which joint")
+        rated = drive if drive > 0 else yaml_value
+        if rated is None:
+            raise ConfigError(f"driver.{key}", f"{self.labels[j]} has no rated value in 0x{index:04X}: give "
+                                               f"driver.{key} (6 values, {unit}) or set effort_scaling: permille")
+        return rated / 1000.0
+
+    def _identity(self) -> ControllerInfo:
+        def text(j: int, index: int) -> str:
+            try:
+                return str(self.sdo_read(j, index)).strip("\x00 ")
+            except CommunicationError:
+                return "?"
+        serials = []
+        for j in range(self.n):
+            try:
+                serials.append(f"{self.sdo_read(j, obj.IDENTITY, 4):08X}")
+            except CommunicationError:
+                serials.append("?")
+        try:
+            vendor = f"CANopen vendor-ID 0x{self.sdo_read(0, obj.IDENTITY, 1):08X}"
+        except CommunicationError:
+            vendor = "CANopen"
+        return ControllerInfo(vendor=vendor, model=f"{self.n} x {text(0, obj.DEVICE_NAME)} (CiA 402)",
+                              firmware=text(0, obj.SOFTWARE_VERSION), serial="/".join(serials))
+
+    def _wait_first_tpdos(self) -> None:
+        deadline = time.monotonic() + FIRST_TPDO_WAIT_S
+        while any(s == 0 for s in self.monitor.seq):
+            if time.monotonic() > deadline:
+                silent = [self.labels[j] for j, s in enumerate(self.monitor.seq) if s == 0]
+                raise CommunicationError(f"no TPDO within {FIRST_TPDO_WAIT_S:g} s of SYNC from {', '.join(silent)}: "
+                                         "is the drive NMT OPERATIONAL, and does it accept the PDO layout?")
+            time.sleep(0.005)
+
+    def _check_faults_at_connect(self) -> None:
+        for j in self.monitor.faulty():
+            try:
+                self.fault_codes[j] = int(self.sdo_read(j, obj.ERROR_CODE))
+            except CommunicationError:
+                self.fault_codes[j] = 0
+        if not self.fault_codes or not self.options.clear_faults:
+            return
+        for j, code in sorted(self.fault_codes.items()):
+            seq0 = list(self.monitor.seq)
+            self._send_command(j, CW_DISABLE_VOLTAGE)  # bit 7 low first: the reset acts on its rising edge
+            self.monitor.wait_for(lambda _, sw: True, seq0, [j], self.options.enable_timeout_s)
+            seq0 = list(self.monitor.seq)
+            self._send_command(j, CW_FAULT_RESET)
+            left = self.monitor.wait_for(lambda _, sw: state_of(sw) not in FAULTY, seq0, [j],
+                                         self.options.enable_timeout_s)
+            if left:
+                raise RobotNotReadyError(f"{self.labels[j]} stays in FAULT after a fault reset (error code "
+                                         f"{describe_code(code)}): its cause persists; fix it at the drive")
+            note = f"{self.labels[j]} was in FAULT at connect (error code {describe_code(code)}); reset it"
+            log.warning("%s because driver.clear_faults is true", note)
+            self.cleared_faults.append(note)
+        self.fault_codes.clear()
+
+    def _close(self) -> None:
+        self.enabled = False
+        self.monitor.expect_enabled = [False] * self.n
+        if self.network is not None and self.network.bus is not None:
+            for j in range(len(self.nodes)):  # power stages off, brakes on
+                try:
+                    self._send_command(j, CW_DISABLE_VOLTAGE)
+                except Exception:
+                    pass
+        if self.sync is not None:
+            self.sync.stop()
+            self.sync = None
+        self.monitor.expect_operational = False
+        if self.network is not None:
+            try:
+                for node in self.nodes:
+                    node.nmt.state = "PRE-OPERATIONAL"
+            except Exception:
+                pass
+            try:
+                self.network.disconnect()
+            except Exception:
+                pass
+            self.network = None
+
+    # -- stream --------------------------------------------------------------------------------
+    def _on_emcy(self, j: int, err) -> None:
+        self.monitor.on_emcy(j, err.code, err.register)
+
+    def _on_tpdo(self, j: int, pdo_map) -> None:  # the receive thread: record only
+        data, t_recv = pdo_map.data, time.monotonic()
+        if len(data) != TPDO1.size:
+            self.tpdo.fail(f"a TPDO1 from {self.labels[j]} has {len(data)} data bytes; its mapping (statusword, "
+                           f"position actual, effort) needs {TPDO1.size}: the drive sent a malformed PDO")
+            return
+        statusword, position, effort = TPDO1.unpack(data)
+        self.monitor.on_frame(j, statusword, position, t_recv)
+        self.tpdo.push(j, Frame(pdo_map.timestamp, t_recv, statusword, position, effort))
+
+    def _subscribe_tpdos(self) -> None:
+        for j, node in enumerate(self.nodes):
+            node.tpdo.map[1].add_callback(functools.partial(self._on_tpdo, j))
+
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        self.poll_faults()
+        if self.tpdo.error is not None:
+            raise CommunicationError(self.tpdo.error)
+        frames = self.tpdo.pop_set(timeout_s)
+        if frames is None:
+            if self.tpdo.error is not None:
+                raise CommunicationError(self.tpdo.error)
+            return None
+        o = self.options
+        q = tuple(o.direction[j] * (f.position - o.zero_counts[j]) / o.counts_per_rad[j] for j, f in enumerate(frames))
+        effort = tuple(o.direction[j] * f.effort * self.effort_per_permille[j] for j, f in enumerate(frames))
+        return Sample(min(f.timestamp for f in frames), max(f.t_recv for f in frames), q, effort)
+
+    def poll_faults(self) -> None:
+        """Check heartbeats and TPDO silence; trip the supervision (stop every drive) on any fault during a move."""
+        self.monitor.check_silence([self.tpdo.queued(j) for j in range(self.n)], self.nominal_period_s)
+        if self.monitor.fault is not None:
+            self._trip(self.monitor.fault)
+
+    # -- commands --------------------------------------------------------------------------------
+    def _send_command(self, j: int, controlword: int) -> None:
+        """A controlword in the asynchronous RPDO2: the drive acts on it at once."""
+        self.network.send_message(RPDO2_COB + self.options.node_ids[j], RPDO_COMMAND.pack(controlword))
+
+    def _move_joints(self, target, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+        motion.move(self, target, speed_rad_s, accel_rad_s2, timeout_s)
+
+    def _stop_command(self) -> bool:
+        return motion.quick_stop(self)
+
+    def _stop_fresh(self) -> bool:
+        return motion.quick_stop_fresh(self)
+
+    def _command_alive(self) -> bool:
+        return self.network is not None and self.network.bus is not None and self.sync is not None and self.sync.alive
+
+    # -- state -----------------------------------------------------------------------------------
+    def identify(self) -> ControllerInfo:
+        if self._info is None:
+            raise CommunicationError("the canopen driver is not connected (call connect() first)")
+        return self._info
+
+    def state(self) -> ControllerState:
+        if self.network is None:
+            return ControllerState(False, "the CANopen bus is not open: connect first")
+        self.monitor.check_silence([self.tpdo.queued(j) for j in range(self.n)], self.nominal_period_s)
+        problems = [self.monitor.fault] if self.monitor.fault else []
+        states = self.monitor.states()
+        for j, st in enumerate(states):
+            if st in FAULTY:
+                code = self.fault_codes.get(j, self.monitor.last_emcy_code(j))
+                problems.append(f"{self.labels[j]} is in FAULT (error code "
+                                f"{describe_code(code) if code else 'not reported'}): remove the cause, then reset "
+                                "it at the drive, or set driver.clear_faults: true to let the agent reset it")
+            elif st == QUICK_STOP_ACTIVE or st.startswith(("NOT READY", "UNKNOWN", "no TPDO")):
+                problems.append(f"{self.labels[j]} is in {st}: check its power stage supply and reconnect")
+        moving = any(st == OPERATION_ENABLED and not (sw or 0) & SW_TARGET_REACHED
+                     for st, sw in zip(states, self.monitor.statusword))
+        detail = (f"{self.n} CiA 402 drives on {self.describe_endpoint()}, SYNC {self.options.sync_rate_hz:g} Hz; "
+                  + ", ".join(f"{j + 1}: {st}" for j, st in enumerate(states)))
+        if self.cleared_faults:
+            detail += "; " + "; ".join(self.cleared_faults)
+        return ControllerState(not problems, "; ".join(problems), protective_stop=any(s in FAULTY for s in states),
+                               moving=moving, detail=detail)
+

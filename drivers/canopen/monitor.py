@@ -1,0 +1,126 @@
+"""What the driver knows about each drive, kept current from the CAN receive thread.
+
+Every TPDO1 brings a drive's statusword and position; every heartbeat its NMT state; every EMCY
+an error code. The callbacks only record (the receive thread must never block); the first
+fault is kept as a sentence naming the joint, the node and the error code, and the driver's
+threads act on it: the reader and the move loop trip the supervision, which quick-stops every
+drive. A fault is:
+
+- an emergency message (EMCY) with an error code other than 0x0000 (error reset);
+- a heartbeat older than the consumer time (``heartbeat_timeout_ms``), or one reporting an NMT
+  state other than OPERATIONAL, or a boot-up (the drive restarted);
+- a drive that stops sending its TPDO while the others keep answering SYNC;
+- a drive leaving OPERATION ENABLED while the driver expects it enabled.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from payload_agent.drivers.canopen.cia402 import FAULTY, OPERATION_ENABLED, describe_code, state_of
+from payload_agent.drivers.canopen.options import CANopenOptions
+
+NMT_OPERATIONAL, NMT_BOOTUP = 0x05, 0x00
+NMT_NAMES = {0x00: "boot-up", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+HEARTBEAT_ERROR = 0x8130  # CiA 301 emergency code "life guard or heartbeat error"
+SILENT_SYNCS = 5  # a drive missing this many SYNC answers in a row (and >= 20 ms) while the others answer
+
+
+class DriveMonitor:
+    def __init__(self, opts: CANopenOptions):
+        self.opts = opts
+        n = len(opts.node_ids)
+        self.labels = [opts.joint_label(j) for j in range(n)]
+        self.statusword: list[int | None] = [None] * n
+        self.position: list[int | None] = [None] * n
+        self.seq = [0] * n  # TPDOs received per drive
+        self.t_frame = [0.0] * n  # monotonic time of each drive's newest TPDO
+        self.t_heartbeat: list[float | None] = [None] * n
+        self.nmt_state: list[int | None] = [None] * n
+        self.heartbeat_since: float | None = None  # consumer monitoring starts when 0x1017 was written
+        self.expect_operational = False  # NMT start was sent
+        self.expect_enabled = [False] * n  # the driver put the drive in OPERATION ENABLED
+        self.emcy: list[tuple[int, int, int]] = []  # (joint, code, error register), every EMCY received
+        self.fault: str | None = None
+        self._lock = threading.Lock()
+
+    # -- from the receive thread -------------------------------------------------------------
+    def on_frame(self, j: int, statusword: int, position: int, t_recv: float) -> None:
+        self.statusword[j], self.position[j], self.t_frame[j] = statusword, position, t_recv
+        self.seq[j] += 1
+        if self.expect_enabled[j]:
+            state = state_of(statusword)
+            if state != OPERATION_ENABLED:
+                code = self.last_emcy_code(j)
+                self.set_fault(f"{self.labels[j]} left OPERATION ENABLED: it is now {state} (statusword "
+                               f"0x{statusword:04X}), error code "
+                               + (describe_code(code) if code is not None else "none reported (no EMCY)"))
+
+    def on_heartbeat(self, j: int, nmt_state: int) -> None:
+        self.t_heartbeat[j] = time.monotonic()
+        self.nmt_state[j] = nmt_state
+        if self.expect_operational and nmt_state != NMT_OPERATIONAL:
+            what = "restarted (boot-up message)" if nmt_state == NMT_BOOTUP else \
+                f"left NMT OPERATIONAL (heartbeat reports {NMT_NAMES.get(nmt_state, hex(nmt_state))})"
+            self.set_fault(f"{self.labels[j]} {what}; its PDOs no longer run")
+
+    def on_emcy(self, j: int, code: int, register: int) -> None:
+        self.emcy.append((j, code, register))
+        if code & 0xFF00 == 0:  # 0x00xx: error reset / no error
+            return
+        self.set_fault(f"EMCY from {self.labels[j]}: error code {describe_code(code)}, error register "
+                       f"0x{register:02X}")
+
+    def set_fault(self, text: str) -> None:
+        with self._lock:
+            if self.fault is None:
+                self.fault = text
+
+    # -- from the driver's threads -----------------------------------------------------------
+    def last_emcy_code(self, j: int) -> int | None:
+        codes = [c for jj, c, _ in self.emcy if jj == j and c & 0xFF00]
+        return codes[-1] if codes else None
+
+    def check_silence(self, queued: list[int], period_s: float) -> None:
+        """Heartbeat consumer and TPDO silence checks (cheap; call often)."""
+        now = time.monotonic()
+        if self.heartbeat_since is not None:
+            limit = self.opts.heartbeat_timeout_ms / 1000.0
+            for j, t in enumerate(self.t_heartbeat):
+                last = t if t is not None else self.heartbeat_since
+                if now - last > limit:
+                    seen = "never" if t is None else f"none for {1000 * (now - t):.0f} ms"
+                    self.set_fault(f"heartbeat lost from {self.labels[j]}: {seen} (consumer time "
+                                   f"{self.opts.heartbeat_timeout_ms} ms), error code {describe_code(HEARTBEAT_ERROR)}")
+        if self.expect_operational and max(queued, default=0) >= SILENT_SYNCS:
+            limit = max(SILENT_SYNCS * period_s, 0.02)
+            for j, n in enumerate(queued):
+                if n == 0 and self.seq[j] and now - self.t_frame[j] > limit:
+                    self.set_fault(f"{self.labels[j]} stopped sending its TPDO: none for "
+                                   f"{1000 * (now - self.t_frame[j]):.0f} ms while the other drives answered SYNC; "
+                                   f"error code {describe_code(HEARTBEAT_ERROR) if self._heartbeat_late(j, now) else 'none reported'}")
+
+    def _heartbeat_late(self, j: int, now: float) -> bool:
+        t = self.t_heartbeat[j]
+        return t is None or now - t > 1.5 * self.opts.heartbeat_ms / 1000.0
+
+    def states(self) -> list[str]:
+        return [state_of(sw) if sw is not None else "no TPDO yet" for sw in self.statusword]
+
+    def faulty(self) -> list[int]:
+        return [j for j, s in enumerate(self.states()) if s in FAULTY]
+
+    def wait_for(self, predicate, seq0: list[int], joints: list[int], timeout_s: float, poll=None) -> list[int]:
+        """Wait until ``predicate(j, statusword)`` holds for every joint in ``joints`` on a TPDO newer than
+        ``seq0``; the joints for which it did not within ``timeout_s``. ``poll()`` runs every tick (it may raise)."""
+        deadline = time.monotonic() + timeout_s
+        pending = list(joints)
+        while True:
+            pending = [j for j in pending if not (self.seq[j] > seq0[j] and self.statusword[j] is not None
+                                                  and predicate(j, self.statusword[j]))]
+            if not pending or time.monotonic() > deadline:
+                return pending
+            if poll is not None:
+                poll()
+            time.sleep(0.002)

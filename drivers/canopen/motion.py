@@ -1,0 +1,172 @@
+"""Profile position moves of the CANopen driver, the power state machine before them, and the quick stop.
+
+Every step waits on the drives' statuswords as their TPDOs bring them (``DriveMonitor.wait_for``),
+never on SDO polling, and polls the supervision while it waits.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from payload_agent.drivers.canopen import objects as obj
+from payload_agent.drivers.canopen.bus import quick_stop_on_new_bus
+from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SETPOINT, CW_QUICK_STOP, FAULTY,
+                                                  MODE_PROFILE_POSITION, OPERATION_ENABLED, SW_SETPOINT_ACK,
+                                                  SW_TARGET_REACHED, describe_code, enable_step, state_of, stopped)
+from payload_agent.drivers.canopen.pdo import RPDO1_COB, RPDO_SETPOINT
+from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
+from payload_agent.model.profile import lead_joint_caps, synchronised_joint_rates
+
+if TYPE_CHECKING:
+    from payload_agent.drivers.canopen.driver import CANopenDriver
+
+log = logging.getLogger(__name__)
+
+STOP_CONFIRM_S = 0.25  # statuswords confirming a quick stop: TPDOs first, then SDO
+FRESH_STOP_WAIT_S = 0.3
+MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
+
+
+def ensure_enabled(drv: "CANopenDriver") -> None:
+    """Profile position mode and OPERATION ENABLED on every drive (a no-op once done)."""
+    m = drv.monitor
+    if drv.enabled:
+        off = [j for j, st in enumerate(m.states()) if st != OPERATION_ENABLED]
+        if off:
+            raise MotionAbortedError(f"{drv.labels[off[0]]} is no longer OPERATION ENABLED ({m.states()[off[0]]}); "
+                                     "nothing was sent")
+        return
+    timeout = drv.options.enable_timeout_s
+    for j in range(drv.n):
+        drv.sdo_write(j, obj.MODES_OF_OPERATION, MODE_PROFILE_POSITION)
+    for j in range(drv.n):
+        deadline = time.monotonic() + timeout
+        while (mode := drv.sdo_read(j, obj.MODES_DISPLAY)) != MODE_PROFILE_POSITION:
+            if time.monotonic() > deadline:
+                raise RobotNotReadyError(f"{drv.labels[j]} does not switch to profile position mode: 0x6061 shows "
+                                         f"{mode} after 0x6060 = {MODE_PROFILE_POSITION}")
+            time.sleep(0.005)
+    for _ in range(6):  # at most 4 transitions from SWITCH ON DISABLED / QUICK STOP ACTIVE
+        states = m.states()
+        todo = [j for j, st in enumerate(states) if st != OPERATION_ENABLED]
+        if not todo:
+            break
+        for j in todo:
+            if states[j] in FAULTY:
+                code = m.last_emcy_code(j)
+                raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]} (error code "
+                                         f"{describe_code(code) if code else 'not reported'}); it cannot be enabled")
+            if enable_step(states[j]) is None:
+                raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]}: the power state machine has no "
+                                         "command out of it; check the drive's power supply")
+        seq0 = list(m.seq)
+        for j in todo:
+            drv._send_command(j, enable_step(states[j]))
+        stuck = m.wait_for(lambda j, sw: state_of(sw) != states[j], seq0, todo, timeout)
+        if stuck:
+            j = stuck[0]
+            raise RobotNotReadyError(f"{drv.labels[j]} stayed in {states[j]} for {timeout:g} s after controlword "
+                                     f"0x{enable_step(states[j]):04X}")
+    else:
+        raise RobotNotReadyError("the drives did not reach OPERATION ENABLED: "
+                                 + ", ".join(f"{lbl}: {st}" for lbl, st in zip(drv.labels, m.states())))
+    m.expect_enabled = [True] * drv.n
+    drv.enabled = True
+
+
+def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float) -> None:
+    cpr = drv.options.counts_per_rad[j]
+    v, a = max(1, round(speed_rad_s * cpr)), max(1, round(accel_rad_s2 * cpr))
+    for index, value in ((obj.PROFILE_VELOCITY, v), (obj.PROFILE_ACCELERATION, a), (obj.PROFILE_DECELERATION, a)):
+        if drv.profile_cache.get((j, index)) != value:
+            drv.sdo_write(j, index, value)
+            drv.profile_cache[(j, index)] = value
+
+
+def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+    """One synchronised PTP move in profile position mode (see the driver's docstring)."""
+    deadline = time.monotonic() + timeout_s
+    m, o = drv.monitor, drv.options
+    if m.fault is not None:
+        raise MotionAbortedError(f"refusing to move, a drive fault is pending: {m.fault}; nothing was sent")
+    ensure_enabled(drv)
+    q0 = np.asarray(drv.latest_sample.q, float)
+    n = drv.n
+    caps = lead_joint_caps(q0, target, [drv.limits.max_joint_speed_rad_s] * n, [drv.limits.max_joint_accel_rad_s2] * n)
+    speeds, accels = synchronised_joint_rates(q0, target, min(speed_rad_s, caps.speed_rad_s),
+                                              min(accel_rad_s2, caps.accel_rad_s2))
+    counts = [round(o.zero_counts[j] + o.direction[j] * float(target[j]) * o.counts_per_rad[j]) for j in range(n)]
+    moving = [j for j in range(n) if counts[j] != m.position[j]]
+    if not moving:
+        return
+    for j in moving:
+        _write_profile(drv, j, float(speeds[j]), float(accels[j]))
+
+    def poll() -> None:
+        drv.poll_faults()
+        drv.check_supervision()
+
+    def setpoints(controlword: int) -> list[tuple[int, bytes]]:
+        return [(RPDO1_COB + o.node_ids[j], RPDO_SETPOINT.pack(controlword, counts[j])) for j in moving]
+
+    seq0 = list(m.seq)
+    drv.sync.after_next_sync(setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))  # all act at the same SYNC
+    ack_wait = max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
+    late = m.wait_for(lambda j, sw: bool(sw & SW_SETPOINT_ACK), seq0, moving, ack_wait, poll)
+    if late:
+        drv.stop()
+        raise MotionAbortedError(f"{', '.join(drv.labels[j] for j in late)} did not acknowledge the new set-point "
+                                 f"(statusword bit 12) within {ack_wait:g} s; every drive was quick-stopped")
+    seq1 = list(m.seq)
+    drv.sync.after_next_sync(setpoints(CW_ENABLE_OPERATION))  # new-set-point bit low: the handshake's second half
+    late = m.wait_for(lambda j, sw: not sw & SW_SETPOINT_ACK and bool(sw & SW_TARGET_REACHED), seq1, moving,
+                      max(0.0, deadline - time.monotonic()), poll)
+    poll()
+    if late:
+        drv.stop()
+        raise MotionAbortedError(f"{', '.join(drv.labels[j] for j in late)} did not report target reached "
+                                 f"(statusword bit 10) within {timeout_s:.1f} s; every drive was quick-stopped")
+    window = o.position_window_deg * 0.017453292519943295
+    off = [j for j in moving if abs(m.position[j] - counts[j]) > max(2.0, window * o.counts_per_rad[j])]
+    if off:
+        j = off[0]
+        raise MotionAbortedError(f"{drv.labels[j]} reported target reached {m.position[j] - counts[j]} counts away "
+                                 "from its target")
+
+
+def _forget_enabled(drv: "CANopenDriver") -> None:
+    drv.monitor.expect_enabled = [False] * drv.n  # our own stop is not a fault
+    drv.enabled = False
+
+
+def quick_stop(drv: "CANopenDriver") -> bool:
+    """Quick stop controlword to every drive over the driver's bus; True once every statusword confirms it."""
+    m = drv.monitor
+    _forget_enabled(drv)
+    seq0 = list(m.seq)
+    for j in range(drv.n):
+        drv._send_command(j, CW_QUICK_STOP)
+    pending = m.wait_for(lambda j, sw: stopped(state_of(sw)), seq0, list(range(drv.n)), STOP_CONFIRM_S)
+    for j in list(pending):  # no TPDO confirmed it (stream stalled?): ask over SDO, if the channel is free
+        try:
+            if stopped(state_of(drv.sdo_read(j, obj.STATUSWORD, lock_timeout=0.05))):
+                pending.remove(j)
+        except CommunicationError:
+            pass
+    if pending:
+        log.warning("quick stop not confirmed by %s", ", ".join(drv.labels[j] for j in pending))
+    return not pending
+
+
+def quick_stop_fresh(drv: "CANopenDriver") -> bool:
+    """The same over a new bus object on the same interface and channel (the driver's own bus is gone)."""
+    _forget_enabled(drv)
+    confirmed = quick_stop_on_new_bus(drv.options, drv.options.node_ids, FRESH_STOP_WAIT_S)
+    missing = [drv.labels[j] for j, nid in enumerate(drv.options.node_ids) if nid not in confirmed]
+    if missing:
+        log.warning("quick stop over a new bus not confirmed by %s", ", ".join(missing))
+    return not missing
