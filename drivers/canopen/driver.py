@@ -327,7 +327,10 @@ class CANopenDriver(Driver):
         return motion.quick_stop_fresh(self)
 
     def _command_alive(self) -> bool:
-        return self.network is not None and self.network.bus is not None and self.sync is not None and self.sync.alive
+        """The bus object works: its receive thread and the SYNC producer have not failed."""
+        net = self.network
+        return (net is not None and net.bus is not None and net.notifier is not None
+                and net.notifier.exception is None and self.sync is not None and self.sync.alive)
 
     # -- state -----------------------------------------------------------------------------------
     def identify(self) -> ControllerInfo:

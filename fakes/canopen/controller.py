@@ -106,7 +106,8 @@ class SimulatedCANopenArm(SimulatedController):
         self.frame_s = FRAME_BITS / options.bitrate  # one 8-byte frame on the wire
 
     @classmethod
-    def from_config(cls, config) -> "SimulatedCANopenArm":
+    def from_config(cls, config, **kwargs) -> "SimulatedCANopenArm":
+        """From a robot YAML; ``kwargs`` (tests): ``faulted={joint: code}``, ``has_rated_torque=False``, ..."""
         from payload_agent.fakes.arms import SPECS
 
         opts, sim = config.driver_options, config.simulation
@@ -114,7 +115,8 @@ class SimulatedCANopenArm(SimulatedController):
         # a few physics ticks per SYNC: each SYNC latches a fresh one
         tick = min(0.008, max(0.001, sim.time_scale / (2.0 * opts.sync_rate_hz)))
         robot = SimRobot(spec, tick_s=tick, **sim_robot_kwargs(config))
-        return cls(robot, opts, rated_torque_nm=spec.rated_torque_nm, gain_error=sim.drive_gain_error)
+        return cls(robot, opts, **{"rated_torque_nm": spec.rated_torque_nm, "gain_error": sim.drive_gain_error,
+                                   **kwargs})
 
     @property
     def robot(self) -> SimRobot:
@@ -273,11 +275,12 @@ class SimulatedCANopenArm(SimulatedController):
         """Ramp joint ``d`` down (its quick stop deceleration, or its brake); the simulated time it stands still."""
         qs = d.node.sdo[0x6085].raw / d.cpr
         decel = (qs if qs > 0 else DEFAULT_STOP_DECEL_RAD_S2) * (1.0 if quick else BRAKE_FACTOR)
-        self.record_event("stop", f"node {d.node_id}: {'quick stop' if quick else 'power stage off'}")
         path, now = self._path, self.sim_time()
         prof = None if path is None else path.profiles.get(d.joint)
         if prof is None or now >= prof.t_end or not self._robot.snapshot().moving:
             return now
+        if not quick:
+            self.record_event("stop", f"node {d.node_id}: power stage off while moving (brake)")
         path.pending_stops[d.joint] = decel
         self._robot.stop(decel)
         return prof.t_end

@@ -139,6 +139,7 @@ class SimDrive:
 
     # -- CiA 402 --------------------------------------------------------------------------------
     def statusword(self) -> int:
+        self.update()
         sw = STATE_BITS[self.state] | REMOTE
         if self.mode == 1 and self.state in (OE, QSA):
             if self.ack:
@@ -165,6 +166,8 @@ class SimDrive:
 
     def on_controlword(self, cw: int) -> None:
         old, self.controlword, st = self.controlword, cw, self.state
+        if st in (FAULT, FRA) and cw & 0x86 == 0x02 and (not old & 0x02 or old & 0x04):
+            self.arm.record_event("stop", f"node {self.node_id}: quick stop in {st}")
         if st == FAULT:
             if cw & 0x80 and not old & 0x80 and not self.fault_persists:  # fault reset, transition 15
                 self.state, self.error_code = SOD, 0
@@ -178,6 +181,8 @@ class SimDrive:
                 self._power_off(st)
                 self.state = SOD
         elif not cw & 0x04:  # quick stop: 11 from OPERATION ENABLED, 7 / 10 otherwise
+            if not old & 0x02 or old & 0x04:  # a new quick stop command (not a repeat)
+                self.arm.record_event("stop", f"node {self.node_id}: quick stop in {st}")
             if st == OE:
                 self.state = QSA
                 self.stop_end_t = self.arm.stop_joint(self, quick=True)
@@ -215,6 +220,7 @@ class SimDrive:
 
     def fault(self, code: int, persists: bool = False) -> None:
         """A drive fault: fault reaction (the joint stops), FAULT, 0x603F = code, EMCY."""
+        self.arm.record_event("fault", f"node {self.node_id}: 0x{code:04X} in {self.state}")
         if self.state in (OE, QSA):
             self.arm.stop_joint(self, quick=True)
         self.state, self.error_code, self.fault_persists = FAULT, code, persists

@@ -1,0 +1,301 @@
+"""The canopen driver against six simulated CiA 402 drives on python-can's virtual bus (real canopen client).
+
+Supervision limits are relaxed where a test is not about them, so that a busy machine's pauses
+do not trip it; nothing here asserts on wall time or on a sample count a loaded scheduler might
+not deliver.
+"""
+
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT
+from payload_agent.configuration.config import parse_config
+from payload_agent.drivers.base import MotionLimits, Supervision
+from payload_agent.drivers.canopen import CANopenDriver
+from payload_agent.errors import CommunicationError, ConfigError, MotionAbortedError, SupervisionTrip
+from payload_agent.fakes.canopen import SimulatedCANopenArm
+
+SIM = ROOT / "configs" / "sim-canopen-arm.yaml"
+RELAXED = Supervision(max_stream_gap_s=0.5, stop_ack_timeout_s=1.0)
+START = np.radians([0, -60, 60, -150, -30, 0])
+TARGET = START + np.radians([0, 12, -8, 0, 0, 6])
+SPEED, ACCEL = math.radians(30), math.radians(120)
+SLOW = math.radians(3)  # fault tests: the move lasts 4 s simulated, 1 s wall, so the fault lands mid-move
+
+
+def config(time_scale=4.0, **driver):
+    data = yaml.safe_load(SIM.read_text())
+    data["simulation"]["time_scale"] = time_scale
+    data["driver"].update({"heartbeat_ms": 50, "heartbeat_timeout_ms": 400, **driver})
+    return parse_config(data, source="sim-canopen-arm.yaml")
+
+
+def with_rig(**kw):
+    return pytest.mark.parametrize("rig", [kw], indirect=True, ids=[""])
+
+
+@pytest.fixture
+def rig(request):
+    """(driver, fake): a started simulated arm and a connected driver; options via ``with_rig(...)``."""
+    kw = dict(getattr(request, "param", {}))
+    supervision = kw.pop("supervision", RELAXED)
+    fake_kw = kw.pop("fake", {})
+    cfg = config(**kw)
+    fake = SimulatedCANopenArm.from_config(cfg, **fake_kw).start()
+    drv = CANopenDriver(fake.bound_options(cfg.driver_options),
+                        MotionLimits(cfg.robot.max_joint_speed_rad_s, cfg.robot.max_joint_accel_rad_s2), supervision)
+    try:
+        drv.connect()
+        yield drv, fake
+    finally:
+        drv.close()
+        fake.close()
+
+
+def move_with_fault(drv, fake, fault, delay_s=0.15, **params):
+    """Start a move, inject ``fault`` ``delay_s`` into it; (exception, fault time, samples)."""
+    samples = []
+    drv.start_stream(samples.append)
+    t_fault = []
+
+    def inject():
+        t_fault.append(time.monotonic())
+        fake.inject_fault(fault, **params)
+    timer = threading.Timer(delay_s, inject)
+    timer.start()
+    with pytest.raises((SupervisionTrip, MotionAbortedError)) as exc:
+        drv.move_joints(TARGET, SLOW, ACCEL, 30.0)
+    timer.join()
+    return exc.value, t_fault[0], samples
+
+
+def stops_after(fake, t):
+    """Node ids that received a quick stop at or after monotonic time ``t``."""
+    return {int(e.detail.split(":")[0].split()[1]) for e in fake.events if e.kind == "stop" and e.t >= t
+            and "quick stop" in e.detail}
+
+
+def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
+    drv, fake = rig
+    info = drv.identify()
+    assert "CiA 402" in info.model and info.serial.count("/") == 5
+    st = drv.state()
+    assert st.motion_allowed and "SWITCH ON DISABLED" in st.detail
+    for d in fake.drives:  # the layout the driver wrote over SDO, as the drive holds it
+        cob, valid, ttype, entries = d.tpdos()[0]
+        assert (cob, valid, ttype) == (0x180 + d.node_id, True, 1)
+        assert [e[0] for e in entries] == [0x6041, 0x6064, 0x6077]
+        assert not any(valid for _, valid, _, _ in d.tpdos()[1:])
+        assert d.node.sdo[0x1017].raw == 50
+    samples = []
+    drv.start_stream(samples.append)
+    syncs0 = fake.sync_count - fake.skipped_syncs
+    time.sleep(1.0)
+    drv.stop_stream()
+    answered = fake.sync_count - fake.skipped_syncs - syncs0
+    assert answered > 0 and len(samples) >= 0.9 * answered - 2  # every answered SYNC became one sample
+    t = np.array([s.t_ctrl for s in samples])
+    assert np.all(np.diff(t) > 0)  # bus timestamps, in order
+    # the simulated wire runs on the simulated clock: SYNCs 1/250 s apart arrive time_scale/250 apart
+    assert np.median(np.diff(t)) == pytest.approx(4.0 / 250.0, rel=0.5)
+    q = np.array(samples[-1].q)
+    assert np.max(np.abs(q - START)) < 1e-6
+    wall = samples[-1].t_recv - samples[0].t_recv
+    print(f"\nPDO stream: {len(samples)} samples in {wall:.2f} s wall = {(len(samples) - 1) / wall:.0f} Hz "
+          f"(SYNC 250 Hz; {answered} SYNCs answered)")
+
+
+def test_move_enables_through_the_state_machine_and_joints_arrive_together(rig):
+    drv, fake = rig
+    drv.start_stream(lambda s: None)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    for d in fake.drives:
+        states = [s for _, s in d.history]
+        assert states[:3] == ["READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED"], d.history
+        assert [cw for cw, _ in d.history[:3]] == [0x06, 0x07, 0x0F]
+        assert d.mode == 1
+    moved = [d for d in fake.drives if d.end_t is not None]
+    assert [d.joint for d in moved] == [1, 2, 5]  # joints 2, 3, 6
+    ends = [d.end_t for d in moved]
+    assert max(ends) - min(ends) < 1e-3  # scaled profile velocities: one arrival time
+    s = drv.wait_sample(2.0, after=time.monotonic())
+    assert np.max(np.abs(np.array(s.q) - TARGET)) < math.radians(0.02)
+    assert all(d.state == "OPERATION ENABLED" for d in fake.drives)
+    # effort: per mille of the rated torque the drive reports (0x6076), in N·m, with the YAML's direction
+    s_fake = fake.robot.snapshot()
+    assert np.max(np.abs(np.array(s.effort) - s_fake.torque_nm)) < 0.5
+    assert abs(s.effort[1]) > 1.0  # joint 2 holds the arm against gravity
+
+
+@with_rig(fake={"faulted": {3: 0x8611}})
+def test_a_drive_starting_in_fault_is_reported_and_not_touched(rig):
+    drv, fake = rig
+    st = drv.state()
+    assert not st.motion_allowed
+    assert "joint 3 (node 3) is in FAULT" in st.reason and "0x8611 (following error)" in st.reason
+    assert "clear_faults" in st.reason
+    with pytest.raises(Exception, match="joint 3 \\(node 3\\)"):
+        drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    assert not [e for e in fake.events if e.kind == "move"]
+    assert fake.drives[2].state == "FAULT" and not any(cw & 0x80 for cw, _ in fake.drives[2].history)
+
+
+@with_rig(fake={"faulted": {3: 0x8611}}, clear_faults=True)
+def test_clear_faults_resets_a_faulted_drive_and_says_so(rig, caplog):
+    drv, fake = rig
+    assert fake.drives[2].state == "SWITCH ON DISABLED"
+    assert (0x80, "SWITCH ON DISABLED") in fake.drives[2].history
+    st = drv.state()
+    assert st.motion_allowed and "joint 3 (node 3) was in FAULT at connect (error code 0x8611" in st.detail
+    drv.start_stream(lambda s: None)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+
+
+def test_clear_faults_warns(caplog):
+    cfg = config(clear_faults=True)
+    fake = SimulatedCANopenArm.from_config(cfg, faulted={5: 0x2310}).start()
+    drv = CANopenDriver(fake.bound_options(cfg.driver_options), MotionLimits(3.0, 3.0), RELAXED)
+    try:
+        with caplog.at_level(logging.WARNING, logger="payload_agent.drivers.canopen.driver"):
+            drv.connect()
+        assert any("joint 5 (node 5) was in FAULT" in r.message and "clear_faults" in r.message
+                   for r in caplog.records)
+    finally:
+        drv.close()
+        fake.close()
+
+
+def test_drive_fault_mid_sweep_quick_stops_every_drive_and_keeps_data(rig):
+    drv, fake = rig
+    exc, t_fault, samples = move_with_fault(drv, fake, "protective_stop", joint=2)
+    msg = str(exc)
+    assert "joint 2 (node 2)" in msg and "0x8611" in msg, msg
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
+    report = drv.last_stop_report
+    assert report is not None and report.acknowledged, report
+    first_stop = min(e.t for e in fake.events if e.kind == "stop" and e.t >= t_fault)
+    assert first_stop - t_fault < 0.5
+    # data kept: the stream never failed and kept delivering samples after the stop
+    assert drv.stream_error is None
+    n = len(samples)
+    drv.wait_sample(2.0, after=time.monotonic())
+    assert len(samples) > n and any(s.t_recv < t_fault for s in samples)
+    assert drv.monitor.fault.startswith("EMCY from joint 2 (node 2)")
+    with pytest.raises(MotionAbortedError, match="fault is pending"):  # nothing moves after it
+        drv.move_joints(START, SPEED, ACCEL, 30.0)
+
+
+def test_heartbeat_loss_aborts_the_move(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "drop_connections", joint=5, heartbeat_only=True)
+    msg = str(exc)
+    assert "heartbeat lost from joint 5 (node 5)" in msg and "0x8130" in msg, msg
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}  # the drive still hears: its heartbeat alone stopped
+    assert drv.last_stop_report.acknowledged
+
+
+def test_a_silent_drive_aborts_and_its_stop_is_not_confirmed(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "drop_connections", joint=4)
+    msg = str(exc)
+    assert "joint 4 (node 4)" in msg, msg
+    assert stops_after(fake, t_fault) == {1, 2, 3, 5, 6}  # node 4 is off the bus
+    report = drv.last_stop_report
+    assert not report.acknowledged and "NOT acknowledged" in report.describe()
+
+
+def test_a_drive_leaving_operation_enabled_aborts(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "leave_remote", joint=6)
+    assert "joint 6 (node 6) left OPERATION ENABLED" in str(exc) and "SWITCH ON DISABLED" in str(exc)
+    assert stops_after(fake, t_fault) >= {1, 2, 3, 4, 5}
+
+
+@with_rig(supervision=Supervision(max_stream_gap_s=0.3, stop_ack_timeout_s=1.0))
+def test_malformed_pdo_and_stalled_stream_stop_the_arm(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "garbage", joint=3)
+    assert isinstance(exc, SupervisionTrip) and "TPDO1 from joint 3 (node 3) has 5 data bytes" in str(exc)
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
+    assert isinstance(drv.stream_error, CommunicationError)
+
+
+@with_rig(supervision=Supervision(max_stream_gap_s=0.3, stop_ack_timeout_s=1.0))
+def test_stalled_stream_trips_the_watchdog_and_the_stop_is_confirmed_over_sdo(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "stall_stream")
+    assert "stalled" in str(exc) or "stopped sending its TPDO" in str(exc)
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
+    assert drv.last_stop_report.acknowledged  # no TPDO to confirm it, so the statuswords came over SDO
+
+
+def test_never_finishing_move_times_out_and_stops(rig):
+    drv, fake = rig
+    drv.start_stream(lambda s: None)
+    fake.inject_fault("never_finish")
+    t0 = time.monotonic()
+    with pytest.raises(MotionAbortedError, match="did not report target reached"):
+        drv.move_joints(TARGET, SPEED, ACCEL, 3.0)
+    assert stops_after(fake, t0) == {1, 2, 3, 4, 5, 6}
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")  # python-can's receive thread
+def test_quick_stop_over_a_new_bus_when_the_old_one_is_gone(rig):
+    drv, fake = rig
+    drv.start_stream(lambda s: None)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    t0 = time.monotonic()
+    drv.network.bus.shutdown()  # the driver's bus object is gone (adapter unplugged and back)
+    deadline = time.monotonic() + 2.0
+    while drv._command_alive() and time.monotonic() < deadline:  # its threads notice at their next frame
+        time.sleep(0.01)
+    assert not drv._command_alive()
+    drv.stop()
+    assert stops_after(fake, t0) == {1, 2, 3, 4, 5, 6}
+    assert all(d.state in ("QUICK STOP ACTIVE", "SWITCH ON DISABLED") for d in fake.drives)
+
+
+def test_no_sdo_reply_at_connect_names_the_drive():
+    cfg = config(sdo_timeout_s=0.1)
+    fake = SimulatedCANopenArm.from_config(cfg).start()
+    fake.inject_fault("no_reply")
+    drv = CANopenDriver(fake.bound_options(cfg.driver_options), MotionLimits(3.0, 3.0), RELAXED)
+    try:
+        with pytest.raises(CommunicationError, match=r"joint 1 \(node 1\) did not answer an SDO request"):
+            drv.connect()
+    finally:
+        drv.close()
+        fake.close()
+
+
+def test_rated_torque_comes_from_the_drive_or_the_yaml():
+    limits = MotionLimits(3.0, 3.0)
+    cfg = config(rated_torque_nm=[56, 50, 28, 12, 12, 12])  # joint 2 disagrees with its drive (56 N·m)
+    fake = SimulatedCANopenArm.from_config(cfg).start()
+    drv = CANopenDriver(fake.bound_options(cfg.driver_options), limits, RELAXED)
+    try:
+        with pytest.raises(ConfigError, match=r"driver.rated_torque_nm\[1\].*joint 2 \(node 2\) reports 56 N·m"):
+            drv.connect()
+    finally:
+        drv.close()
+        fake.close()
+    for yaml_rated, ok in ((None, False), ([56, 56, 28, 12, 12, 12], True)):
+        cfg = config(rated_torque_nm=yaml_rated)
+        fake = SimulatedCANopenArm.from_config(cfg, has_rated_torque=False).start()
+        drv = CANopenDriver(fake.bound_options(cfg.driver_options), limits, RELAXED)
+        try:
+            if ok:
+                drv.connect()
+                assert drv.effort_per_permille == pytest.approx([0.056, 0.056, 0.028, 0.012, 0.012, 0.012])
+            else:
+                with pytest.raises(ConfigError, match=r"driver.rated_torque_nm: joint 1 \(node 1\) has no rated"):
+                    drv.connect()
+        finally:
+            drv.close()
+            fake.close()
