@@ -35,7 +35,6 @@ from payload_agent.fakes.elite_ec_methods import (MODE_PLAY, MODE_REMOTE, MODE_T
 from payload_agent.fakes.elite_ec_monitor import PERIOD_S, MonitorServer, pack_frame
 from payload_agent.fakes.elite_ec_rpc import INVALID_PARAMS, METHOD_NOT_FOUND, SERVER_ERROR, LineJsonRpcServer, RpcError
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.model.kinematics import Kinematics
 
 if TYPE_CHECKING:
     from payload_agent.configuration.config import Config
@@ -92,15 +91,37 @@ class JointThermal:
         self._t = t
 
 
-def matrix_to_elite_pose(T: np.ndarray) -> list[float]:
-    """4x4 pose (m) -> Elite [x, y, z (mm), rx, ry, rz (rad)] with R = Rz(rz)·Ry(ry)·Rx(rx)."""
-    R = T[:3, :3]
-    ry = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    if math.hypot(R[0, 0], R[1, 0]) > 1e-9:
-        rx, rz = math.atan2(R[2, 1], R[2, 2]), math.atan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: put the whole rotation about z into rx
-        rx, rz = math.atan2(-R[1, 2], R[1, 1]), 0.0
-    return [float(T[0, 3]) * 1000.0, float(T[1, 3]) * 1000.0, float(T[2, 3]) * 1000.0, rx, ry, rz]
+class FlangeFK:
+    """The simulated arm's flange pose in Elite units: [x, y, z (mm), rx, ry, rz (rad)], R = Rz(rz)·Ry(ry)·Rx(rx).
+
+    The same standard-DH chain as ``model.kinematics.Kinematics`` (Rz(q + offset) Tz(d) Tx(a) Rx(alpha)
+    per row), in plain floats because the monitor computes it for every frame: thousands a second
+    when the simulation runs faster than wall time, where small-array numpy costs several times more.
+    """
+
+    def __init__(self, rows):
+        self.rows = [(r.a_m, r.d_m, math.cos(r.alpha_rad), math.sin(r.alpha_rad), r.offset_rad) for r in rows]
+
+    def elite_pose(self, q) -> list[float]:
+        r00, r01, r02, px = 1.0, 0.0, 0.0, 0.0
+        r10, r11, r12, py = 0.0, 1.0, 0.0, 0.0
+        r20, r21, r22, pz = 0.0, 0.0, 1.0, 0.0
+        for qi, (a, d, ca, sa, off) in zip(q, self.rows):
+            ct, st = math.cos(qi + off), math.sin(qi + off)
+            # A = [[ct, -st ca, st sa, a ct], [st, ct ca, -ct sa, a st], [0, sa, ca, d]]
+            act, ast, b01, b02, b11, b12 = a * ct, a * st, -st * ca, st * sa, ct * ca, -ct * sa
+            px, py, pz = (px + r00 * act + r01 * ast + r02 * d, py + r10 * act + r11 * ast + r12 * d,
+                          pz + r20 * act + r21 * ast + r22 * d)
+            r00, r01, r02 = r00 * ct + r01 * st, r00 * b01 + r01 * b11 + r02 * sa, r00 * b02 + r01 * b12 + r02 * ca
+            r10, r11, r12 = r10 * ct + r11 * st, r10 * b01 + r11 * b11 + r12 * sa, r10 * b02 + r11 * b12 + r12 * ca
+            r20, r21, r22 = r20 * ct + r21 * st, r20 * b01 + r21 * b11 + r22 * sa, r20 * b02 + r21 * b12 + r22 * ca
+        h = math.hypot(r00, r10)
+        ry = math.atan2(-r20, h)
+        if h > 1e-9:
+            rx, rz = math.atan2(r21, r22), math.atan2(r10, r00)
+        else:  # gimbal lock: put the whole rotation about z into rx
+            rx, rz = math.atan2(-r12, r11), 0.0
+        return [px * 1000.0, py * 1000.0, pz * 1000.0, rx, ry, rz]
 
 
 def _loopback(host: str) -> str:
@@ -127,7 +148,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         # most constrained joint allows.
         self.joint_max_speed_rad_s = np.asarray(spec.max_speed_rad_s, float)
         self.joint_max_accel_rad_s2 = np.asarray(spec.max_accel_rad_s2, float)
-        self.kinematics = Kinematics(spec.dh)  # the simulated arm's own geometry: the poses it reports
+        self.kinematics = FlangeFK(spec.dh)  # the simulated arm's own geometry: the poses it reports
         self.soft_version = soft_version
         self.subtype = int(subtype)
         self.max_payload_kg = float(max_payload_kg)
@@ -212,8 +233,11 @@ class FakeEliteController(EliteMethods, SimulatedController):
         if self._token is not None:
             self._robot.unsubscribe(self._token)
             self._token = None
+        # both ports at once: each server's accept loop takes up to its poll interval to notice
+        closer = threading.Thread(target=self._monitor.close, name="elite-monitor-close", daemon=True)
+        closer.start()
         self._rpc.close()
-        self._monitor.close()
+        closer.join(timeout=5.0)
         if self._owns_robot:
             self._robot.close()
 
@@ -254,6 +278,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         with self._lock:
             if mode != MODE_REMOTE and self._mode == MODE_REMOTE:
                 self._robot.stop()
+                self._mark_motion_stopped()
             self._mode = mode
 
     def press_estop(self) -> None:
@@ -263,6 +288,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
             self._robot.trigger_estop()
             self._robot.set_servo(False)
             self._servo = False
+            self._mark_motion_stopped()
 
     def release_estop(self) -> None:
         """The button is released; the alarm stays until clearAlarm, servos stay off."""
@@ -273,17 +299,21 @@ class FakeEliteController(EliteMethods, SimulatedController):
         with self._lock:
             self._collision = True
             self._robot.trigger_protective_stop()
+            self._mark_motion_stopped()
 
     def raise_alarm(self) -> None:
         """Any servo/controller alarm: robotState 4 until clearAlarm."""
         with self._lock:
             self._alarm = True
             self._robot.trigger_protective_stop()
+            self._mark_motion_stopped()
 
     def set_servo(self, on: bool) -> None:
         with self._lock:
             self._robot.set_servo(on)
             self._servo = bool(on)
+            if not on:
+                self._mark_motion_stopped()
 
     def set_garbage_reply(self, method: str, raw_line: str | None) -> None:
         """Answer ``method`` with this raw line (without newline) instead of a proper reply."""
@@ -341,6 +371,12 @@ class FakeEliteController(EliteMethods, SimulatedController):
                 return STATE_RUNNING
             return STATE_STOP
 
+    def _mark_motion_stopped(self) -> None:
+        """The running motion was stopped: robotState leaves "running" once the arm stands (see _on_tick)."""
+        with self._lock:
+            if self._motion is not None:
+                self._motion["stopped"] = True
+
     def _effort_pct(self, torque_nm: np.ndarray) -> np.ndarray:
         # percent of rated torque, with the drive's gain error (current -> torque)
         return np.asarray(torque_nm, float) / self.rated_torque_nm * 100.0 * self.gain_error
@@ -351,7 +387,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         cached = self._pose_cache
         if cached is not None and cached[0] == key:
             return list(cached[1])
-        pose = matrix_to_elite_pose(self.kinematics.flange(q))
+        pose = self.kinematics.elite_pose(np.asarray(q, float).tolist())
         self._pose_cache = (key, pose)
         return list(pose)
 
@@ -362,9 +398,9 @@ class FakeEliteController(EliteMethods, SimulatedController):
             if m is not None:
                 if s.moving:
                     m["seen"] = True
-                elif m["seen"] or s.t >= m["t0"] + m["dur"] - 1e-9:
-                    if "never_finish" not in self.active_faults or m.get("stopped"):
-                        self._motion = None
+                elif m.get("stopped") or (m["seen"] or s.t >= m["t0"] + m["dur"] - 1e-9) and \
+                        "never_finish" not in self.active_faults:
+                    self._motion = None
             if self._next_frame_t is None:
                 self._next_frame_t = (math.floor(s.t / PERIOD_S + 1e-9)) * PERIOD_S
             due = s.t >= self._next_frame_t - 1e-9

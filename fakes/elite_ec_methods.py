@@ -192,9 +192,7 @@ class EliteMethods:
     def _m_stop(self, p: dict) -> bool:
         self.record_event("stop")
         self.robot.stop()
-        with self._lock:
-            if self._motion is not None:
-                self._motion["stopped"] = True  # ends a "never_finish" motion too
+        self._mark_motion_stopped()  # ends a "never_finish" motion too
         return True
 
     # payload

@@ -13,8 +13,11 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from conftest import EC66_Q0, EC66_TIME_SCALE  # noqa: E402
+from conftest import EC66_Q0, EC66_TIME_SCALE, tweak  # noqa: E402
+from payload_agent.configuration.config import parse_config  # noqa: E402
 from payload_agent.fakes.arms import ec66_spec  # noqa: E402
+from payload_agent.fakes.base import FAULTS  # noqa: E402
+from payload_agent.model.kinematics import Kinematics  # noqa: E402
 from payload_agent.fakes.elite_ec import NOT_REMOTE_CODE, FakeEliteController  # noqa: E402
 from payload_agent.fakes.elite_ec_monitor import FRAME_SIZE, MONITOR_LAYOUT, unpack_frame  # noqa: E402
 
@@ -215,7 +218,7 @@ def test_estop_stops_motion_and_needs_clear_and_servo(ctrl, raw, sim):
     assert raw.result("set_servo_status", {"status": 1}) is False
     assert raw.result("clearAlarm") is True
     assert raw.result("set_servo_status", {"status": 1}) is True
-    assert raw.result("getRobotState") == 0
+    wait_state(raw, 0)  # on the controller's next cycle (the simulated clock may lag on a loaded machine)
     assert raw.result("getServoStatus") is True
     assert raw.result("get_joint_pos")[0] < 60.0  # it never arrived
 
@@ -334,3 +337,194 @@ def test_slow_monitor_client_is_dropped_without_stalling_sim(sim):
         # a well-behaved client still gets frames
         assert len(read_frames(c.monitor_port, 3)) >= 3
         lazy.close()
+
+
+# -- the simulated-controller contract ------------------------------------------------------------
+
+def test_from_config_builds_robot_and_binds_ephemeral_ports(sim_ec66_data):
+    data = tweak(tweak(sim_ec66_data, "driver.rpc_port", 0), "driver.monitor_port", 0)
+    data = tweak(data, "simulation.drive_gain_error", [1.0, 1.04, 0.97, 1.0, 1.0, 1.0])
+    cfg = parse_config(data, source="test")
+    c = FakeEliteController.from_config(cfg)
+    try:
+        c.start()
+        opts = c.bound_options(cfg.driver_options)
+        assert opts.host == "127.0.0.1" and opts.rpc_port == c.rpc_port > 0 and opts.monitor_port == c.monitor_port > 0
+        assert opts.sample_source == cfg.driver_options.sample_source  # everything else kept
+        assert c.robot.tick_s == 0.008 and c.robot.time_scale == cfg.simulation.time_scale
+        assert np.allclose(c.robot.snapshot().q, np.radians(cfg.simulation.start_deg))
+        assert np.allclose(c.rated_torque_nm, ec66_spec().rated_torque_nm)
+        assert c.gain_error[1] == pytest.approx(1.04) and c.gain_error[2] == pytest.approx(0.97)
+        t0 = c.robot.now()
+        deadline = time.monotonic() + 2.0
+        while c.robot.now() == t0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert c.robot.now() > t0  # start() started the robot it built
+        raw = Raw(opts.rpc_port)
+        assert raw.result("getRobotSubtype") == 6
+        raw.close()
+        assert c.payload is None
+    finally:
+        c.close()
+
+
+def test_events_log_every_accepted_move_and_every_stop(ctrl, raw):
+    t0 = time.monotonic()
+    assert raw.result("moveByJoint", {"targetPos": [5, -90, 90, 0, 90, 0], "speed": 50}) is True
+    assert raw.result("moveByJoint", {"targetPos": [9, -90, 90, 0, 90, 0], "speed": 50}) is False  # still running
+    assert raw.result("stop") is True
+    ctrl.set_mode(0)
+    raw.call("moveByJoint", {"targetPos": [0, -90, 90, 0, 90, 0], "speed": 50})  # refused: not remote
+    kinds = [e.kind for e in ctrl.events if e.t >= t0]
+    assert kinds == ["move", "stop"]
+    assert "targetPos" in ctrl.events[0].detail
+
+
+def test_unknown_fault_is_refused(ctrl):
+    assert ctrl.faults == frozenset(FAULTS)
+    with pytest.raises(ValueError, match="unknown fault"):
+        ctrl.inject_fault("meteor_strike")
+
+
+# -- Cartesian poses: the simulated arm's own kinematics, Elite units -------------------------------
+
+def rpy_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
+    """Elite's pose rotation, R = Rz(rz)·Ry(ry)·Rx(rx) (docs/sources.md), built independently here."""
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def assert_pose_is_fk(pose, q, angles_in_deg=False):
+    fk = Kinematics(ec66_spec().dh).flange(q)
+    assert np.allclose(pose[:3], fk[:3, 3] * 1000.0, atol=1e-6)  # mm
+    angles = np.radians(pose[3:]) if angles_in_deg else np.asarray(pose[3:])
+    assert np.allclose(rpy_matrix(*angles), fk[:3, :3], atol=1e-9)
+
+
+def test_poses_from_rpc_are_the_arms_forward_kinematics(raw, sim):
+    target = [20.0, -70.0, 100.0, 30.0, 60.0, -45.0]
+    assert raw.result("moveByJoint", {"targetPos": target, "speed": 100}) is True
+    wait_state(raw, 0)
+    q = sim.snapshot().q
+    assert np.allclose(np.degrees(q), target, atol=1e-6)
+    assert_pose_is_fk(raw.result("get_base_flange_pose"), q)
+    assert_pose_is_fk(raw.result("get_base_flange_pose", {"unit_type": 1}), q)
+    assert_pose_is_fk(raw.result("get_base_flange_pose", {"unit_type": 0}), q, angles_in_deg=True)
+    assert_pose_is_fk(raw.result("get_tcp_pose", {"coordinate_num": -1, "tool_num": 0}), q)
+    assert raw.call("get_tcp_pose", {"tool_num": 9})["error"]["code"] == -32602
+    assert raw.call("get_base_flange_pose", {"unit_type": 2})["error"]["code"] == -32602
+
+
+def test_monitor_poses_are_the_arms_forward_kinematics(ctrl, sim):
+    f = unpack_frame(read_frames(ctrl.monitor_port, 3)[-1])
+    q = np.radians(f["machinePos"][:6])
+    for field in ("machineFlangePose", "machinePose", "machineUserFlangePose", "machineUserPose"):
+        assert_pose_is_fk(f[field], q)
+
+
+# -- faults at the protocol level -----------------------------------------------------------------
+
+def test_stall_stream_stops_frames_and_clearing_resumes_them(ctrl):
+    sock = socket.create_connection(("127.0.0.1", ctrl.monitor_port), timeout=2.0)
+    try:
+        assert sock.recv(4096)
+        ctrl.inject_fault("stall_stream")
+        time.sleep(0.05)
+        sock.settimeout(0.05)
+        try:  # drain what was sent before the stall
+            while sock.recv(65536):
+                pass
+        except socket.timeout:
+            pass
+        sent = ctrl.frames_sent
+        sock.settimeout(0.3)
+        with pytest.raises(socket.timeout):
+            sock.recv(4096)
+        assert ctrl.frames_sent == sent
+        ctrl.clear_faults()
+        sock.settimeout(2.0)
+        assert sock.recv(4096)  # the same connection gets frames again
+    finally:
+        sock.close()
+
+
+def test_garbage_and_nan_faults_on_the_monitor(ctrl):
+    ctrl.inject_fault("nan_values")
+    f = unpack_frame(read_frames(ctrl.monitor_port, 2)[-1])
+    assert math.isnan(f["machinePos"][1]) and math.isnan(f["torque"][1])
+    ctrl.clear_faults()
+    ctrl.inject_fault("garbage")
+    sock = socket.create_connection(("127.0.0.1", ctrl.monitor_port), timeout=2.0)
+    try:
+        data = b""
+        while len(data) < 8:
+            data += sock.recv(4096)
+    finally:
+        sock.close()
+    size = struct.unpack_from("!I", data)[0]
+    assert size != FRAME_SIZE and size > 1 << 16  # no Elite frame announces that
+
+
+def test_drop_connections_closes_clients_but_serves_new_ones(ctrl, raw):
+    mon = socket.create_connection(("127.0.0.1", ctrl.monitor_port), timeout=2.0)
+    try:
+        assert raw.result("getRobotMode") == 2
+        ctrl.inject_fault("drop_connections")
+        assert raw.line(timeout=1.0) is None  # EOF
+        deadline = time.monotonic() + 2.0
+        while mon.recv(65536) and time.monotonic() < deadline:
+            pass  # frames queued before the drop, then EOF
+        fresh = Raw(ctrl.rpc_port)
+        assert fresh.result("getRobotMode") == 2
+        fresh.close()
+        assert len(read_frames(ctrl.monitor_port, 2)) >= 2
+    finally:
+        mon.close()
+
+
+def test_slow_reply_executes_at_once_and_answers_late(ctrl, raw, sim):
+    ctrl.inject_fault("slow_reply", delay_s=0.4)
+    t0 = time.monotonic()
+    raw.send(b'{"jsonrpc":"2.0","method":"moveByJoint","params":{"targetPos":[8,-90,90,0,90,0],"speed":50},"id":3}\n')
+    deadline = time.monotonic() + 2.0
+    while ctrl.first_event_after("move", t0) is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    move = ctrl.first_event_after("move", t0)
+    assert move is not None and move.t - t0 < 0.3
+    reply = raw.line(timeout=2.0)
+    assert json.loads(reply)["result"] == "true" and time.monotonic() - t0 >= 0.4
+    ctrl.clear_faults()
+    t1 = time.monotonic()
+    assert raw.result("getRobotMode") == 2 and time.monotonic() - t1 < 0.3
+
+
+def test_no_reply_swallows_requests(ctrl, raw):
+    ctrl.inject_fault("no_reply")
+    raw.send(b'{"jsonrpc":"2.0","method":"stop","params":{},"id":4}\n')
+    assert raw.line(timeout=0.4) is None
+    assert not [e for e in ctrl.events if e.kind == "stop"]
+    ctrl.clear_faults()
+    assert raw.result("getRobotMode") == 2
+
+
+def test_never_finish_keeps_running_until_stopped(ctrl, raw, sim):
+    ctrl.inject_fault("never_finish")
+    assert raw.result("moveByJoint", {"targetPos": [3, -90, 90, 0, 90, 0], "speed": 100}) is True
+    deadline = time.monotonic() + 5.0
+    while sim.snapshot().moving or abs(math.degrees(sim.snapshot().q[0]) - 3.0) > 1e-6:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    time.sleep(0.05)
+    assert raw.result("getRobotState") == 3  # arrived, and still "running"
+    assert raw.result("stop") is True
+    wait_state(raw, 0)
+
+
+@pytest.mark.parametrize("fault,state,mode", [("protective_stop", 5, 2), ("emergency_stop", 2, 2),
+                                              ("leave_remote", 0, 0)])
+def test_safety_and_mode_faults(ctrl, raw, fault, state, mode):
+    ctrl.inject_fault(fault)
+    assert raw.result("getRobotState") == state and raw.result("getRobotMode") == mode
