@@ -8,7 +8,9 @@ pymodbus is pinned (3.16.1): its client API changed between 3.x minors.
 
 from __future__ import annotations
 
+import logging
 import threading
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -22,6 +24,13 @@ try:
 except ImportError as _exc:  # only this driver needs it
     raise ConfigError("driver.type", "the modbus driver needs pymodbus 3.16.1 and pyserial: "
                                      f"pip install 'payload-agent[modbus]' (import failed: {_exc})") from _exc
+
+_FUNCTION_CODES = {"read_coils": 1, "read_discrete_inputs": 2, "read_holding_registers": 3,
+                   "read_input_registers": 4, "write_coil": 5, "write_register": 6, "write_coils": 15,
+                   "write_registers": 16}
+# pymodbus logs every timeout and stale reply with a hex dump of the last frames to stderr; the driver
+# reports each failure itself, in words, so the library's own log is kept to critical messages.
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 # Modbus application protocol v1.1b, section 7
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
@@ -40,6 +49,10 @@ class ModbusReplyError(CommunicationError):
 
 class ModbusTimeout(CommunicationError):
     """No reply within the timeout (the request may or may not have reached the device)."""
+
+
+class StaleReply(ModbusTimeout):
+    """A reply that does not answer the request: a late reply to an earlier one (RTU has no transaction id)."""
 
 
 class ConnectionLost(CommunicationError):
@@ -77,6 +90,7 @@ class ModbusBus:
         self._lock = threading.RLock()
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._lost: str | None = None
+        self._stale = False  # RTU: a request timed out, its reply may still arrive: drain before the next
 
     # -- connection ---------------------------------------------------------------------------
     def open(self) -> None:
@@ -125,14 +139,21 @@ class ModbusBus:
               "discrete_input": "read_discrete_inputs"}[block.table]
         resp = self._execute(what, fn, block.address, count=block.count, device_id=self.endpoint.device_id)
         if block.table in ("coil", "discrete_input"):
-            bits = list(resp.bits)[:block.count]
-            if len(bits) != block.count:
-                raise CommunicationError(f"the {what} returned {len(bits)} bits, expected {block.count}")
-            return bits
-        regs = list(resp.registers)
-        if len(regs) != block.count:
-            raise CommunicationError(f"the {what} returned {len(regs)} registers, expected {block.count}")
-        return regs
+            words = list(resp.bits)
+            ok = block.count <= len(words) < block.count + 8
+            words = words[:block.count]
+        else:
+            words = list(resp.registers)
+            ok = len(words) == block.count
+        if not ok:
+            self._mismatch(f"the {what} was answered with {len(words)} values")
+        return words
+
+    def _mismatch(self, text: str) -> None:
+        if self.endpoint.transport == "rtu":  # most likely the late reply to a request that timed out
+            self._stale = True
+            raise StaleReply(f"{text}: a late reply to an earlier request, discarded")
+        raise CommunicationError(f"{text}: the device does not answer what was asked")
 
     def write(self, entries: Sequence[tuple[Entry, Sequence[float]]]) -> None:
         """Encode and write entries; adjacent ones share a request, in address order."""
@@ -153,11 +174,24 @@ class ModbusBus:
             else:
                 self._execute(what, "write_registers", block.address, [int(w) for w in data], device_id=dev)
 
+    def _drain(self, client) -> None:
+        """Wait out the line's silence and throw away whatever arrived (RTU after a timeout)."""
+        serial = getattr(client, "socket", None)
+        try:
+            time.sleep(max(0.005, 35.0 / self.endpoint.baudrate))  # 3.5 characters and then some
+            if serial is not None:
+                serial.reset_input_buffer()
+        except Exception:
+            pass
+        self._stale = False
+
     def _execute(self, what: str, fn: str, *args, **kwargs):
         with self._lock:
             client = self._client
             if client is None:
                 raise ConnectionLost(f"the Modbus {self.role} to {self.endpoint.describe()} is closed ({what})")
+            if self._stale:
+                self._drain(client)
             try:
                 resp = getattr(client, fn)(*args, **kwargs)
             except ConnectionException as exc:
@@ -169,6 +203,7 @@ class ModbusBus:
                     self._lost = str(exc)
                     raise ConnectionLost(f"the {what} failed: {self.endpoint.describe()} stopped answering "
                                          f"and the connection was closed") from None
+                self._stale = self.endpoint.transport == "rtu"
                 raise ModbusTimeout(f"no reply to the {what} from {self.endpoint.describe()} within "
                                     f"{self.endpoint.timeout_s:g} s") from None
             except (ModbusException, OSError, ValueError) as exc:
@@ -176,6 +211,8 @@ class ModbusBus:
                 raise ConnectionLost(f"the {what} failed: {type(exc).__name__}: {exc}") from None
         if resp is None:
             raise ModbusTimeout(f"no reply to the {what}")
+        if (resp.function_code & 0x7F) != _FUNCTION_CODES[fn]:
+            self._mismatch(f"the {what} was answered with function code {resp.function_code}")
         if resp.isError():
             code = int(getattr(resp, "exception_code", 0) or 0)
             name = EXCEPTION_NAMES.get(code, "unknown exception")

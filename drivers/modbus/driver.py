@@ -196,10 +196,18 @@ class ModbusDriver(Driver):
         t0 = time.monotonic()
         taken = False
         beat, beat_t = None, t0
+        last_answer = t0
         while True:
             self.check_supervision()
-            ans = self.handshake.read_answer(self._cmd)
-            now = ans.t
+            try:
+                ans = self.handshake.read_answer(self._cmd)
+            except ModbusTimeout:  # one lost reply is not a lost connection: the watchdog judges how long
+                if time.monotonic() - last_answer > self.options.heartbeat_timeout_s:
+                    raise
+                time.sleep(self.command_poll_s)
+                continue
+            self.command_ok()
+            now = last_answer = ans.t
             if ans.heartbeat is not None and ans.heartbeat != beat:
                 beat, beat_t = ans.heartbeat, now
             if ans.ack_seq == seq:
@@ -213,7 +221,10 @@ class ModbusDriver(Driver):
                     raise MotionAbortedError(f"the robot program ended {what} {seq} with "
                                              f"{hs.error_text(ans.error_code)}")
                 taken = taken or ans.status == hs.STATUS_BUSY
-            fault = self._safety_fault()
+            try:
+                fault = self._safety_fault()
+            except ModbusTimeout:
+                fault = None
             if fault:
                 self.stop()
                 raise MotionAbortedError(f"{what} {seq} aborted: {fault}")

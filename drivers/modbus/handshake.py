@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Sequence
 
-from payload_agent.drivers.modbus.bus import ModbusBus
+from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
 from payload_agent.drivers.modbus.registers import Entry, group_reads, int_range
 from payload_agent.drivers.modbus.regmap import RegisterMap
 
@@ -111,7 +111,10 @@ class Handshake:
         seq_entry = self.map["cmd_seq"]
         seq = next_counter(seq_entry, self._read_int(bus, "cmd_seq"))
         bus.write(list(fields))
-        bus.write([(seq_entry, [seq])])
+        try:
+            bus.write([(seq_entry, [seq])])
+        except ModbusTimeout:
+            pass  # it may have arrived: the answers will tell (the caller waits for this number)
         return seq
 
     def request_stop(self, bus: ModbusBus) -> int:

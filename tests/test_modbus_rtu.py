@@ -1,0 +1,100 @@
+"""Modbus RTU: the same driver over a serial line, a pseudo-terminal pair carrying bytes at the baud rate.
+
+The simulated robot serves the generic float32 map (it has a controller clock, so the simulation may
+run faster than real time); the identification runs end to end through the runner.
+"""
+
+import json
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, tweak
+from payload_agent.configuration.config import parse_config
+from payload_agent.drivers.base import MotionLimits, Supervision
+from payload_agent.drivers.modbus.driver import ModbusDriver
+from payload_agent.drivers.modbus.options import parse_modbus_options, resolve_map
+from payload_agent.errors import SupervisionTrip
+from payload_agent.fakes.arms import ur5e_spec
+from payload_agent.fakes.modbus.controller import SimulatedModbusRobot
+from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.session.runner import RunOptions, run_identification
+
+Q0 = np.radians([0, -60, 60, -150, -30, 0])
+
+
+def _rtu(**opts):
+    raw = {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0", "baudrate": 115200,
+           "preset": "generic_float32", "unit_id": 7, **opts}
+    options = parse_modbus_options(raw)
+    robot = SimRobot(ur5e_spec(), q0_rad=Q0, tick_s=0.008, noise_nm=0.3, seed=5)
+    fake = SimulatedModbusRobot(robot, resolve_map(options), gains=[1.0] * 6, transport="rtu", unit_id=7,
+                                baudrate=115200, owns_robot=True).start()
+    return fake, fake.bound_options(options)
+
+
+def test_rtu_move_stream_and_stop_on_a_cut_line():
+    fake, options = _rtu()
+    assert options.serial_port.startswith("/dev/pts/")
+    drv = ModbusDriver(options, MotionLimits(math.pi, math.pi), Supervision(max_stream_gap_s=0.3))
+    try:
+        drv.connect()
+        s = drv.wait_sample(2.0)
+        assert s.t_ctrl is not None and np.allclose(s.q, Q0, atol=1e-4)  # float32 radians, a controller clock
+        assert "Modbus RTU 115200 baud, unit 7" in drv.identify().serial
+        got = []
+        drv.start_stream(got.append)
+        target = Q0 + np.radians([0, 20, 0, 0, 0, 0])
+        drv.move_joints(target, 0.8, 2.0, 10.0)
+        assert np.allclose(drv.wait_sample(1.0).q, target, atol=1e-3)
+        t = np.array([x.t_ctrl for x in got])
+        assert np.all(np.diff(t) > 0)  # every sample new, in controller time
+        # the line is cut mid-move: the stream stalls, the stop goes out once the line is back
+        threading.Timer(0.3, fake.inject_fault, args=("drop_connections",), kwargs={"cut_s": 0.5}).start()
+        t0 = time.monotonic()
+        with pytest.raises(SupervisionTrip) as info:
+            drv.move_joints(Q0, 0.3, 2.0, 10.0)
+        report = info.value.stop_report
+        assert report.acknowledged
+        stop = fake.first_event_after("stop", t0)
+        assert stop is not None
+    finally:
+        drv.close()
+        fake.close()
+
+
+def test_rtu_unit_id_mismatch_gets_no_reply():
+    fake, options = _rtu()
+    import dataclasses
+    drv = ModbusDriver(dataclasses.replace(options, unit_id=3, timeout_s=0.1), MotionLimits(math.pi, math.pi))
+    try:
+        drv.connect()
+        with pytest.raises(Exception, match="no joint sample"):
+            drv.wait_sample(0.5)
+    finally:
+        drv.close()
+        fake.close()
+
+
+def test_identification_over_rtu(tmp_path):
+    data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
+    data = tweak(data, "driver", {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0",
+                                  "baudrate": 460800, "preset": "generic_float32"})
+    data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
+    data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
+    data = tweak(data, "procedure.bidirectional", False)  # 4 sweeps a run: a shorter test
+    data = tweak(data, "safety.max_stream_gap_ms", 1000)  # a test of the identification, not of the watchdog
+    data = tweak(data, "simulation.noise_nm", 0.5)
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    cfg = parse_config(data, source="test")
+    truth = data["simulation"]["payload"]
+    outcome = run_identification(cfg, RunOptions(assume_yes=True, result_path=tmp_path / "r.json",
+                                                 out=lambda line: None, report=False, retry_sweeps=2))
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert abs(result["mass_kg"] - truth["mass_kg"]) < 0.05, result
+    assert np.max(np.abs(np.array(result["cog_mm"]) - truth["cog_mm"])) < 8.0, result
+    assert outcome.run_dir.exists()
