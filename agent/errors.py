@@ -93,3 +93,11 @@ class SupervisionTrip(CommunicationError):
     def __init__(self, message: str, stop_report=None):
         self.stop_report = stop_report
         super().__init__(message)
+
+
+class MotionNotFinished(MotionAbortedError):
+    """The controller never reported a move finished although the arm stood at its target; it was stopped."""
+
+    def __init__(self, message: str, stop_report=None):
+        self.stop_report = stop_report
+        super().__init__(message)

@@ -34,8 +34,8 @@ from typing import Any, Callable, ClassVar, Sequence
 import numpy as np
 
 from payload_agent.configuration.options import option, parse_options
-from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, PayloadAgentError,
-                                  SupervisionTrip, UnsupportedCapability)
+from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, MotionNotFinished,
+                                  PayloadAgentError, SupervisionTrip, UnsupportedCapability)
 from payload_agent.types import (ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample, StopReport,
                                  StreamStats)
 
@@ -45,6 +45,7 @@ __all__ = ["Driver", "DriverOptions", "MotionLimits", "SampleSink", "Sample", "C
 SampleSink = Callable[[Sample], None]
 
 MIN_GAP_LIMIT_S = 0.05  # the watchdog never trips on less than this (or 5 sample periods)
+AT_TARGET_RAD = math.radians(0.05)  # "the arm is at the target" for the never-finished check
 WATCHDOG_TICK_S = 0.005
 READ_TIMEOUT_S = 0.05  # how long one _read_sample call may block
 
@@ -71,6 +72,10 @@ class Supervision:
 
     max_stream_gap_s: float | None = None  # None: max(5 sample periods, 50 ms)
     stop_ack_timeout_s: float = 2.0
+    # a driver that polls its controller during a move (command_ok()) trips when no reply came for this long
+    max_reply_wait_s: float = 0.3
+    # the arm has stood at the move's target this long and the controller still has not reported it finished
+    finish_grace_s: float = 0.5
 
 
 class Driver(abc.ABC):
@@ -103,6 +108,10 @@ class Driver(abc.ABC):
         self._stats_lock = threading.Lock()
         self._armed = False
         self._armed_since = 0.0
+        self._target: np.ndarray | None = None
+        self._at_target_since: float | None = None
+        self._last_command_ok: float | None = None
+        self._trip_error_class: type[PayloadAgentError] = SupervisionTrip
         self._trip_lock = threading.Lock()
         self._tripped = threading.Event()
         self._trip_report: StopReport | None = None
@@ -320,11 +329,12 @@ class Driver(abc.ABC):
                                      + "; refusing to move blind")
         self._trip_report = None
         self._tripped.clear()
+        self._target, self._at_target_since, self._last_command_ok = target, None, None
         self._armed_since = time.monotonic()
         self._armed = True
         try:
             self._move_joints(target, float(speed_rad_s), float(accel_rad_s2), float(timeout_s))
-        except SupervisionTrip:
+        except (SupervisionTrip, MotionNotFinished):
             raise
         except CommunicationError as exc:  # the command connection failed mid-move: the arm may still go
             self._trip(f"the command connection failed during the move: {exc}")
@@ -337,6 +347,14 @@ class Driver(abc.ABC):
             self._armed = False
         if self._tripped.is_set():
             raise self._trip_error()
+
+    def command_ok(self) -> None:
+        """A driver that polls its controller during a move calls this after every good reply.
+
+        From the first call in a move on, the watchdog also trips when no good reply came for
+        ``Supervision.max_reply_wait_s`` (a controller that stopped answering, or answers far too late).
+        """
+        self._last_command_ok = time.monotonic()
 
     def check_supervision(self) -> None:
         """Raise SupervisionTrip if the watchdog has stopped the arm (drivers call this while waiting)."""
@@ -351,7 +369,9 @@ class Driver(abc.ABC):
         self._tripped.wait(self.supervision.stop_ack_timeout_s + 1.0)
         report = self._trip_report
         text = report.describe() if report is not None else "the motion supervision tripped"
-        return SupervisionTrip(f"motion stopped by the supervision: {text}", report)
+        error = self._trip_error_class(f"motion stopped by the supervision: {text}")
+        error.stop_report = report
+        return error
 
     def _watchdog_loop(self) -> None:
         while self._running.is_set():
@@ -361,25 +381,46 @@ class Driver(abc.ABC):
             now = time.monotonic()
             latest = self._latest
             last = max(latest.t_recv if latest is not None else 0.0, self._armed_since)
+            sup = self.supervision
             if now - last > self.gap_limit_s:
                 self._trip(f"the sample stream stalled: no sample for {1000 * (now - last):.0f} ms "
                            f"(limit {1000 * self.gap_limit_s:.0f} ms)", fault_t=last + self.gap_limit_s)
             elif not self._command_alive():
                 self._trip("the command connection to the controller was lost")
+            elif self._last_command_ok is not None and now - self._last_command_ok > sup.max_reply_wait_s:
+                self._trip(f"the controller stopped answering: no reply for {1000 * (now - self._last_command_ok):.0f}"
+                           f" ms during the move (limit {1000 * sup.max_reply_wait_s:.0f} ms)",
+                           command_channel=False)  # a stop queued behind the unanswered request would wait too
+            elif self._standing_at_target(latest, now) > sup.finish_grace_s:
+                self._trip(f"the controller did not report the move finished although the arm has stood at the "
+                           f"target for {sup.finish_grace_s:.1f} s", error=MotionNotFinished)
 
-    def _trip(self, reason: str, fault_t: float | None = None) -> None:
+    def _standing_at_target(self, latest: Sample | None, now: float) -> float:
+        """How long the arm has stood at this move's target (0 while it is elsewhere)."""
+        target = self._target
+        if latest is None or target is None or len(latest.q) != len(target) \
+                or float(np.max(np.abs(np.asarray(latest.q) - target))) > AT_TARGET_RAD:
+            self._at_target_since = None
+            return 0.0
+        if self._at_target_since is None:
+            self._at_target_since = now
+        return now - self._at_target_since
+
+    def _trip(self, reason: str, fault_t: float | None = None,
+              error: type[PayloadAgentError] = SupervisionTrip, command_channel: bool = True) -> None:
         """Stop the arm now; only the first trip of a move acts. Safe from any thread."""
         if not self._armed:
             return
         with self._trip_lock:
             if self._tripped.is_set():
                 return
+            self._trip_error_class = error
             t_fault = fault_t if fault_t is not None else time.monotonic()
             sent_t: float | None = None
             ack = False
             via = "none"
             attempts = 0
-            if self._command_alive():
+            if command_channel and self._command_alive():
                 sent_t, via, attempts = time.monotonic(), "command channel", 1
                 try:
                     ack = bool(self._stop_command())
