@@ -240,7 +240,7 @@ def test_never_finishing_move_times_out_and_stops(rig):
     drv.start_stream(lambda s: None)
     fake.inject_fault("never_finish")
     t0 = time.monotonic()
-    with pytest.raises(MotionAbortedError, match="did not report target reached"):
+    with pytest.raises(MotionAbortedError, match="did not report"):  # the base's finish watchdog, or our timeout
         drv.move_joints(TARGET, SPEED, ACCEL, 3.0)
     assert stops_after(fake, t0) == {1, 2, 3, 4, 5, 6}
 

@@ -163,9 +163,13 @@ class CANopenDriver(Driver):
         effort_index = obj.TORQUE_ACTUAL if opts.effort_object == "torque" else obj.CURRENT_ACTUAL
         try:
             configure_pdos(self.nodes[j], effort_index)
-        except (SdoAbortedError, SdoCommunicationError) as exc:
-            raise CommunicationError(f"{self.labels[j]} refused the PDO layout (statusword, position actual, "
-                                     f"0x{effort_index:04X} on TPDO1; controlword and target on RPDO1/2): {exc}") from exc
+        except SdoCommunicationError as exc:
+            raise CommunicationError(f"{self.labels[j]} stopped answering SDO while its PDOs were configured: "
+                                     f"{exc}") from exc
+        except SdoAbortedError as exc:
+            raise CommunicationError(f"{self.labels[j]} refused the PDO layout (TPDO1: statusword, position actual, "
+                                     f"0x{effort_index:04X}; RPDO1: controlword + target; RPDO2: controlword): "
+                                     f"SDO abort {exc}") from exc
         cpr = opts.counts_per_rad[j]
         self.sdo_write(j, obj.QUICK_STOP_DECELERATION, max(1, round(opts.quick_stop_decel_rad_s2 * cpr)))
         self.sdo_write(j, obj.POSITION_WINDOW, max(1, round(opts.position_window_deg * 0.017453292519943295 * cpr)))

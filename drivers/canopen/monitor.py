@@ -97,9 +97,10 @@ class DriveMonitor:
             limit = max(SILENT_SYNCS * period_s, 0.02)
             for j, n in enumerate(queued):
                 if n == 0 and self.seq[j] and now - self.t_frame[j] > limit:
+                    code = describe_code(HEARTBEAT_ERROR) if self._heartbeat_late(j, now) else "none reported"
                     self.set_fault(f"{self.labels[j]} stopped sending its TPDO: none for "
                                    f"{1000 * (now - self.t_frame[j]):.0f} ms while the other drives answered SYNC; "
-                                   f"error code {describe_code(HEARTBEAT_ERROR) if self._heartbeat_late(j, now) else 'none reported'}")
+                                   f"error code {code}")
 
     def _heartbeat_late(self, j: int, now: float) -> bool:
         t = self.t_heartbeat[j]

@@ -7,6 +7,7 @@ never on SDO polling, and polls the supervision while it waits.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from typing import TYPE_CHECKING
 
@@ -19,7 +20,7 @@ from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SE
                                                   SW_TARGET_REACHED, describe_code, enable_step, state_of, stopped)
 from payload_agent.drivers.canopen.pdo import RPDO1_COB, RPDO_SETPOINT
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
-from payload_agent.model.profile import lead_joint_caps, synchronised_joint_rates
+from payload_agent.model.profile import lead_joint_caps, synchronised_joint_rates, trapezoid_duration
 
 if TYPE_CHECKING:
     from payload_agent.drivers.canopen.driver import CANopenDriver
@@ -78,9 +79,17 @@ def ensure_enabled(drv: "CANopenDriver") -> None:
     drv.enabled = True
 
 
-def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float) -> None:
+def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float, travel_counts: int,
+                   duration_s: float) -> None:
+    """Profile velocity and acceleration = deceleration of joint ``j``, in position units.
+
+    Rounding to whole counts must not make a joint with a tiny travel late: its values are at least
+    those of a triangle over ``travel_counts`` that lasts the leading joint's ``duration_s``.
+    """
     cpr = drv.options.counts_per_rad[j]
-    v, a = max(1, round(speed_rad_s * cpr)), max(1, round(accel_rad_s2 * cpr))
+    d, t = abs(travel_counts), max(duration_s, 1e-3)
+    v = max(1, round(speed_rad_s * cpr), math.ceil(2 * d / t))
+    a = max(1, round(accel_rad_s2 * cpr), math.ceil(4 * d / (t * t)))
     for index, value in ((obj.PROFILE_VELOCITY, v), (obj.PROFILE_ACCELERATION, a), (obj.PROFILE_DECELERATION, a)):
         if drv.profile_cache.get((j, index)) != value:
             drv.sdo_write(j, index, value)
@@ -97,14 +106,15 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
     q0 = np.asarray(drv.latest_sample.q, float)
     n = drv.n
     caps = lead_joint_caps(q0, target, [drv.limits.max_joint_speed_rad_s] * n, [drv.limits.max_joint_accel_rad_s2] * n)
-    speeds, accels = synchronised_joint_rates(q0, target, min(speed_rad_s, caps.speed_rad_s),
-                                              min(accel_rad_s2, caps.accel_rad_s2))
+    lead_v, lead_a = min(speed_rad_s, caps.speed_rad_s), min(accel_rad_s2, caps.accel_rad_s2)
+    speeds, accels = synchronised_joint_rates(q0, target, lead_v, lead_a)
+    duration = trapezoid_duration(float(np.max(np.abs(np.asarray(target) - q0))), lead_v, lead_a)
     counts = [round(o.zero_counts[j] + o.direction[j] * float(target[j]) * o.counts_per_rad[j]) for j in range(n)]
     moving = [j for j in range(n) if counts[j] != m.position[j]]
     if not moving:
         return
     for j in moving:
-        _write_profile(drv, j, float(speeds[j]), float(accels[j]))
+        _write_profile(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)
 
     def poll() -> None:
         drv.poll_faults()

@@ -38,7 +38,7 @@ INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 
 @dataclass(frozen=True, kw_only=True)
 class CANopenOptions(DriverOptions):
-    interface: str = option(help="the python-can interface: socketcan, pcan, kvaser, ixxat, vector, slcan, virtual, ...")
+    interface: str = option(help="the python-can interface: socketcan, pcan, kvaser, ixxat, vector, virtual, ...")
     channel: str = option(help='the interface channel: "can0", "PCAN_USBBUS1", "0", a virtual bus name')
     bitrate: int = option(1_000_000, min=10_000, max=1_000_000, help="CAN bit rate, bit/s")
     node_ids: tuple[int, ...] = option(length=6, min=1, max=127, help="each joint's CANopen node id, joint 1 first")
@@ -101,6 +101,6 @@ def check_options(opts: CANopenOptions, key_path: str = "driver", source: str | 
         if d not in (1, -1):
             raise ConfigError(f"{key_path}.direction[{j}]", f"must be 1 or -1, got {d}", source)
     if opts.heartbeat_timeout_ms <= opts.heartbeat_ms:
-        raise ConfigError(f"{key_path}.heartbeat_timeout_ms", f"must exceed heartbeat_ms ({opts.heartbeat_ms} ms), "
-                                                              f"got {opts.heartbeat_timeout_ms} ms; 3x is usual", source)
+        raise ConfigError(f"{key_path}.heartbeat_timeout_ms", f"must exceed heartbeat_ms ({opts.heartbeat_ms} ms), got "
+                                                              f"{opts.heartbeat_timeout_ms} ms; 3x is usual", source)
     return opts

@@ -163,6 +163,10 @@ class SimulatedCANopenArm(SimulatedController):
         self._tick = (state.t, time.monotonic())
         self._state = state
 
+    def tick_time(self) -> float:
+        """Simulated time of the newest physics tick (a path the robot follows ends on a tick)."""
+        return self._tick[0]
+
     def sim_time(self) -> float:
         """Simulated now: the newest tick, advanced by the wall time since it (at most one tick)."""
         t, mono = self._tick

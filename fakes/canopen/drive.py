@@ -151,7 +151,7 @@ class SimDrive:
     def target_reached(self) -> bool:
         if self.never_finish:
             return False
-        return self.end_t is None or self.arm.sim_time() >= self.end_t
+        return self.end_t is None or self.arm.tick_time() >= self.end_t  # the physics tick that ended the path
 
     def error_register(self) -> int:
         """0x1001: generic error plus the class bit of the error code (CiA 301)."""
@@ -215,7 +215,7 @@ class SimDrive:
 
     def update(self) -> None:
         """Automatic transitions: quick stop finished -> SWITCH ON DISABLED (0x605A = 2)."""
-        if self.state == QSA and self.stop_end_t is not None and self.arm.sim_time() >= self.stop_end_t:
+        if self.state == QSA and self.stop_end_t is not None and self.arm.tick_time() >= self.stop_end_t:
             self.state, self.stop_end_t = SOD, None
 
     def fault(self, code: int, persists: bool = False) -> None:
