@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from payload_agent.evaluation.pipeline import analyse_run
-from payload_agent.evaluation.calibration import (GainCalibration, calibration_fingerprint, effective_gains, fit_gains,
-                                       fit_gains_from_deltas, load_calibration, save_calibration)
+from payload_agent.evaluation.calibration import (MAX_SCALE_STD, CalibrationFailed, GainCalibration,
+                                                  calibration_fingerprint, effective_gains, fit_gains,
+                                                  fit_gains_from_deltas, load_calibration, save_calibration)
 from payload_agent.analysis.combine import add_combined
 from payload_agent.configuration.config import load_config
-from payload_agent.analysis.delta import subtract_all
+from payload_agent.analysis.delta import DeltaSweep, subtract_all
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.fakes.arms import SPECS
 from payload_agent.fakes.offline import record_plan
@@ -108,6 +109,28 @@ def test_implausible_scale_refused(sim):
     with pytest.raises(QualityGateError, match=r"joint 2 would need .* nominal drive gain"):
         # the operator typed 3 kg for the 2 kg reference: every joint would need 1.5x its gain
         fit_gains_from_deltas(_deltas(ref, empty), config.robot.kinematics, np.ones(6), 3.0, REF_C)
+
+
+def test_wrong_reference_named_even_when_the_scale_is_uncertain(sim):
+    """A 3 kg reference typed for the 2 kg one: the scale is ~1.5 whatever its uncertainty, and the
+    message blames --known-mass / --known-cog, not the payload's size; the numbers travel with the error."""
+    config, _, empty, ref, _ = sim
+    rng = np.random.default_rng(0)
+    noisy = {k: DeltaSweep(k, d.q, d.dtau + rng.normal(0.0, 3.0, d.dtau.shape), d.speed_rad_s)
+             for k, d in _deltas(ref, empty).items()}  # noise enough for a scale uncertainty above 1 %
+    with pytest.raises(CalibrationFailed) as info:
+        fit_gains_from_deltas(noisy, config.robot.kinematics, np.ones(6), 3.0, REF_C)
+    message = str(info.value)
+    assert "--known-mass" in message and "--known-cog" in message and "heavier" not in message
+    assert "about 2.0" in message  # the mass the measured torque fits
+    fits = {f.joint: f for f in info.value.fits}
+    assert fits[1].status == "implausible" and fits[1].scale_std > MAX_SCALE_STD
+    assert abs(fits[1].scale * TORQUE_SCALE[1] - 1.5) < 0.1
+    report = info.value.to_json()
+    assert report["reference_mass_kg"] == 3.0 and {j["joint"] for j in report["joints"]} >= {2, 3}
+    # the right mass on the same data is not refused for being implausible
+    scale, _, fitted = fit_gains_from_deltas(noisy, config.robot.kinematics, np.ones(6), REF_M, REF_C)
+    assert 1 in fitted and abs(scale[1] * TORQUE_SCALE[1] - 1) < 0.05
 
 
 def test_no_reference_mounted_refused(sim):

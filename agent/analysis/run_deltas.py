@@ -1,26 +1,43 @@
 """A run folder's loaded-minus-empty sweeps: read, segment, subtract, combine.
 
 The one entry from a recorded run into the analysis; the pipeline (``analyse_run``) and the
-drive-gain calibration both start here.
+drive-gain calibration both start here. The constant-speed windows come from the plan on file
+(``manifest.json`` ``plan``: each sweep's start is the previous move's target), the same
+commands for the empty and the loaded phase. ``check_segmentation`` is the test a baseline
+must pass before it is stored.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from payload_agent.analysis.combine import add_combined
-from payload_agent.analysis.delta import DeltaSweep, subtract_all
+from payload_agent.analysis.delta import DeltaSweep, subtract_all, window_of
+from payload_agent.analysis.segmenter import SweepCommand, Window, sweep_commands
 from payload_agent.errors import DataError
 from payload_agent.recording.rundata import load_manifest, load_phase
 from payload_agent.types import SweepKey
+
+
+def commands_of(manifest: dict[str, Any], where: str = "run") -> dict[SweepKey, SweepCommand]:
+    """Each sweep's commanded PTP move from a manifest's ``plan`` (empty if the manifest has none)."""
+    plan = manifest.get("plan")
+    if not plan:
+        return {}
+    try:
+        return sweep_commands(plan)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise DataError(f"{where}: manifest.json: cannot read the plan ({type(exc).__name__}: {exc})") from None
 
 
 def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
                combine: bool = True, notes: list[str] | None = None) -> dict[SweepKey, DeltaSweep]:
     """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
 
+    Both phases are segmented with the run's own plan (a baseline is only valid for the same plan).
     With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
     combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
     """
@@ -30,9 +47,41 @@ def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
         raise DataError(f"{run_dir}: no complete loaded sweep to analyse")
     empty_dir = Path(baseline_dir) if baseline_dir is not None else Path(run_dir)
     empty = load_phase(empty_dir, "empty", gains)
-    deltas = subtract_all(loaded, empty)
+    commands = commands_of(manifest, str(run_dir))
+    if notes is not None and not commands:
+        notes.append("the manifest has no plan: constant-speed windows found in the data alone")
+    deltas = subtract_all(loaded, empty, commands)
     if combine:
         deltas, problems = add_combined(deltas)
         if notes is not None:
             notes.extend(problems)
     return deltas
+
+
+def check_segmentation(run_dir: Path, phase: str = "empty") -> dict[str, Window]:
+    """Segment every complete sweep of one phase of a run folder with its plan; raise if any fails.
+
+    For the session before it stores a baseline: a baseline whose own sweeps cannot be
+    segmented would fail every later run. Returns the verified window of every sweep by name.
+    Raises DataError listing every sweep that failed (and if the phase has no complete sweep or
+    a planned sweep is missing from it).
+    """
+    run_dir = Path(run_dir)
+    manifest = load_manifest(run_dir)
+    sweeps = load_phase(run_dir, phase, np.ones(6), manifest)  # angles only: the gains do not matter
+    if not sweeps:
+        raise DataError(f"{run_dir}: the {phase!r} phase has no complete sweep")
+    commands = commands_of(manifest, str(run_dir))
+    problems = []
+    windows: dict[str, Window] = {}
+    missing = [k.name for k in commands if k not in sweeps]
+    if missing:
+        problems.append(f"planned sweeps not recorded complete: {', '.join(sorted(missing))}")
+    for key, sweep in sweeps.items():
+        try:
+            windows[key.name] = window_of(sweep, commands.get(key))
+        except DataError as exc:
+            problems.append(str(exc))
+    if problems:
+        raise DataError(f"{run_dir}: the {phase} phase cannot be segmented:\n  - " + "\n  - ".join(problems))
+    return windows

@@ -21,7 +21,7 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
-from payload_agent.solvers import SOLVERS, general
+from payload_agent.solvers import SOLVERS, general, three_step
 
 POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
 __all__ = ["deltas_for", "solve_all", "quality_checks", "analyse_run", "POSE_AGREEMENT_Z"]
@@ -36,7 +36,7 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
     ``gain_rel_std`` (relative drive-gain uncertainty per joint, from a calibration) and
     ``length_std_m`` (standard uncertainty of the DH lengths; ``gain_reference``: the calibration's
     reference θ and fitted joints, see ``general.kinematic_covariance``) go into the general
-    solver's covariance; solvers without a covariance ignore them.
+    solver's covariance; the three-step solver takes the drive-gain term of joints 2 and 3.
     """
     if primary not in SOLVERS:
         raise DataError(f"unknown solver {primary!r}; available: {', '.join(SOLVERS)}")
@@ -45,6 +45,8 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
         if name == general.NAME and (gain_rel_std is not None or length_std_m):
             return general.solve(deltas, kin, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
                                  gain_reference=gain_reference)
+        if name == three_step.NAME and gain_rel_std is not None:
+            return three_step.solve(deltas, kin, gain_rel_std=gain_rel_std)
         return SOLVERS[name](deltas, kin)
 
     main = run(primary)
@@ -61,14 +63,16 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
 
 def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate,
                    gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
-                   gain_reference: tuple[Sequence[float], Sequence[int]] | None = None) -> dict[str, Any]:
+                   gain_reference: tuple[Sequence[float], Sequence[int]] | None = None,
+                   others: Sequence[Estimate] = ()) -> dict[str, Any]:
     """Redundant checks recorded beside the result; ``payload_agent.evaluation.quality.require_passed`` enforces them.
 
     The uncertainty terms are those the primary estimate was solved with (see ``solve_all``): the
     pose-agreement check propagates the same drive-gain and DH-length uncertainty through both poses.
+    The primary estimate is checked whichever solver made it, against ``others`` too.
     """
     return quality.evaluate(deltas, kin, primary, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
-                            gain_reference=gain_reference)
+                            gain_reference=gain_reference, others=others)
 
 
 def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
@@ -107,7 +111,7 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     if note:
         primary.notes.append(note)
     quality_result = quality_checks(deltas, kin, primary, gain_rel_std, config.robot.length_uncertainty_m,
-                                    gain_reference)
+                                    gain_reference, others)
     extra = {"gains_nm_per_unit": [float(g) for g in gains_arr], "gains_source": source}
     if gain_rel_std is not None:
         extra["gains_rel_std"] = list(gain_rel_std)

@@ -1,7 +1,8 @@
 """Quality gates: redundant checks on an identification, and their enforcement.
 
-``evaluate`` computes every check on the baseline-subtracted sweeps (whatever the primary
-solver, the checks use the general weighted fit, which has residuals and a covariance);
+``evaluate`` computes every check on the baseline-subtracted sweeps (the data-level checks use
+the general weighted fit, which has residuals and a covariance, whatever the primary solver;
+the primary's own estimate is checked too);
 ``require_passed`` raises QualityGateError listing every failed check with its numbers.
 The runner calls it before anything is written to a controller and for the exit code.
 
@@ -31,13 +32,17 @@ cannot include an unknown gain error): calibrate.
   from the same data (second differences), so nothing is assumed about the robot;
 - drive-gain consistency: with θ fitted on all joints, each well-loaded joint's measured
   torque must match the model to within a few per cent (a larger mismatch is a wrong drive
-  gain, which no other check sees because it scales both poses alike).
+  gain, which no other check sees because it scales both poses alike);
+- the primary estimate itself, whichever solver made it (``solver_checks``): it reports an
+  uncertainty; a primary other than the general fit passes its own mass checks; and it agrees
+  with the other solvers' estimates on the same data within their uncertainty (the general and
+  the three-step solver check each other).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
@@ -47,6 +52,7 @@ from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.solvers import general, wls
+from payload_agent.evaluation.solver_checks import make_check as _check, solver_checks
 
 POSE_AGREEMENT_Z = 3.0  # |m_b − m_d| / σ above this fails (mass)
 POSE_AGREEMENT_COG_Z = 3.5  # the same per centre-of-mass component (three comparisons)
@@ -65,13 +71,6 @@ def noise_estimate(y: np.ndarray) -> float:
     if len(y) < 5:
         return float("nan")
     return float(np.std(np.diff(y, 2)) / math.sqrt(6.0))
-
-
-def _check(name: str, value: float, limit: float, passed: bool, reason: str | None, **extra: Any) -> dict[str, Any]:
-    c = {"check": name, "value": float(value), "limit": float(limit), "passed": bool(passed), **extra}
-    if not passed and reason:
-        c["reason"] = reason
-    return c
 
 
 def _output_jacobian(theta: np.ndarray) -> np.ndarray:
@@ -118,8 +117,12 @@ def _pose_fit(groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
 
 def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate, *,
              gain_rel_std: Iterable[float] | None = None, length_std_m: float | None = None,
-             gain_reference: tuple[Iterable[float], Iterable[int]] | None = None) -> dict[str, Any]:
+             gain_reference: tuple[Iterable[float], Iterable[int]] | None = None,
+             others: Sequence[Estimate] = ()) -> dict[str, Any]:
     """Every check on one identification; ``passed`` is True only if all passed (see the module docstring).
+
+    ``others``: the other solvers' estimates on the same data; the primary must agree with each
+    that reports an uncertainty (``solver_checks``).
 
     ``gain_rel_std``, ``length_std_m`` and ``gain_reference``: the uncertainty terms the primary
     estimate was solved with (``general.solve``); the pose-agreement check propagates the same
@@ -245,6 +248,7 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
                              f"{fewest.key.name}: only {n} constant-speed samples (at least {MIN_SWEEP_SAMPLES}): "
                              "lower procedure.speed_percent or widen the sweep range", where=fewest.key.name))
 
+    checks.extend(solver_checks(primary, others, hint, min_mass_z=MIN_MASS_Z, max_mass_kg=MAX_MASS_KG))
     for c in checks:
         if not c["passed"] and c.get("reason"):
             q["reasons"].append(c["reason"])

@@ -49,6 +49,18 @@ def _inertia_map(w: np.ndarray) -> np.ndarray:
     return L
 
 
+def chain_frames(kin: Kinematics, q: np.ndarray) -> list[np.ndarray]:
+    """Base-frame transforms of DH frames 0..6 for every sample: a list of seven (n, 4, 4) arrays.
+
+    Joint i (0-based) turns about z of frame i through its origin; frame 6 is the flange.
+    """
+    q = np.atleast_2d(np.asarray(q, float))
+    frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
+    for i, row in enumerate(kin.rows):
+        frames.append(frames[-1] @ _dh_batch(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
+    return frames
+
+
 def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                       g: float = GRAVITY_M_S2) -> np.ndarray:
     """W with τ_payload[k, j] = W[k, j, :] · θ for every sample k and joint j: shape (n, 6, 10).
@@ -61,9 +73,7 @@ def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.nd
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
     n_s, n_j = q.shape
-    frames = [np.broadcast_to(np.eye(4), (n_s, 4, 4))]
-    for i, row in enumerate(kin.rows):
-        frames.append(frames[-1] @ _dh_batch(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
+    frames = chain_frames(kin, q)
     z = np.stack([f[:, :3, 2] for f in frames[:-1]], axis=1)  # (n, 6, 3) joint axes
     o = np.stack([f[:, :3, 3] for f in frames], axis=1)  # (n, 7, 3) frame origins
     w = np.zeros((n_s, 3))

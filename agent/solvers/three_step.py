@@ -8,52 +8,101 @@
 In each step the paper's cos θ/sin θ coefficients, and its a3+d5 and a3+d6 lever terms,
 are the exact gravity-lever terms of the regressor Y(q) evaluated on the DH model, so the
 signs and offsets follow whatever conventions the robot uses.
+
+Directions: where a sweep was recorded both ways, the friction-cancelling combination
+(direction "both", ``payload_agent.analysis.combine``) is used, as the general solver does;
+otherwise the upward sweep, as published. With load-dependent friction the upward sweep
+alone biases the mass by a fraction of the load ratio (the paper's own explanation of its
+errors growing with mass).
+
+Uncertainty: every estimate is a function of the three sweeps' Δτ samples, so its first-order
+sensitivity to each sample (``_jacobians``: through the step-1 interpolation, and through m
+into steps 2 and 3, and through x, y into step 3) times that sweep's residuals gives scores
+whose long-run variance (Bartlett kernel, bandwidth from the residuals' autocorrelation time,
+as in ``solvers.wls``) is the covariance of [m, x, y, z]; never below the independent-noise
+value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top.
+The DH lengths' uncertainty is not (the three-step's levers come from FK as the general's do).
 """
 
 from __future__ import annotations
 
+from typing import Iterable
+
 import numpy as np
 
-from payload_agent.model.arm_geometry import ArmGeometry
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
+from payload_agent.model.arm_geometry import ArmGeometry, wrap
 from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
-from payload_agent.types import SweepKey
+from payload_agent.solvers.regressor import chain_frames, payload_regressor
 from payload_agent.solvers.results import Estimate
+from payload_agent.solvers.wls import HAC_MAX_FRACTION, autocorrelation_time, long_run_scores
+from payload_agent.types import SweepKey
 
 NAME = "three-step"
+PREFERENCE = ("both", "up")  # combined where recorded both ways, else the published upward sweep
 
 
-def _find(deltas: dict[SweepKey, DeltaSweep], pose: str, joint: int) -> DeltaSweep:
-    for key, d in deltas.items():
-        if key.pose == pose and key.joint == joint and key.direction == "up":
-            return d
-    raise DataError(f"three-step needs the upward joint-{joint} sweep in pose {pose}, which the run does not have")
+def _find(deltas: dict[SweepKey, DeltaSweep], pose: str, joint: int,
+          directions: tuple[str, ...] = PREFERENCE) -> DeltaSweep:
+    for direction in directions:
+        for key, d in deltas.items():
+            if key.pose == pose and key.joint == joint and key.direction == direction:
+                return d
+    raise DataError(f"three-step needs the joint-{joint} sweep in pose {pose} "
+                    f"({' or '.join(directions)}), which the run does not have")
 
 
 def _lever_terms(kin: Kinematics, q: np.ndarray, joint_index: int) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) per sample with Δτ_j = m·A + m·B·c: A from the flange position, B from its rotation."""
-    rows = np.array([kin.payload_regressor(qi, [joint_index])[0] for qi in q])
+    rows = payload_regressor(kin, q, np.zeros_like(q), np.zeros_like(q))[:, joint_index, :4]
     return rows[:, 0], rows[:, 1:]
 
 
 def _axis_lever(kin: Kinematics, q: np.ndarray) -> np.ndarray:
     """φ = z2·((o3 − o2) × g⃗): the weight's lever between the joint-2 and joint-3 axes (g·a2·cos θ)."""
-    g = np.array([0.0, 0.0, GRAVITY_M_S2])
-    out = []
-    for qi in q:
-        pose = kin.pose(qi)
-        out.append(pose.axis(1) @ np.cross(pose.origin(2) - pose.origin(1), g))
-    return np.array(out)
+    frames = chain_frames(kin, q)
+    z2, o2, o3 = frames[1][:, :3, 2], frames[1][:, :3, 3], frames[2][:, :3, 3]
+    return np.einsum("ni,ni->n", z2, np.cross(o3 - o2, np.array([0.0, 0.0, GRAVITY_M_S2])))
 
 
-def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d") -> Estimate:
-    b2, b3, d3 = _find(deltas, pose_xy, 2), _find(deltas, pose_xy, 3), _find(deltas, pose_z, 3)
+def _link3_elevation(geo: ArmGeometry, q: np.ndarray) -> np.ndarray:
+    """Link 3's elevation above horizontal per sample: affine in (q2, q3), slopes measured on the model."""
+    q2, q3 = q[0, 1], q[0, 2]
+    e0 = geo.elevations(q2, q3)[1]
+    d = 0.1
+    a = wrap(geo.elevations(q2 + d, q3)[1] - e0) / d
+    b = wrap(geo.elevations(q2, q3 + d)[1] - e0) / d
+    return e0 + a * (q[:, 1] - q2) + b * (q[:, 2] - q3)
+
+
+def _interp_transpose(x_new: np.ndarray, xs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Pᵀ·weights for the linear interpolation P (P @ ys == np.interp(x_new, xs, ys), xs ascending)."""
+    k = np.clip(np.searchsorted(xs, x_new, side="right") - 1, 0, len(xs) - 2)
+    span = xs[k + 1] - xs[k]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(span > 0, (x_new - xs[k]) / span, 0.0)
+    out = np.zeros(len(xs))
+    np.add.at(out, k, (1.0 - f) * weights)
+    np.add.at(out, k + 1, f * weights)
+    return out
+
+
+def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d",
+          directions: tuple[str, ...] = PREFERENCE, gain_rel_std: Iterable[float] | None = None) -> Estimate:
+    """Mass and centre of mass by the paper's three steps, with the covariance of the result.
+
+    ``directions``: which recorded direction to use per sweep, in order of preference (default:
+    the combined "both", else "up"; ``("up",)`` is the paper's single-direction procedure).
+    ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), added
+    to the covariance for joints 2 and 3.
+    """
+    b2, b3, d3 = (_find(deltas, pose_xy, 2, directions), _find(deltas, pose_xy, 3, directions),
+                  _find(deltas, pose_z, 3, directions))
     geo = ArmGeometry(kin, float(np.median(b2.q[:, 0])))
 
     # step 1 (eq. 23): pair joint-2 samples with the joint-3 sweep at the same link elevation
-    elev_b2 = np.array([geo.elevations(q[1], q[2])[1] for q in b2.q])
-    elev_b3 = np.array([geo.elevations(q[1], q[2])[1] for q in b3.q])
+    elev_b2, elev_b3 = _link3_elevation(geo, b2.q), _link3_elevation(geo, b3.q)
     order = np.argsort(elev_b3)
     xs, ys = elev_b3[order], b3.dtau[order, 2]
     inside = (elev_b2 >= xs[0]) & (elev_b2 <= xs[-1])
@@ -68,20 +117,43 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
     res1 = delta - mass * phi
 
     # step 2 (eq. 24): [cos θ, sin θ]·[x, y] = Δτ3/(m g) − (a3 + d5) cos θ, from joint 3 in pose b
-    A, B = _lever_terms(kin, b3.q, 2)
-    rhs = b3.dtau[:, 2] / mass - A
-    xy, *_ = np.linalg.lstsq(B[:, :2], rhs - 0.0, rcond=None)
-    res2 = mass * (B[:, :2] @ xy - rhs)
+    A3, B3 = _lever_terms(kin, b3.q, 2)
+    rhs = b3.dtau[:, 2] / mass - A3
+    xy, *_ = np.linalg.lstsq(B3[:, :2], rhs, rcond=None)
+    res2 = mass * (B3[:, :2] @ xy - rhs)
 
     # step 3 (eq. 25): z cos θ = Δτ3/(m g) − (a3 + d6) cos θ − (x + l_s) sin θ, from joint 3 in pose d
-    A, B = _lever_terms(kin, d3.q, 2)
-    rhs = d3.dtau[:, 2] / mass - A - B[:, :2] @ xy
-    z = float(B[:, 2] @ rhs / (B[:, 2] @ B[:, 2]))
-    res3 = mass * (B[:, 2] * z - rhs)
+    Ad, Bd = _lever_terms(kin, d3.q, 2)
+    rhs = d3.dtau[:, 2] / mass - Ad - Bd[:, :2] @ xy
+    z = float(Bd[:, 2] @ rhs / (Bd[:, 2] @ Bd[:, 2]))
+    res3 = mass * (Bd[:, 2] * z - rhs)
+
+    beta = np.array([mass, float(xy[0]), float(xy[1]), z])
+    c = beta[1:]
+    A2, B2 = _lever_terms(kin, b2.q, 1)
+    dm_dv = np.zeros(len(xs))  # ∂m/∂(b3's Δτ3), back in the b3 sweep's own sample order
+    dm_dv[order] = -_interp_transpose(elev_b2[inside], xs, phi) / float(phi @ phi)
+    data = {  # sweep -> (measured Δτ, the three-step model's prediction, joint index)
+        "b2": (b2.dtau[:, 1], mass * (A2 + B2 @ c), 1),
+        "b3": (b3.dtau[:, 2], mass * (A3 + B3 @ c), 2),
+        "d3": (d3.dtau[:, 2], mass * (Ad + Bd @ c), 2),
+    }
+    J = _jacobians(beta, phi, inside, dm_dv, B3, Bd, data["b3"][0], d3.dtau[:, 2])
+    cov_beta = _covariance(J, data, gain_rel_std)
+    # θ = [m, m·c]: the covariance the other solvers report
+    Jt = np.zeros((4, 4))
+    Jt[0, 0] = 1.0
+    Jt[1:, 0] = c
+    Jt[1:, 1:] = mass * np.eye(3)
+    cov_theta = Jt @ cov_beta @ Jt.T
+    std = np.sqrt(np.maximum(np.diag(cov_beta), 0.0))
 
     def rms(r):
         return float(np.sqrt(np.mean(r ** 2)))
 
+    used = sorted({d.key.direction for d in (b2, b3, d3)})
+    notes = [f"three-step on {', '.join(d.key.name for d in (b2, b3, d3))}"
+             + (" (bidirectional, friction-cancelling)" if used == ["both"] else "")]
     return Estimate(
         solver=NAME,
         mass_kg=mass,
@@ -89,4 +161,60 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         residual_rms_nm={f"{pose_xy}-j2/j3 (mass)": rms(res1), f"{b3.key.name} (x, y)": rms(res2),
                          f"{d3.key.name} (z)": rms(res3)},
         samples={b2.key.name: int(inside.sum()), b3.key.name: len(b3.q), d3.key.name: len(d3.q)},
+        mass_std_kg=float(std[0]),
+        cog_std_m=(float(std[1]), float(std[2]), float(std[3])),
+        covariance=cov_theta.tolist(),
+        notes=notes,
     )
+
+
+def _jacobians(beta: np.ndarray, phi: np.ndarray, inside: np.ndarray, dm_dv: np.ndarray, B3: np.ndarray,
+               Bd: np.ndarray, v: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
+    """∂[m, x, y, z]/∂(each sweep's Δτ samples): 4 × n per sweep (b2 joint 2, b3 joint 3, d3 joint 3).
+
+    ``dm_dv``: ∂m/∂v through the step-1 interpolation of the b3 sweep (−Pᵀφ/φᵀφ).
+    """
+    m = beta[0]
+    dm_du = np.zeros(len(inside))
+    dm_du[inside] = phi / float(phi @ phi)
+    G = np.linalg.pinv(B3[:, :2])  # xy = G·(v/m − A3)
+    dxy_dm = -(G @ v) / m ** 2
+    dxy_dv = G / m + np.outer(dxy_dm, dm_dv)
+    dxy_du = np.outer(dxy_dm, dm_du)
+    bz = Bd[:, 2]
+    Z = float(bz @ bz)
+    dz_dm = -float(bz @ w) / (m ** 2 * Z)
+    dz_dxy = -(bz @ Bd[:, :2]) / Z
+    out = {}
+    for name, dm, dxy in (("b2", dm_du, dxy_du), ("b3", dm_dv, dxy_dv)):
+        out[name] = np.vstack([dm, dxy, dz_dm * dm + dz_dxy @ dxy])
+    Jd = np.zeros((4, len(w)))
+    Jd[3] = bz / (m * Z)
+    out["d3"] = Jd
+    return out
+
+
+def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.ndarray, int]],
+                gain_rel_std: Iterable[float] | None) -> np.ndarray:
+    """Σ over sweeps of the long-run variance of the scores J_s·r_s, floored at the independent-noise value."""
+    cov = np.zeros((4, 4))
+    cov_iid = np.zeros((4, 4))
+    for name, Js in J.items():
+        meas, pred, _ = data[name]
+        r = meas - pred
+        n = len(r)
+        _, lag = autocorrelation_time(r, max_lag=max(1, int(HAC_MAX_FRACTION * n)))
+        dof = n / max(n - 1, 1)
+        cov += long_run_scores(Js.T * r[:, None], lag) * dof
+        cov_iid += float(np.mean(r ** 2)) * dof * (Js @ Js.T)
+    ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
+    if np.any(ratio < 1.0):
+        f = np.sqrt(np.maximum(1.0 / ratio, 1.0))
+        cov = cov * np.outer(f, f)
+    if gain_rel_std is not None:
+        std = np.asarray(list(gain_rel_std), float)
+        for j in sorted({jj for _, _, jj in data.values()}):
+            if j < len(std) and std[j] > 0:
+                g = sum(J[name] @ data[name][1] for name in J if data[name][2] == j)
+                cov += std[j] ** 2 * np.outer(g, g)
+    return cov
