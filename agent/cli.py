@@ -1,270 +1,262 @@
-"""The ``payload-agent`` command.
+"""The ``payload-agent`` command: identify the mass and centre of mass of the tool on a robot's flange.
 
-Exit codes: 0 success, 1 unexpected error, 2 configuration/plan/safety refusal,
-3 robot not ready (including: no stored baseline fits), 4 motion aborted,
-5 quality gate or data failure, 6 communication failure, 130 interrupted outside motion.
+Exit codes (also in ``payload-agent --help``): 0 success / ready; 1 unexpected error (a bug);
+2 configuration, plan or safety refusal, or a question nobody could answer (no terminal: pass
+--yes or --unattended), or a command-line mistake; 3 robot not ready (including: no stored
+baseline fits an unattended run); 4 motion aborted (e-stop, protective stop, supervision,
+Ctrl-C or SIGTERM during motion, operator declined after a move); 5 quality gate or data
+failure; 6 communication failure (controller unreachable); 130 interrupted by Ctrl-C (SIGINT)
+while nothing moved; 143 terminated by SIGTERM while nothing moved.
 """
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import traceback
 from pathlib import Path
 
 from payload_agent import __version__
-from payload_agent.configuration.config import load_config
-from payload_agent.errors import ConfigError, PayloadAgentError, QualityGateError
+from payload_agent.cli_commands import COMMANDS
+from payload_agent.errors import PayloadAgentError
+from payload_agent.output.console import Console, setup_logging
+
+DESCRIPTION = ("Identify the mass and centre of mass of the tool on a robot's flange from point-to-point "
+               "joint moves and the joint angles and motor currents the controller reports (no force sensor, "
+               "no custom trajectories). It plans and safety-checks a short sequence of joint sweeps, asks, "
+               "moves, records, solves, reports, and on request writes the payload to the controller.")
+EPILOG = """\
+typical use:
+  payload-agent doctor --robot ec66                 is the robot reachable and ready? (never moves)
+  payload-agent plan --robot ec66 --connect         every move and the safety verdict (never moves)
+  payload-agent baseline --robot ec66               once, tool removed: the empty-flange reference
+  payload-agent run --robot ec66 [--apply]          after each tool change
+  payload-agent run --robot ec66 --unattended --apply --json     from a cell controller or cron
+
+--robot NAME finds NAME.yaml in ./configs, $XDG_CONFIG_HOME/payload-agent/robots and the folders
+in $PAYLOAD_AGENT_ROBOTS; a path to a YAML file works too. State (baseline, calibration, history)
+and run folders live in $XDG_STATE_HOME/payload-agent/<robot>/ unless the YAML's storage section
+says otherwise.
+
+exit codes:
+  0    success (doctor: ready)
+  1    unexpected error (a bug; -v shows the traceback)
+  2    configuration, plan or safety refusal; no terminal to ask on (pass --yes or --unattended)
+  3    robot not ready (state, mode, stored baseline or calibration; doctor: not ready)
+  4    motion aborted (e-stop, protective stop, supervision trip, Ctrl-C or SIGTERM during motion)
+  5    quality gate or data failure (result kept, nothing written to the controller)
+  6    communication failure (controller unreachable or answering nonsense)
+  130  interrupted by Ctrl-C while nothing moved
+  143  terminated by SIGTERM while nothing moved
+"""
+CLIENT_LIBRARIES = ("ur_rtde", "pymodbus", "pyserial", "python-can", "canopen", "mujoco", "numpy", "scipy",
+                    "matplotlib", "PyYAML")
 
 
-def _run_options(args, mode: str, **extra):
-    from payload_agent.session.runner import RunOptions
-
-    return RunOptions(mode=mode, unattended=args.unattended, assume_yes=args.yes,
-                      result_path=Path(args.result) if getattr(args, "result", None) else None,
-                      solver=getattr(args, "solver", None), tool=getattr(args, "tool", None),
-                      fresh_baseline=getattr(args, "fresh_baseline", False),
-                      report=not getattr(args, "no_report", False),
-                      retry_sweeps=getattr(args, "retry_sweeps", 0) or 0,
-                      resume=Path(args.resume) if getattr(args, "resume", None) else None, **extra)
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so every session stops the robot the same way."""
 
 
-def _cmd_run(args) -> int:
-    from payload_agent.session.runner import run_identification
+def version_text() -> str:
+    """This version, Python, and the installed client libraries the drivers use (their versions matter)."""
+    from importlib.metadata import PackageNotFoundError, version
 
-    config = load_config(args.robot)
-    run_identification(config, _run_options(args, "identify", apply=args.apply))
-    return 0
-
-
-def _cmd_baseline(args) -> int:
-    from payload_agent.session.runner import run_identification
-
-    config = load_config(args.robot)
-    run_identification(config, _run_options(args, "baseline"))
-    return 0
-
-
-def _cmd_calibrate(args) -> int:
-    from payload_agent.types import PayloadSetting
-    from payload_agent.session.runner import run_identification
-
-    config = load_config(args.robot)
-    try:
-        cog = [float(v) for v in args.known_cog.split(",")]
-        if len(cog) != 3:
-            raise ValueError
-    except ValueError:
-        raise ConfigError("--known-cog", f"expected three numbers in mm separated by commas, got {args.known_cog!r}")
-    if not 0 < args.known_mass < 100:
-        raise ConfigError("--known-mass", f"expected the reference payload's mass in kg, got {args.known_mass:g}")
-    ref = PayloadSetting(mass_kg=args.known_mass, cog_m=tuple(v / 1000.0 for v in cog))
-    run_identification(config, _run_options(args, "calibrate", reference=ref))
-    return 0
-
-
-def _cmd_history(args) -> int:
-    from payload_agent.output import history
-    from payload_agent.recording.state import RobotState
-
-    config = load_config(args.robot)
-    db = RobotState.for_config(config).history_db
-    if not db.exists():
-        print(f"No history yet for robot {config.robot.name!r} ({db}).")
-        return 0
-    entries = history.entries(db, tool=args.tool, limit=args.limit)
-    print(history.format_history(entries, history.compare_to_previous(entries)))
-    return 0
-
-
-def _cmd_report(args) -> int:
-    from payload_agent.output.report import write_report
-    from payload_agent.recording.rundata import load_manifest
-    from payload_agent.recording.state import RobotState
-
-    run_dir = Path(args.run_dir)
-    config = _run_config(args, run_dir, load_manifest(run_dir))
-    db = RobotState.for_config(config).history_db
-    path = write_report(run_dir, config, history_db=db if db.exists() else None,
-                        out_path=Path(args.out) if args.out else None)
-    print(f"Report: {path}")
-    return 0
-
-
-def _cmd_watch(args) -> int:
-    from payload_agent.session.connection import build_driver
-    from payload_agent.session.runner import RunOptions, run_identification
-    from payload_agent.session.watch import watch
-
-    config = load_config(args.robot)
-    cell = None
-    if config.simulation is not None:  # one simulated cell for the whole watch: its inputs can be set
-        from payload_agent.session.simulation import SimulatedCell
-
-        cell = SimulatedCell(config).start()
-
-    def run_once() -> int:
-        run_identification(config, RunOptions(unattended=True, apply=True, tool=args.tool, cell=cell))
-        return 0
-
-    try:
-        return watch(config, run_once, max_runs=args.max_runs,
-                     driver_factory=lambda: build_driver(config, cell.options if cell else None))
-    finally:
-        if cell is not None:
-            cell.close()
-
-
-def _cmd_plan(args) -> int:
-    import numpy as np
-
-    from payload_agent.session.baseline import status_line
-    from payload_agent.motion.planner import expected_durations, make_plan
-    from payload_agent.session.runner import describe_plan
-    from payload_agent.recording.state import RobotState
-    from payload_agent.motion.safety import SafetyGate
-
-    from payload_agent.session.connection import build_driver
-
-    config = load_config(args.robot)
-    plan = make_plan(config)
-    build_driver(config)  # the driver section and effort unit, checked without connecting
-    start = None
-    if args.from_deg and args.connect:
-        raise ConfigError("--from-deg", "give either --from-deg or --connect, not both")
-    if args.from_deg:
+    lines = [f"payload-agent {__version__} (Python {sys.version.split()[0]})"]
+    for name in CLIENT_LIBRARIES:
         try:
-            start = np.radians([float(v) for v in args.from_deg.split(",")])
-        except ValueError:
-            raise ConfigError("--from-deg", f"expected six joint angles in degrees separated by commas, "
-                              f"got {args.from_deg!r}") from None
-        if start.shape != (6,):
-            raise ConfigError("--from-deg", f"expected six joint angles, got {start.size}")
-    elif args.connect:
-        from payload_agent.session.connection import read_current_q
+            lines.append(f"  {name} {version(name)}")
+        except PackageNotFoundError:
+            lines.append(f"  {name} not installed")
+    try:
+        from payload_agent.drivers.registry import available
 
-        start = read_current_q(config)
-        print("Robot stands at [" + ", ".join(f"{v:.2f}" for v in np.degrees(start)) + "] deg")
-    print(describe_plan(plan, expected_durations(plan, start)))
-    print(status_line(RobotState.for_config(config), config, plan))
-    verdict = SafetyGate(config).check(plan, start)
-    print("Safety gate: " + verdict.describe())
-    if verdict.ok or (start is None and len(verdict.problems) == 1):
-        return 0
-    print(f"payload-agent: error: {config.source}: the safety gate refused the plan:\n"
-          + "\n".join(f"  - {p}" for p in verdict.problems), file=sys.stderr)
-    return 2
+        lines.append("  drivers: " + ", ".join(available()))
+    except Exception as exc:  # a broken third-party entry point must not break --version
+        lines.append(f"  drivers: unavailable ({exc})")
+    return "\n".join(lines)
 
 
-def _run_config(args, run_dir: Path, manifest: dict):
-    """The config a recorded run is analysed with: --robot if given, else the one stored in its manifest."""
-    from payload_agent.configuration.config import parse_config
+class _VersionAction(argparse.Action):
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
-    if args.robot:
-        return load_config(args.robot)
-    return parse_config(manifest["config"], source=f"{run_dir}/manifest.json")
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(version_text())
+        parser.exit()
 
 
-def _cmd_solve(args) -> int:
-    from payload_agent.recording.rundata import load_manifest
-    from payload_agent.solvers.results import format_table
-    from payload_agent.session.runner import analyse
+def _common(json_ok: bool) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(add_help=False)
+    g = p.add_argument_group("output")
+    g.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="more detail: every move, library messages, tracebacks of unexpected errors")
+    g.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help="only warnings, errors and the final result")
+    if json_ok:
+        g.add_argument("--json", action="store_true",
+                       help="print one JSON document on stdout (human text goes to stderr)")
+    return p
 
-    run_dir = Path(args.run_dir)
-    manifest = load_manifest(run_dir)
-    config = _run_config(args, run_dir, manifest)
-    result = analyse(config, run_dir, solver=args.solver,
-                     baseline_dir=Path(args.baseline) if args.baseline else None)
-    print(format_table(result, manifest.get("simulation_truth")))
-    if args.result:
-        result.write(Path(args.result))
-    return 0 if result.quality.get("passed", False) else QualityGateError.exit_code
+
+def _robot_arg(p: argparse.ArgumentParser, required: bool = True, what: str = "") -> None:
+    p.add_argument("--robot", required=required, metavar="NAME|YAML",
+                   help=what or "robot YAML file, or NAME to find NAME.yaml in ./configs, "
+                                "$XDG_CONFIG_HOME/payload-agent/robots or $PAYLOAD_AGENT_ROBOTS")
+
+
+def _session_args(p: argparse.ArgumentParser, report: bool = True) -> None:
+    p.add_argument("--unattended", action="store_true",
+                   help="never prompt: fail with an exit code where a person would be asked (cell controllers, cron)")
+    p.add_argument("--yes", action="store_true",
+                   help="accept the shown plan without asking (tool changes are still asked for)")
+    p.add_argument("--fresh-baseline", action="store_true",
+                   help="record the empty-flange run in this session even if a stored baseline fits")
+    if report:
+        p.add_argument("--no-report", action="store_true", help="do not write report.html into the run folder")
+    p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
+                   help="redo a sweep whose sample stream had a gap, up to N times per run phase (default 0: abort)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="payload-agent", description=__doc__.split("\n")[0])
-    p.add_argument("--version", action="version", version=f"payload-agent {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = argparse.ArgumentParser(prog="payload-agent", description=DESCRIPTION, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action=_VersionAction,
+                   help="show the version, Python, the drivers' client libraries and the installed drivers")
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more detail (also after the command)")
+    p.add_argument("-q", "--quiet", action="store_true", default=False,
+                   help="only warnings, errors and the final result (also after the command)")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    run = sub.add_parser("run", help="identify the payload on the robot (moves the robot)")
-    run.add_argument("--robot", required=True, help="robot YAML (configs/*.yaml)")
-    run.add_argument("--unattended", action="store_true", help="never prompt; fail instead of asking")
-    run.add_argument("--yes", action="store_true", help="accept the shown plan without asking")
-    run.add_argument("--result", help="also write the result JSON to this path")
-    run.add_argument("--solver", choices=["three-step", "general"], help="override procedure.solver")
+    def add(name: str, help: str, json_ok: bool = False) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=help, description=help[0].upper() + help[1:] + ".",
+                              parents=[_common(json_ok)])
+
+    run = add("run", "identify the payload on the robot (moves the robot)", json_ok=True)
+    _robot_arg(run)
+    _session_args(run)
     run.add_argument("--apply", action="store_true",
                      help="write the result to the controller (only if the quality checks pass), then read it back")
     run.add_argument("--tool", help="a label for the mounted tool (history compares results per tool)")
-    run.add_argument("--fresh-baseline", action="store_true",
-                     help="record the empty-flange run in this session even if a stored baseline fits")
-    run.add_argument("--no-report", action="store_true", help="do not write report.html")
-    run.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
-                     help="redo a sweep whose sample stream had a gap, up to N times per run phase (default 0: abort)")
-    run.add_argument("--resume", metavar="RUN_DIR",
-                     help="finish an incomplete run folder: same robot, YAML and plan; only unfinished sweeps are "
-                          "recorded")
-    run.set_defaults(func=_cmd_run)
+    run.add_argument("--result", metavar="PATH", help="also write the result JSON to this path")
+    run.add_argument("--solver", choices=["three-step", "general"], help="override procedure.solver")
 
-    base = sub.add_parser("baseline", help="record and store the empty-flange run (remove the tool first)")
-    base.add_argument("--robot", required=True)
-    base.add_argument("--unattended", action="store_true", help="never prompt (the flange is known to be empty)")
-    base.add_argument("--yes", action="store_true", help="accept the shown plan without asking")
-    base.set_defaults(func=_cmd_baseline)
+    base = add("baseline", "record and store the empty-flange run (remove the tool first; moves the robot)")
+    _robot_arg(base)
+    _session_args(base, report=False)
 
-    cal = sub.add_parser("calibrate", help="fit the drive gains from a run with a known reference payload")
-    cal.add_argument("--robot", required=True)
-    cal.add_argument("--known-mass", type=float, required=True, help="reference payload mass, kg")
-    cal.add_argument("--known-cog", required=True, help="reference centre of mass X,Y,Z in mm (flange frame)")
-    cal.add_argument("--unattended", action="store_true")
-    cal.add_argument("--yes", action="store_true")
-    cal.add_argument("--fresh-baseline", action="store_true")
-    cal.add_argument("--no-report", action="store_true")
-    cal.set_defaults(func=_cmd_calibrate)
+    cal = add("calibrate", "fit the drive gains from a run with a known reference payload (moves the robot)")
+    _robot_arg(cal)
+    cal.add_argument("--known-mass", type=float, required=True, metavar="KG", help="reference payload mass, kg")
+    cal.add_argument("--known-cog", required=True, metavar="X,Y,Z",
+                     help="reference centre of mass in mm, flange frame, e.g. 0,0,80")
+    _session_args(cal)
 
-    hist = sub.add_parser("history", help="list past identifications of this robot")
-    hist.add_argument("--robot", required=True)
+    hist = add("history", "list past identifications of this robot", json_ok=True)
+    _robot_arg(hist)
     hist.add_argument("--tool", help="only this tool label")
-    hist.add_argument("--limit", type=int, help="only the last N entries")
-    hist.set_defaults(func=_cmd_history)
+    hist.add_argument("--limit", type=int, metavar="N", help="only the last N entries")
 
-    rep = sub.add_parser("report", help="write the HTML report of a recorded run")
-    rep.add_argument("run_dir")
-    rep.add_argument("--robot", help="robot YAML to use instead of the config stored in the run")
-    rep.add_argument("--out", help="where to write the HTML (default RUN_DIR/report.html)")
-    rep.set_defaults(func=_cmd_report)
+    rep = add("report", "write the HTML report of a recorded run folder (finished or stopped)")
+    rep.add_argument("run_dir", metavar="RUN_DIR", help="the run folder")
+    _robot_arg(rep, required=False, what="robot YAML or NAME to use instead of the config stored in the run "
+                                         "(also locates the history shown in the report)")
+    rep.add_argument("--out", metavar="PATH", help="where to write the HTML (default RUN_DIR/report.html)")
 
-    watch = sub.add_parser("watch", help="wait for the configured tool-change signal, then run unattended with --apply")
-    watch.add_argument("--robot", required=True)
-    watch.add_argument("--max-runs", type=int, help="stop after this many runs (default: until SIGTERM)")
+    watch = add("watch", "wait for the configured tool-change signal, then run unattended with --apply")
+    _robot_arg(watch)
+    watch.add_argument("--max-runs", type=int, metavar="N", help="stop after this many runs (default: until SIGTERM)")
     watch.add_argument("--tool", help="tool label recorded with each run")
-    watch.set_defaults(func=_cmd_watch)
 
-    plan = sub.add_parser("plan", help="print every move and the safety verdict, without connecting")
-    plan.add_argument("--robot", required=True)
-    plan.add_argument("--from-deg", help="current joint angles, comma-separated, to check the approach move")
+    plan = add("plan", "print every move and the safety verdict; checks everything run checks, never moves",
+               json_ok=True)
+    _robot_arg(plan)
+    plan.add_argument("--from-deg", metavar="J1,...,J6",
+                      help="current joint angles in degrees, to check the approach move too")
     plan.add_argument("--connect", action="store_true",
-                      help="connect to the controller (nothing moves) to check the approach from where it stands")
-    plan.set_defaults(func=_cmd_plan)
+                      help="connect to the controller to read where the robot stands (nothing moves)")
 
-    solve = sub.add_parser("solve", help="re-run segmentation and solving on a recorded run folder")
-    solve.add_argument("run_dir")
-    solve.add_argument("--baseline", help="run folder whose empty phase to use")
-    solve.add_argument("--robot", help="robot YAML to use instead of the config stored in the run")
-    solve.add_argument("--solver", choices=["three-step", "general"])
-    solve.add_argument("--result", help="also write the result JSON to this path")
-    solve.set_defaults(func=_cmd_solve)
+    solve = add("solve", "re-run the analysis of a recorded run folder into a new result file (never overwrites)",
+                json_ok=True)
+    solve.add_argument("run_dir", metavar="RUN_DIR", help="the run folder (it alone is read: manifest and CSVs)")
+    solve.add_argument("--baseline", metavar="RUN_DIR",
+                       help="another run folder whose empty-flange phase to subtract instead of the run's own")
+    _robot_arg(solve, required=False, what="robot YAML or NAME whose kinematics to use instead of the config "
+                                           "stored in the run (needed for --history)")
+    solve.add_argument("--solver", choices=["three-step", "general"], help="override the recorded procedure.solver")
+    solve.add_argument("--result", metavar="PATH",
+                       help="write the result here (default RUN_DIR/result-solve-<time>.json); never overwritten")
+    solve.add_argument("--history", action="store_true",
+                       help="also add the result to the robot's history (needs --robot); left alone otherwise")
+    solve.add_argument("--tool", help="with --history: the tool label to record")
+
+    doc = add("doctor", "connect and check that the robot is ready for a run; never moves", json_ok=True)
+    _robot_arg(doc)
+    doc.add_argument("--seconds", type=float, default=2.0, metavar="S",
+                     help="how long to measure the sample stream (default 2)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    verbosity = -1 if getattr(args, "quiet", False) else int(getattr(args, "verbose", 0) or 0)
+    con = Console(verbosity, bool(getattr(args, "json", False)))
+    setup_logging(verbosity, con.stderr)
+    previous = None
+    if args.command != "watch":  # watch handles its signals itself (one run at a time, clean exit)
+        previous = _install_sigterm()
     try:
-        return args.func(args)
+        return COMMANDS[args.command](args, con)
     except PayloadAgentError as exc:
-        print(f"payload-agent: error: {exc}", file=sys.stderr)
+        con.error(f"payload-agent: error: {exc}")
+        con.emit_json({"ok": False, "error": str(exc), "error_type": type(exc).__name__,
+                       "exit_code": exc.exit_code, **_partial(exc)})
         return exc.exit_code
+    except Terminated:
+        con.error("payload-agent: terminated (SIGTERM); nothing was moving")
+        con.emit_json({"ok": False, "error": "terminated", "exit_code": 143})
+        return 143
     except KeyboardInterrupt:
-        print("payload-agent: interrupted", file=sys.stderr)
+        con.error("payload-agent: interrupted (Ctrl-C); nothing was moving")
+        con.emit_json({"ok": False, "error": "interrupted", "exit_code": 130})
         return 130
+    except Exception as exc:  # a bug: say so in one line; the traceback with -v and in the run log
+        import logging
+
+        logging.getLogger("payload_agent").debug("unexpected error", exc_info=True)
+        con.error(f"payload-agent: unexpected error: {type(exc).__name__}: {exc} (this is a bug; "
+                  + ("traceback below" if verbosity > 0 else "-v shows the traceback") + ")")
+        if verbosity > 0:
+            traceback.print_exc(file=con.stderr)
+        con.emit_json({"ok": False, "error": f"{type(exc).__name__}: {exc}", "exit_code": 1})
+        return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _partial(exc: BaseException) -> dict:
+    """What a failed command still produced (a run's outcome on a failed quality gate, a run folder)."""
+    out = {}
+    outcome = getattr(exc, "outcome", None)
+    if outcome is not None:
+        from payload_agent.cli_commands import outcome_json
+
+        out["outcome"] = outcome_json(outcome)
+    run_dir = getattr(exc, "run_dir", None)
+    if run_dir is not None:
+        out["run_dir"] = str(Path(run_dir))
+    return out
+
+
+def _install_sigterm():
+    def handler(signum, frame):
+        raise Terminated()
+
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (embedded use): leave signals alone
+        return None
 
 
 if __name__ == "__main__":

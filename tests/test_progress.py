@@ -64,7 +64,7 @@ def test_non_tty_prints_one_line_per_sweep_start_and_end(plan):
     lines = out.getvalue().splitlines()
     assert len(lines) == 2 and "\r" not in out.getvalue()
     assert lines[0].startswith("  [empty] sweep b-j2 up: started, expected 0:10, run time left ~0:30")  # 1 rad at 0.1 rad/s + 0.1 s ramp; 3 moves left
-    assert lines[1] == "  [empty] sweep b-j2 up: done, 50 samples in 0:11"
+    assert lines[1] == "  [empty] sweep b-j2 up: done, 50 samples in 0:11 (run 36 % done)"  # 11.2 of 31.4 s robot time
 
 
 def test_fraction_from_angle_and_time_left(plan):
@@ -97,7 +97,8 @@ def test_tty_redraws_one_line_rate_limited_and_clears_it(plan):
     p.begin_phase("loaded")
     p.begin_move(2, plan.moves[1], start_q=(0.0, 0.1, 0.0, 0.0, 0.0, 0.0))
     first = out.getvalue()
-    assert first.startswith("\r  [loaded] 2/2 b-j2 up") and "0 %" in first and "\n" not in first
+    assert first.startswith("\r  [loaded 2/2] move 2/2 b-j2 up") and "  0 %" in first and "\n" not in first
+    assert "run [##############------]  68 %" in first  # the empty phase and the approach are done
     p.on_sample(sample(0.6))
     assert p.refresh() is False  # drawn 0 s ago: rate-limited
     clock.t += 0.05
@@ -105,13 +106,35 @@ def test_tty_redraws_one_line_rate_limited_and_clears_it(plan):
     clock.t += 0.2
     assert p.refresh() is True
     line = out.getvalue()[len(first):]
-    assert line.startswith("\r") and "[##########----------]  50 %" in line and "1 samples" in line
+    assert line.startswith("\r") and "b-j2 up             50 %" in line and "1 samples" in line
+    assert "run [#################---]  84 %" in line  # (11.2 + 1.1 + 0.5 · 10.1) / 31.4
     p.end_move()
     blank = out.getvalue()[len(first) + len(line):]
     assert blank == "\r" + " " * (len(line) - 1) + "\r"  # the drawn line is overwritten with spaces
     assert p.refresh(force=True) is False  # nothing drawn between moves
     p.close()
     assert "\n" not in out.getvalue()
+
+
+def test_the_line_means_something_at_a_simulations_time_scale(plan):
+    """At 50x a move is over in a few hundredths of a second: the line drawn when each move starts must
+    already show how far the run is and every sample so far, not "0 %, 0 samples"."""
+    out, clock = io.StringIO(), Clock()
+    durations = expected_durations(plan, np.array(START))
+    p = Progress(out, plan, durations, True, tty=True, clock=clock, render_thread=False, time_scale=50.0,
+                 phases=("loaded",))
+    p.begin_phase("loaded")
+    p.begin_move(1, plan.moves[0], start_q=START)
+    for k in range(40):
+        p.on_sample(sample(0.0025 * k))
+    clock.t += durations[0] / 50
+    p.end_move()
+    p.begin_move(2, plan.moves[1], start_q=plan.moves[0].target_rad)  # drawn at once, nothing received yet
+    line = out.getvalue().split("\r")[-1]
+    assert "move 2/2 b-j2 up" in line and "40 samples" in line
+    assert f"run [##" in line and f"{100 * durations[0] / sum(durations):3.0f} %" in line
+    assert "~0:00 left" in line  # 10 s of robot time at 50x: a fifth of a second
+    p.close()
 
 
 def test_render_thread_draws_while_samples_arrive_from_another_thread(plan):

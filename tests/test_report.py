@@ -1,9 +1,12 @@
-"""HTML run report (agent/report.py) on a synthetic run folder written through the real recorder."""
+"""HTML run report (payload_agent.output.report) on synthetic run folders written through the real recorder:
+a passed run, a run whose quality checks failed, and a run the supervision stopped mid-sweep."""
 
 from __future__ import annotations
 
 import base64
+import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -23,10 +26,7 @@ from payload_agent.errors import DataError
 from payload_agent.output.history import HistoryEntry
 from payload_agent.motion.planner import make_plan
 from payload_agent.recording.recorder import RunRecorder
-try:  # the analysis entry point is moving from runner to analysis (refactor in progress)
-    from payload_agent.evaluation.pipeline import analyse_run as analyse
-except ImportError:
-    from payload_agent.session.runner import analyse
+from payload_agent.evaluation.pipeline import analyse_run as analyse
 
 pytest.importorskip("matplotlib")
 
@@ -55,34 +55,57 @@ def _profile(q0: np.ndarray, q1: np.ndarray, v: float, a: float) -> np.ndarray:
     return np.vstack([[q0] * 10, path, [q1] * 10])
 
 
-def make_run(tmp_path: Path, cfg) -> Path:
-    """A recorded run (empty + loaded phase) as `payload-agent run` writes it, then analysed."""
+def make_run(tmp_path: Path, cfg, *, name: str = "20261121-080000-sim-ec66", gain_error: float = 1.0,
+             stop_after: int | None = None) -> Path:
+    """A recorded run (empty + loaded phase) as `payload-agent run` writes it, then analysed.
+
+    ``gain_error``: joint 3 of the loaded run reads this factor too much effort (a drive-gain
+    mistake the quality checks must catch). ``stop_after``: the loaded phase stops in the middle of
+    its sweep number ``stop_after`` (0-based) as a supervision trip leaves it: no result.
+    """
     rng = np.random.default_rng(7)
     kin = cfg.robot.kinematics
     gains = np.asarray(cfg.effort.gains_nm_per_unit, float)
     theta = np.array([TRUTH[0], *(TRUTH[0] * np.asarray(TRUTH[1]) / 1000.0)])
     plan = make_plan(cfg)
-    run_dir = tmp_path / "runs" / "20261121-080000-sim-ec66"
+    run_dir = tmp_path / "runs" / name
     rec = RunRecorder(run_dir, {"format": "payload-agent-run/1", "software_version": "test", "robot": cfg.robot.name,
-                                "config": {}, "controller": {"vendor": "Elite Robots", "model": "EC66", "firmware": "t"},
+                                "config": json.loads(json.dumps(cfg.raw)),
+                                "controller": {"vendor": "Elite Robots", "model": "EC66", "firmware": "t"},
                                 "effort_unit": "percent_rated", "gains_nm_per_unit": list(gains),
                                 "procedure": plan.procedure.name, "plan_fingerprint": plan.fingerprint(),
                                 "plan": [m.to_json() for m in plan.moves],
                                 "simulation_truth": {"mass_kg": TRUTH[0], "cog_mm": list(TRUTH[1])}})
     t = 0.0
+    scale = np.ones(6)
     for phase, payload in (("empty", np.zeros(4)), ("loaded", theta)):
         rec.begin_phase(phase)
+        if phase == "loaded":
+            scale[2] = gain_error
         q = np.radians(cfg.simulation.start_deg)
+        n_sweep = 0
         for move in plan.moves:
             path = _profile(q, np.asarray(move.target_rad), move.speed_rad_s, move.accel_rad_s2)
             if move.sweep is not None:
+                stopping = phase == "loaded" and stop_after is not None and n_sweep == stop_after
                 rec.begin_sweep(move)
-                for qi in path:
+                for qi in (path[: len(path) // 2] if stopping else path):
                     Y = kin.payload_regressor(qi, range(6))
-                    tau = Y @ (ARM + payload) + rng.normal(0, 0.05, 6)
+                    tau = Y @ (ARM + payload) * scale + rng.normal(0, 0.05, 6)
                     rec.sink(Sample(t, t, tuple(map(float, qi)), tuple(map(float, tau / gains))))
                     t += DT
+                if stopping:
+                    reason = "the sample stream stalled: no sample for 212 ms (limit 50 ms)"
+                    stop = {"reason": reason, "stop_delay_s": 0.004, "acknowledged": True, "via": "command channel",
+                            "attempts": 1}
+                    rec.end_sweep("aborted")
+                    rec.end_phase(f"aborted: SupervisionTrip: motion stopped by the supervision: {reason}")
+                    rec.update(status="incomplete", stop=stop,
+                               stopped_because=f"SupervisionTrip: motion stopped by the supervision: {reason}; stop "
+                                               "sent over the command channel 4 ms later, acknowledged")
+                    return run_dir
                 rec.end_sweep("complete")
+                n_sweep += 1
             q = path[-1]
         rec.end_phase("complete")
     analyse(cfg, run_dir).write(run_dir / "result.json")  # as `run` and `solve` leave it
@@ -169,33 +192,139 @@ def test_report_without_history_and_custom_path(run_dir, cfg, tmp_path):
     assert "<h2>History</h2>" not in text
 
 
-def test_report_refuses_a_run_without_result(run_dir, cfg, tmp_path):
-    bare = tmp_path / "bare"
-    shutil.copytree(run_dir, bare)
-    (bare / "result.json").unlink()
-    with pytest.raises(DataError, match="no result.json.*payload-agent solve"):
-        write_report(bare, cfg)
+@pytest.fixture(scope="module")
+def failed_report(cfg, tmp_path_factory) -> tuple[Path, str]:
+    """A run whose quality checks fail (15 % gain error on joint 3), recorded through the UR driver and
+    applied anyway by hand: its report page (written once for several tests)."""
+    run = make_run(tmp_path_factory.mktemp("failed"), cfg, name="20261121-090000-sim-ec66", gain_error=1.15)
+    result = json.loads((run / "result.json").read_text())
+    m_json = json.loads((run / "manifest.json").read_text())
+    m_json["config"]["driver"] = {"type": "ur_rtde", "host": "127.0.0.1"}
+    m_json["payload_write"] = {"requested": True, "applied": True, "reason": None,
+                               "written": {"mass_kg": result["mass_kg"], "cog_mm": result["cog_mm"], "tool_num": None},
+                               "read_back": {"mass_kg": round(result["mass_kg"], 3), "cog_mm": result["cog_mm"],
+                                             "tool_num": None}}
+    (run / "manifest.json").write_text(json.dumps(m_json))
+    return run, write_report(run, cfg).read_text()
+
+
+@pytest.fixture(scope="module")
+def stopped_report(cfg, tmp_path_factory) -> tuple[Path, str]:
+    run = make_run(tmp_path_factory.mktemp("stopped"), cfg, name="20261121-100000-sim-ec66", stop_after=2)
+    return run, write_report(run, cfg).read_text()
+
+
+def _text(html_text: str) -> str:
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html_text)).replace("&#x27;", "'")
+
+
+def test_report_shows_the_values_for_the_controller_and_the_write_back(report_with_history, failed_report):
+    out, result = report_with_history
+    text = _text(out.read_text())
+    m = result["mass_kg"]
+    assert f"Values for the Elite EC controller (tool flange frame): mass {m:.3f} kg" in text
+    assert f"[{result['cog_mm'][0]:.1f}, " in text and "] mm" in text
+    assert "Not written to the controller" in text
+    # recorded through the UR driver: kg and metres; the manifest says it was written and read back
+    run, page = failed_report
+    result = json.loads((run / "result.json").read_text())
+    text = _text(page)
+    m = result["mass_kg"]
+    assert f"Values for the Universal Robots controller (tool flange frame): mass {m:.3f} kg" in text
+    assert f"[{result['cog_mm'][0] / 1000:.4f}, " in text and re.search(r"\] m\b", text)
+    assert f"Written to the controller and read back: {m:.3f} kg" in text
+
+
+def test_failed_run_report_names_the_failed_check_and_by_how_much(failed_report):
+    run, page = failed_report
+    result = json.loads((run / "result.json").read_text())
+    failed = [c for c in result["quality"]["checks"] if not c["passed"]]
+    assert failed, "a 15 % gain error on joint 3 must fail a quality check"
+    text = _text(page)
+    assert "quality checks FAILED" in text and "do not type these values into the controller" in text
+    rows = re.findall(r'<tr class="failed">(.*?)</tr>', page, flags=re.S)
+    assert len(rows) == len(failed)
+    for c, row in zip(failed, rows):
+        cells = [_text(x).strip() for x in re.findall(r"<td[^>]*>(.*?)</td>", row, flags=re.S)]
+        assert cells[0] == c["check"] and cells[1] == "FAILED"
+        minimum = c["check"].startswith(("mass significance", "samples"))
+        over = (c["limit"] - c["value"]) if minimum else (c["value"] - c["limit"])
+        assert cells[4].startswith("exceeds the limit by" if not minimum else "short of the limit by")
+        assert f"({100 * over / abs(c['limit']):.0f} %)" in cells[4]
+    # passed checks follow, with units (σ, kg, × noise, samples)
+    assert "≤ 3.00 σ" in text and "≤ 50.000 kg" in text and "samples" in text
+
+
+def test_stopped_run_gets_a_report_of_what_was_recorded_and_why(stopped_report):
+    stopped_run, page = stopped_report
+    assert not (stopped_run / "result.json").exists()
+    text = _text(page)
+    assert "Payload identification stopped" in text and "run did not finish" in text
+    assert "the sample stream stalled: no sample for 212 ms" in text
+    assert "acknowledged by the controller" in text and "4 ms after the fault" in text
+    manifest = json.loads((stopped_run / "manifest.json").read_text())
+    sweeps = manifest["phases"]["loaded"]["sweeps"]
+    assert [s["status"] for s in sweeps] == ["complete", "complete", "aborted"]
+    for s in sweeps:
+        assert s["name"] in text
+    total = sum(s["samples"] for ph in manifest["phases"].values() for s in ph["sweeps"])
+    assert f"{total} samples were recorded" in text
+    parser = _Collect()
+    parser.feed(page)
+    assert parser.errors == [] and len(parser.imgs) >= 2  # the recorded traces, the cut sweep included
+    assert "aborted" in text
+
+
+def test_report_errors(run_dir, cfg, tmp_path):
     with pytest.raises(DataError, match="manifest.json is missing"):
         write_report(tmp_path, cfg)
+    with pytest.raises(DataError, match="not a folder"):
+        write_report(tmp_path / "nothing", cfg)
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed (apt-get install chromium)")
-def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
+def _chromium_or_fail():
+    """Chromium for the screenshot tests. Without it the tests skip, except where a browser is required
+    (.ci/run sets PAYLOAD_AGENT_REQUIRE_BROWSER=1 after installing it): there a missing browser fails."""
+    path = shutil.which("chromium") or shutil.which("chromium-browser") or (str(CHROMIUM) if CHROMIUM.exists()
+                                                                             else None)
+    if path is None:
+        if os.environ.get("PAYLOAD_AGENT_REQUIRE_BROWSER"):
+            pytest.fail("Chromium is required (PAYLOAD_AGENT_REQUIRE_BROWSER is set) but not installed: "
+                        ".ci/run could not install the Debian package 'chromium' (apt unreachable?)")
+        pytest.skip("Chromium is not installed (apt-get install chromium); .ci/run installs it")
+    return path
+
+
+def _screenshot(html: Path, shot: Path, height: int = 2400) -> np.ndarray:
     from matplotlib.image import imread
 
-    out, _ = report_with_history
-    shot = tmp_path / "shot.png"
+    browser = _chromium_or_fail()
     with tempfile.TemporaryDirectory() as profile:
-        proc = subprocess.run([str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+        proc = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                                "--no-first-run", "--disable-background-networking", "--disable-component-update",
                                "--disable-sync", f"--user-data-dir={profile}", f"--screenshot={shot}",
-                               "--window-size=1200,2400", out.as_uri()], capture_output=True, timeout=120)
+                               f"--window-size=1200,{height}", html.as_uri()], capture_output=True, timeout=120)
     assert shot.exists(), f"chromium wrote no screenshot: {proc.stderr.decode(errors='replace')[-2000:]}"
     img = imread(shot)[..., :3]
-    assert img.shape[:2] == (2400, 1200)
-    colours = np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0)
-    assert len(colours) > 200, "the screenshot is nearly uniform: the page did not render"
+    assert img.shape[:2] == (height, 1200)
+    return (img * 255).astype(int).reshape(-1, 3)
+
+
+def _has(px: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> bool:
+    return bool(np.any(np.all(np.abs(px - rgb) < tol, axis=1)))
+
+
+def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, stopped_report, tmp_path):
+    for run, _ in (failed_report, stopped_report):
+        px = _screenshot(run / "report.html", tmp_path / f"{run.name}.png")
+        assert len(np.unique(px, axis=0)) > 200, f"{run.name}: the page did not render"
+        assert _has(px, (0xc0, 0x39, 0x2b)), f"{run.name}: no red FAILED badge / stop box"
+        assert _has(px, (0x1f, 0x5f, 0xa8)), f"{run.name}: the recorded traces are not drawn"
+
+
+def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
+    out, _ = report_with_history
+    px = _screenshot(out, tmp_path / "shot.png")
+    assert len(np.unique(px, axis=0)) > 200, "the screenshot is nearly uniform: the page did not render"
     # the plots are drawn: the model's orange and the loaded sweep's blue appear on the page
-    px = (img * 255).astype(int).reshape(-1, 3)
-    assert np.any(np.all(np.abs(px - [0xe0, 0x7b, 0x00]) < 12, axis=1))
-    assert np.any(np.all(np.abs(px - [0x1f, 0x5f, 0xa8]) < 12, axis=1))
+    assert _has(px, (0xe0, 0x7b, 0x00)) and _has(px, (0x1f, 0x5f, 0xa8))

@@ -360,6 +360,16 @@ def flag_for(db_path: Path, entry_id: int) -> ChangeFlag | None:
     return None
 
 
+def entry_json(e: HistoryEntry) -> dict[str, Any]:
+    """One entry for ``history --json``: every stored field plus the 95 % half-widths."""
+    from dataclasses import asdict
+
+    d = asdict(e)
+    d["mass_ci95_kg"] = e.mass_ci95_kg
+    d["cog_ci95_mm"] = None if e.cog_ci95_mm is None else list(e.cog_ci95_mm)
+    return d
+
+
 # -- terminal table ---------------------------------------------------------------------------
 def format_history(history: Sequence[HistoryEntry], flags: Iterable[ChangeFlag] = (), *,
                    last: int | None = None) -> str:

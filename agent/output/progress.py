@@ -1,13 +1,15 @@
 """Live progress on the terminal while the robot moves.
 
-For each move: its label, how far it is (percent), samples received, and the expected
-robot time left for the whole run (this move's rest, the phase's remaining moves and the
-phases still to come).
+The line is about the whole run, so it means something at any time scale: at a simulation's
+50x a move lasts a few hundredths of a second and a per-move "0 %, 0 samples" is all one
+would ever see. It shows the phase, the move (number, label, its own percent), a bar and
+percent for the whole run (robot time done over the run's expected robot time, every phase
+included), the samples recorded so far in the run, and the wall time left.
 
-Percent done comes from the leading joint's angle between where the move started and its
-target (the move's own progress, whatever the controller's speed scaling does); before the
-first sample arrives, or for a move that does not go anywhere, from elapsed time against
-the expected duration.
+A move's own percent comes from the leading joint's angle between where the move started
+and its target (whatever the controller's speed scaling does); before the first sample
+arrives, or for a move that does not go anywhere, from elapsed time against the expected
+duration.
 
 Two output styles:
 
@@ -93,6 +95,8 @@ class Progress:
         self._start_q: np.ndarray | None = None
         self._latest_q: np.ndarray | None = None
         self._samples = 0
+        self._run_samples = 0  # every sample since the first move of the first phase
+        self._done_in_phase = 0  # moves of the current phase that have ended
         self._last_draw = -math.inf
         self._line_len = 0
         self._stop = threading.Event()
@@ -108,6 +112,7 @@ class Progress:
                 self._phase_index = self.phases.index(name)
             self._phase_name = name
             self._move_index = 0
+            self._done_in_phase = 0
 
     def begin_move(self, i: int, move: Move, start_q: Sequence[float] | None = None) -> None:
         """Move ``i`` (1-based, as the runner numbers them) of the plan starts now.
@@ -144,6 +149,7 @@ class Progress:
                 self._start_q = np.asarray(q, float)
             self._latest_q = q
             self._samples += 1
+            self._run_samples += 1
 
     def end_move(self, status: str = "done") -> None:
         """The current move ended (``status``: "done", "aborted", ...)."""
@@ -152,13 +158,15 @@ class Progress:
         with self._lock:
             move, n, elapsed = self._move, self._samples, self._clock() - self._t_begin
             self._move = None
+            if move is not None:
+                self._done_in_phase = max(self._done_in_phase, self._move_index)
         if move is None:
             return
         if self.tty:
             self._clear_line()
         elif move.kind == "sweep":
             self._write_line(f"  [{self._phase_name}] sweep {move.label}: {status}, {n} samples in "
-                             f"{format_duration(elapsed)}")
+                             f"{format_duration(elapsed)} (run {100 * self.run_fraction():.0f} % done)")
 
     def close(self) -> None:
         """Stop the render thread and leave the terminal on a clean line. Safe to call twice."""
@@ -199,6 +207,24 @@ class Progress:
             return float(min(1.0, max(0.0, (self._clock() - self._t_begin) * self.time_scale / expected)))
         return 0.0
 
+    def run_fraction(self) -> float:
+        """How far the whole run is, 0..1: robot time done over the expected robot time of every phase."""
+        with self._lock:
+            return self._run_fraction_locked()
+
+    def _run_fraction_locked(self) -> float:
+        n_phases = max(1, len(self.phases))
+        total = sum(self._first) + sum(self._later) * (n_phases - 1)
+        if total <= 0:
+            return 0.0
+        before = 0.0 if self._phase_index == 0 else sum(self._first) + sum(self._later) * (self._phase_index - 1)
+        table = self._first if self._phase_index == 0 else self._later
+        done = before + sum(table[:self._done_in_phase])
+        if self._move is not None:
+            done = before + sum(table[:self._move_index - 1]) + self._fraction_locked() * self._expected(
+                self._move_index)
+        return float(min(1.0, max(0.0, done / total)))
+
     def _expected(self, i: int) -> float:
         table = self._first if self._phase_index == 0 else self._later
         return table[i - 1] if 1 <= i <= len(table) else 0.0
@@ -221,12 +247,15 @@ class Progress:
             if move is None:
                 return ""
             frac = self._fraction_locked()
-            n, i = self._samples, self._move_index
+            run = self._run_fraction_locked()
+            n, i = self._run_samples, self._move_index
         left = self.time_left_s()
-        filled = int(round(frac * BAR_WIDTH))
+        filled = int(round(run * BAR_WIDTH))
         bar = "#" * filled + "-" * (BAR_WIDTH - filled)
         total = len(self.plan.moves)
-        return (f"  [{self._phase_name}] {i}/{total} {move.label:<18s} [{bar}] {100 * frac:3.0f} %  "
+        phase = f"{self._phase_name} {self._phase_index + 1}/{len(self.phases)}" if len(self.phases) > 1 \
+            else self._phase_name
+        return (f"  [{phase}] move {i}/{total} {move.label:<18s} {100 * frac:3.0f} %  run [{bar}] {100 * run:3.0f} %  "
                 f"{n} samples  ~{format_duration(left)} left")
 
     # -- drawing ----------------------------------------------------------------------------

@@ -1,11 +1,13 @@
 """Where payload-agent keeps what outlives one run, per robot.
 
-``<storage.state_dir>/<robot.name>/`` holds:
+``<storage.state_dir>/<robot.name>/`` (default ``$XDG_STATE_HOME/payload-agent/<robot>/``,
+see ``payload_agent.configuration.paths``) holds:
 
 - ``gains.json``: the drive-gain calibration written by ``payload-agent calibrate``;
 - ``baseline/``: the stored empty-flange run (a run folder) plus ``baseline/baseline.json``
   describing what it depends on (written by ``payload-agent baseline``);
-- ``history.sqlite``: every identification, applied or not (``payload-agent history``).
+- ``history.sqlite``: every identification, applied or not (``payload-agent history``);
+- ``runs/``: the run folders, unless ``storage.runs_dir`` puts them elsewhere.
 
 One folder per robot name, so two robots sharing a state folder never mix.
 """
@@ -49,6 +51,15 @@ class RobotState:
     def ensure(self) -> "RobotState":
         self.root.mkdir(parents=True, exist_ok=True)
         return self
+
+
+def describe_locations(config: Config, run_dir: Path | None = None) -> str:
+    """The line every session prints: where this robot's state is and where the run folder goes."""
+    state = RobotState.for_config(config)
+    where = f"State of robot {config.robot.name!r}: {state.root.absolute()} (baseline, drive-gain calibration, history)"
+    if run_dir is not None:
+        return where + f"\nRun folder: {Path(run_dir).absolute()}"
+    return where + f"\nRun folders go to: {Path(config.storage.runs_dir).absolute()}"
 
 
 def write_json_atomic(path: Path, data: Any) -> None:

@@ -1,0 +1,131 @@
+"""Everything `run` would refuse, checked without connecting: what `plan` and `doctor` validate.
+
+``plan`` must validate everything ``run`` validates, so both call ``preflight``:
+
+- the YAML itself (already parsed: keys, units, duplicates);
+- the plan can be made (procedure, kinematics, wrist solutions);
+- the driver section and the effort unit (``connection.build_driver``: nothing connects);
+- the simulated arm of a ``simulation`` section;
+- every sweep stays above the floor and inside the reach box, checked per sweep so that the
+  error names the procedure key that moves it there (``procedure.sweep_deg``);
+- the rest of the safety gate's plan check (the approach path needs the current angles);
+- the stored drive-gain calibration, which a run refuses before moving when it no longer fits.
+
+``Preflight.problems`` are ConfigErrors (key path + sentence); ``require`` raises the first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from payload_agent.configuration.config import Config
+from payload_agent.errors import ConfigError, DataError, PayloadAgentError
+from payload_agent.motion.planner import Plan, make_plan
+from payload_agent.motion.safety import APPROACH_UNKNOWN, PATH_CHECK_POINTS, SafetyGate, Verdict
+
+
+@dataclass
+class Preflight:
+    plan: Plan | None
+    problems: list[ConfigError] = field(default_factory=list)
+    verdict: Verdict | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def require(self) -> "Preflight":
+        if self.problems:
+            raise self.problems[0]
+        return self
+
+    def to_json(self) -> dict:
+        return {"ok": self.ok, "problems": [{"key": p.key_path, "problem": p.problem, "source": p.source}
+                                            for p in self.problems], "notes": self.notes}
+
+
+def _as_config_error(exc: PayloadAgentError, key: str, source: str) -> ConfigError:
+    if isinstance(exc, ConfigError):
+        return exc
+    return ConfigError(key, str(exc), source)
+
+
+def sweep_envelope_problems(config: Config, plan: Plan) -> list[ConfigError]:
+    """A sweep whose path leaves the floor or the reach box: the error names ``procedure.sweep_deg``."""
+    s, kin = config.safety, config.robot.kinematics
+    (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
+    pc = config.procedure
+    out: list[ConfigError] = []
+    prev = None
+    for m in plan.moves:
+        tgt = np.asarray(m.target_rad, float)
+        if m.sweep is not None and prev is not None:
+            for k in range(PATH_CHECK_POINTS + 1):
+                x, y, z = kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3]
+                where = (f"the sweep {m.label} over procedure.sweep_deg [{pc.sweep_from_deg:g}, {pc.sweep_to_deg:g}]° "
+                         f"(joint 1 at procedure.base_deg {pc.base_deg:g}°)")
+                if z < s.floor_z_m:
+                    out.append(ConfigError("procedure.sweep_deg", f"{where} takes the flange to z = {1000 * z:.0f} mm, "
+                                           f"below safety.floor_z_mm ({1000 * s.floor_z_m:.0f} mm): narrow the range "
+                                           "(a smaller lower elevation keeps the flange higher)", config.source))
+                    break
+                if not (xlo <= x <= xhi and ylo <= y <= yhi and zlo <= z <= zhi):
+                    out.append(ConfigError("procedure.sweep_deg", f"{where} takes the flange to ({1000 * x:.0f}, "
+                                           f"{1000 * y:.0f}, {1000 * z:.0f}) mm, outside safety.reach_box_mm",
+                                           config.source))
+                    break
+        prev = tgt
+    return out
+
+
+def preflight(config: Config, *, calibration: bool = True) -> Preflight:
+    """Every check ``run`` makes before connecting; never connects, never moves.
+
+    ``calibration``: also refuse a stored drive-gain calibration that no longer fits (``doctor``
+    reports that one on its own line instead).
+    """
+    from payload_agent.session.connection import build_driver
+
+    result = Preflight(None)
+    try:
+        result.plan = make_plan(config)
+    except PayloadAgentError as exc:
+        result.problems.append(_as_config_error(exc, "procedure", config.source))
+    try:
+        build_driver(config)
+    except PayloadAgentError as exc:
+        result.problems.append(_as_config_error(exc, "driver", config.source))
+    if config.simulation is not None:
+        try:
+            from payload_agent.fakes.arms import SPECS
+
+            if config.simulation.arm not in SPECS:
+                result.problems.append(ConfigError("simulation.arm", f"unknown simulated arm "
+                                                   f"{config.simulation.arm!r}; known: {', '.join(sorted(SPECS))}",
+                                                   config.source))
+        except ImportError as exc:
+            result.problems.append(ConfigError("simulation", f"the simulated controllers need the 'sim' extra "
+                                               f"(pip install 'payload-agent[sim]'): {exc}", config.source))
+    if result.plan is not None:
+        envelope = sweep_envelope_problems(config, result.plan)
+        result.problems += envelope
+        result.verdict = SafetyGate(config).check(result.plan, None)
+        if not envelope:  # the sweep problems already say it, with the key
+            for p in result.verdict.problems:
+                if not p.startswith(APPROACH_UNKNOWN):
+                    result.problems.append(ConfigError("safety", f"the safety gate refuses the plan: {p}",
+                                                       config.source))
+    if not calibration:
+        return result
+    try:
+        from payload_agent.evaluation.calibration import effective_gains
+
+        note = effective_gains(config)[1]
+        result.notes.append(f"drive gains: {note}" if note else "drive gains: nominal (no calibration stored)")
+    except DataError as exc:
+        result.problems.append(ConfigError("gains.json", str(exc), config.source))
+    return result
+

@@ -1,0 +1,215 @@
+"""The command line against the simulated EC66 (real Elite protocol on loopback), as an integrator runs it:
+no terminal, SIGTERM at the prompt, a run with --json whose state lands in the XDG state folder, then solve,
+history and report on what it left, and doctor, which never moves anything."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from conftest import ROOT, tweak
+from payload_agent.configuration.config import load_config
+
+pytest.importorskip("mujoco")
+
+
+def sim_robot(tmp_path: Path, name: str = "clisim") -> Path:
+    """The shipped sim-ec66.yaml, no storage paths (state goes to $XDG_STATE_HOME), a slower clock and a
+    generous stream-gap limit so that a loaded CI machine does not trip the supervision."""
+    data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    data = tweak(data, "robot.name", name)
+    data = tweak(tweak(data, "simulation.time_scale", 25), "safety.max_stream_gap_ms", 1000)
+    path = tmp_path / "robots" / f"{name}.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _env(tmp_path: Path) -> dict[str, str]:
+    return {**os.environ, "XDG_STATE_HOME": str(tmp_path / "xdg-state"), "PYTHONUNBUFFERED": "1"}
+
+
+def _cli(args: list[str], env: dict, stdin=subprocess.DEVNULL, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "payload_agent.cli", *args], stdin=stdin, capture_output=True,
+                          text=True, env=env, timeout=timeout, cwd=ROOT)
+
+
+def _runs(tmp_path: Path, robot: str = "clisim") -> list[Path]:
+    runs = tmp_path / "xdg-state" / "payload-agent" / robot / "runs"
+    return sorted(runs.iterdir()) if runs.exists() else []
+
+
+def test_no_terminal_refuses_says_what_to_pass_and_nothing_moves(tmp_path):
+    proc = _cli(["run", "--robot", str(sim_robot(tmp_path))], _env(tmp_path))
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "no terminal" in proc.stderr and "--yes" in proc.stderr and "--unattended" in proc.stderr
+    assert "nothing moved" in proc.stderr and "Traceback" not in proc.stderr + proc.stdout
+    assert _runs(tmp_path) == []  # no run folder for a run where nothing moved
+
+
+def test_sigterm_at_the_prompt_exits_143_without_a_run_folder(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-m", "payload_agent.cli", "run", "--robot", str(sim_robot(tmp_path))],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env(tmp_path), cwd=ROOT)
+    seen: list[str] = []
+    asked = threading.Event()
+
+    def read():
+        while True:
+            ch = proc.stdout.read(1)
+            if not ch:
+                return
+            seen.append(ch)
+            if "".join(seen[-8:]).endswith("[y/N] "):
+                asked.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        assert asked.wait(120), "".join(seen)[-2000:]
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.stderr.read()
+    assert rc == 143, err
+    assert "terminated" in err and "Traceback" not in err
+    assert _runs(tmp_path) == []
+
+
+class _Env:
+    """os.environ changes for a module-scoped fixture (monkeypatch is per test)."""
+
+    def __init__(self, **values: str):
+        self.values, self.saved = values, {}
+
+    def __enter__(self):
+        for k, v in self.values.items():
+            self.saved[k] = os.environ.get(k)
+            os.environ[k] = v
+        return self
+
+    def __exit__(self, *exc):
+        for k, v in self.saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _main(args: list[str], capsys) -> tuple[int, str, str]:
+    from payload_agent import cli
+
+    rc = cli.main(args)
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory):
+    """One `run --yes --json` through the CLI (in this process); its state lands in $XDG_STATE_HOME/payload-agent/<robot>/."""
+    import contextlib
+    import io
+
+    from payload_agent import cli
+
+    tmp = tmp_path_factory.mktemp("clirun")
+    robot = sim_robot(tmp)
+    out, err = io.StringIO(), io.StringIO()
+    with _Env(XDG_STATE_HOME=str(tmp / "xdg-state")), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli.main(["run", "--robot", str(robot), "--yes", "--json", "--tool", "gripper-A"])
+    return tmp, robot, rc, out.getvalue(), err.getvalue()
+
+
+def test_run_json_on_stdout_human_text_on_stderr_state_beside_the_robot(cli_run):
+    tmp, robot, rc, stdout, stderr = cli_run
+    assert rc == 0, stderr[-3000:]
+    data = json.loads(stdout)  # stdout is exactly one JSON document
+    state = tmp / "xdg-state" / "payload-agent" / "clisim"
+    run_dir = Path(data["run_dir"])
+    assert run_dir.parent == state / "runs" and (run_dir / "result.json").exists()
+    assert (state / "baseline" / "baseline.json").exists() and (state / "history.sqlite").exists()
+    assert f"State of robot 'clisim': {state}" in stderr and f"Run folder: {run_dir}" in stderr
+    truth = data["simulation_truth"]
+    assert data["result"]["mass_kg"] == pytest.approx(truth["mass_kg"], abs=0.05)
+    values = data["controller_values"]
+    assert values["controller"] == "Elite EC controller" and values["cog_unit"] == "mm"
+    assert values["cog"] == pytest.approx(data["result"]["cog_mm"])
+    assert "Values for the Elite EC controller" in stderr and "{" not in stderr.splitlines()[0]
+
+
+def test_solve_history_and_report_on_the_recorded_run(cli_run, capsys, monkeypatch):
+    tmp, robot, rc, stdout, _ = cli_run
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp / "xdg-state"))
+    run_dir = Path(json.loads(stdout)["run_dir"])
+    own = hashlib.sha256((run_dir / "result.json").read_bytes()).hexdigest()
+
+    def history() -> list:
+        rc, out, _ = _main(["history", "--robot", str(robot), "--json"], capsys)
+        assert rc == 0
+        return json.loads(out)["entries"]
+
+    assert len(history()) == 1
+    rc, out, err = _main(["solve", str(run_dir), "--solver", "three-step", "--json"], capsys)
+    assert rc in (0, 5), err
+    solved = json.loads(out)
+    new = Path(solved["result_file"])
+    assert new.parent == run_dir and new.name.startswith("result-solve-")
+    assert solved["result"]["solve"]["solver"] == "three-step"
+    assert "own empty phase" in solved["result"]["solve"]["baseline"]
+    assert hashlib.sha256((run_dir / "result.json").read_bytes()).hexdigest() == own  # never overwritten
+    assert len(history()) == 1  # left alone...
+    _main(["solve", str(run_dir), "--history", "--robot", str(robot), "--tool", "gripper-A"], capsys)
+    entries = history()
+    assert len(entries) == 2 and entries[-1]["tool"] == "gripper-A"  # ...unless asked
+    rc, out, err = _main(["report", str(run_dir), "--out", str(tmp / "r.html")], capsys)
+    assert rc == 0 and (tmp / "r.html").read_text().startswith("<!DOCTYPE html>")
+
+
+def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypatch):
+    from payload_agent.session.doctor import run_doctor
+    from payload_agent.session.simulation import SimulatedCell
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
+    config = load_config(sim_robot(tmp_path, "docsim"))
+    cell = SimulatedCell(config).start()
+    try:
+        report = run_doctor(config, cell=cell, stream_window_s=1.0)
+        events = [e.kind for e in cell.controller.events]
+    finally:
+        cell.close()
+    checks = {c.name: c for c in report.checks}
+    assert checks["identify"].status == "ok" and "EC66" in checks["identify"].detail
+    assert checks["state"].status == "ok"
+    assert checks["sample stream"].status == "ok" and checks["sample stream"].data["rate_hz"] > 100
+    assert checks["kinematic cross-check"].status == "ok"
+    assert checks["payload setting"].status == "info" and "kg" in checks["payload setting"].detail
+    assert checks["stored baseline"].status == "warn" and "no stored" in checks["stored baseline"].detail
+    assert checks["drive-gain calibration"].status == "info"
+    assert report.ready and not report.ready_unattended and report.exit_code == 0
+    assert "move" not in events and "stop" not in events  # doctor never commands anything
+    # a wrong DH sign: the cross-check fails and the robot is not ready
+    bad = config.robot.dh[1].__class__(-config.robot.dh[1].a_m, config.robot.dh[1].d_m, config.robot.dh[1].alpha_rad,
+                                        config.robot.dh[1].offset_rad)
+    import dataclasses
+
+    wrong = dataclasses.replace(config, robot=dataclasses.replace(config.robot, dh=(config.robot.dh[0], bad,
+                                                                                     *config.robot.dh[2:])))
+    cell = SimulatedCell(config).start()
+    try:
+        report = run_doctor(wrong, cell=cell, stream_window_s=0.5)
+    finally:
+        cell.close()
+    cross = next(c for c in report.checks if c.name == "kinematic cross-check")
+    assert cross.status == "FAIL" and "a2" in cross.detail and not report.ready
+    assert report.exit_code == (3 if report.config_ok else 2)
