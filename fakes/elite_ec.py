@@ -12,7 +12,12 @@ that works against it has a fair chance of working against the robot:
 
 It implements the simulated-controller contract (fakes/base.py): ``from_config``,
 ``bound_options``, ``inject_fault`` with every common fault name, and ``events`` (every
-accepted moveByJoint and every stop, with its receive time).
+accepted moveByJoint and every stop, with its receive time). Fault-side choices the public
+sources do not settle: ``slow_reply`` delays every answer on every 8055 connection (the command
+is executed on arrival); ``no_reply`` hangs the 8055 sessions open at that moment (their requests
+are swallowed, neither executed nor answered) while a new connection is served, as a controller
+that runs one handler per connection would; ``garbage`` sends 1024-byte blocks whose size field
+announces no sensible frame; ``nan_values`` puts NaN in joint 2's angle and torque.
 
 Test-side helpers: ``set_mode(0|1|2)``, ``press_estop()``, ``release_estop()``,
 ``trigger_collision()``, ``raise_alarm()``, ``set_servo()``, ``set_garbage_reply()``,
@@ -261,14 +266,14 @@ class FakeEliteController(EliteMethods, SimulatedController):
         elif name == "slow_reply":
             self._rpc.reply_delay_s = float(params.get("delay_s", DEFAULT_SLOW_REPLY_S))
         elif name == "no_reply":
-            self._rpc.swallow_requests = True
+            self._rpc.hang_connections()
         # stall_stream, garbage, nan_values, never_finish act through active_faults (see _on_tick)
 
     def _clear_fault(self, name: str) -> None:
         if name == "slow_reply":
             self._rpc.reply_delay_s = 0.0
         elif name == "no_reply":
-            self._rpc.swallow_requests = False
+            self._rpc.unhang_connections()
 
     # -- test-side helpers --------------------------------------------------------------------
     def set_mode(self, mode: int) -> None:

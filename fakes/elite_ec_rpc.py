@@ -58,9 +58,9 @@ class LineJsonRpcServer:
         self.port = self._server.port
         self._socks: set[socket.socket] = set()
         self._socks_lock = threading.Lock()
-        # faults (set by the controller): every reply held back this long; every request swallowed
+        # faults (set by the controller): every reply held back this long; connections whose requests are swallowed
         self.reply_delay_s = 0.0
-        self.swallow_requests = False
+        self._hung: set[socket.socket] = set()
 
     def start(self) -> None:
         self._server.start()
@@ -71,7 +71,7 @@ class LineJsonRpcServer:
         try:
             # a line that never ends (longer than MAX_LINE) drops the client
             for line in read_lines(sock, lambda: self._server.closing, max_line=MAX_LINE):
-                if self.swallow_requests:
+                if sock in self._hung:
                     continue
                 reply = self._handle_line(line)  # executed now; with a delay, only the answer comes late
                 if reply is not None:
@@ -82,11 +82,21 @@ class LineJsonRpcServer:
         finally:
             with self._socks_lock:
                 self._socks.discard(sock)
+                self._hung.discard(sock)
 
     @property
     def connection_count(self) -> int:
         with self._socks_lock:
             return len(self._socks)
+
+    def hang_connections(self) -> None:
+        """Every connection open now swallows its requests from here on (a hung session); new ones are served."""
+        with self._socks_lock:
+            self._hung = set(self._socks)
+
+    def unhang_connections(self) -> None:
+        with self._socks_lock:
+            self._hung = set()
 
     def drop_connections(self) -> None:
         """Close every client connection (the port keeps listening, as after a controller-side reset)."""

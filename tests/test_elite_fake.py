@@ -501,11 +501,15 @@ def test_slow_reply_executes_at_once_and_answers_late(ctrl, raw, sim):
     assert raw.result("getRobotMode") == 2 and time.monotonic() - t1 < 0.3
 
 
-def test_no_reply_swallows_requests(ctrl, raw):
+def test_no_reply_hangs_the_open_sessions_but_serves_a_new_one(ctrl, raw):
     ctrl.inject_fault("no_reply")
     raw.send(b'{"jsonrpc":"2.0","method":"stop","params":{},"id":4}\n')
     assert raw.line(timeout=0.4) is None
-    assert not [e for e in ctrl.events if e.kind == "stop"]
+    assert not [e for e in ctrl.events if e.kind == "stop"]  # swallowed: not executed either
+    fresh = Raw(ctrl.rpc_port)
+    assert fresh.result("stop") is True
+    fresh.close()
+    assert [e.kind for e in ctrl.events] == ["stop"]
     ctrl.clear_faults()
     assert raw.result("getRobotMode") == 2
 

@@ -251,6 +251,7 @@ class EliteECDriver(Driver):
             if now > deadline:
                 raise MotionAbortedError(f"the joint move did not finish within {timeout_s:g} s; the robot was stopped")
             rstate = self._int("getRobotState")
+            self.command_ok()  # the controller answers: the watchdog times the next reply from here
             self.check_supervision()
             if rstate == STATE_RUNNING:
                 seen_running = True
@@ -286,7 +287,7 @@ class EliteECDriver(Driver):
         rpc = self._rpc
         if rpc is None:
             return False
-        return rpc.call("stop", timeout_s=STOP_TIMEOUT_S, lock_timeout_s=STOP_TIMEOUT_S) is True
+        return rpc.stop(STOP_TIMEOUT_S, lock_timeout_s=STOP_TIMEOUT_S)  # False: sent, unacknowledged
 
     def _stop_fresh(self) -> bool:
         o = self.options

@@ -46,6 +46,8 @@ class RpcClient:
         self._next_id = 1
         self._buf = b""
         self._dead: str | None = None  # why the connection is unusable (closed, EOF, send failed)
+        self.last_sent = False  # whether the current call's request went out (read under the lock only)
+        self.unanswered = False  # the last call got no reply in time: the line is not to be trusted for a stop
         try:
             self._sock = socket.create_connection((host, port), timeout=connect_timeout_s)
         except OSError as e:
@@ -71,12 +73,13 @@ class RpcClient:
             pass
 
     def alive(self) -> bool:
-        """True unless the connection is known to be gone: closed, failed, or the peer's EOF is waiting.
+        """True unless the connection is known to be gone or mute: closed, failed, the peer's EOF is
+        waiting, or the last call went unanswered.
 
         No round trip: a non-blocking peek sees an EOF (or reset) the controller sent while no
         call was reading.
         """
-        if self._dead is not None:
+        if self._dead is not None or self.unanswered:
             return False
         try:
             # select first: a socket with a timeout would wait that long inside recv even with MSG_DONTWAIT
@@ -106,9 +109,27 @@ class RpcClient:
         finally:
             self._lock.release()
 
+    def stop(self, timeout_s: float, lock_timeout_s: float | None = None) -> bool:
+        """Send ``stop``; True if the controller answered true, False if it was sent but not acknowledged.
+
+        Raises CommunicationError when it could not be sent (line busy, connection gone).
+        """
+        if not self._lock.acquire(timeout=-1 if lock_timeout_s is None else lock_timeout_s):
+            raise CommunicationError(f"the connection to {self.endpoint} stayed busy for {lock_timeout_s:g} s "
+                                     "(stop not sent)")
+        try:
+            return self._call_locked("stop", None, timeout_s) is True
+        except CommunicationError:
+            if self.last_sent:
+                return False
+            raise
+        finally:
+            self._lock.release()
+
     def _call_locked(self, method: str, params: Mapping[str, Any] | None, timeout: float) -> Any:
         if self._dead is not None:
             raise CommunicationError(f"the connection to {self.endpoint} is gone ({self._dead}); {method} not sent")
+        self.last_sent = False
         req_id = self._next_id
         self._next_id += 1
         line = json.dumps({"jsonrpc": "2.0", "method": method, "params": dict(params or {}), "id": req_id},
@@ -119,6 +140,7 @@ class RpcClient:
         except OSError as e:
             self._dead = f"sending failed: {e}"
             raise CommunicationError(f"lost the connection to {self.endpoint} sending {method}: {e}") from e
+        self.last_sent = True
         deadline = time.monotonic() + timeout
         while True:
             raw = self._read_line(method, deadline, timeout)
@@ -152,6 +174,7 @@ class RpcClient:
         while b"\n" not in self._buf:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
+                self.unanswered = True
                 raise CommunicationError(f"no reply to {method} from {self.endpoint} within {timeout:g} s")
             self._sock.settimeout(remaining)
             try:
@@ -168,13 +191,18 @@ class RpcClient:
             if len(self._buf) > MAX_REPLY_BYTES:
                 raise CommunicationError(f"reply to {method} exceeds 1 MiB without a newline: {self._buf[:200]!r}")
         line, self._buf = self._buf.split(b"\n", 1)
+        self.unanswered = False
         return line.strip()
 
 
 def stop_over_new_connection(host: str, port: int, connect_timeout_s: float, reply_timeout_s: float) -> bool:
-    """Open a new 8055 connection, send ``stop``, close it; True if the controller answered true."""
+    """Open a new 8055 connection, send ``stop``, close it; True if the controller answered true.
+
+    False when the request went out but no (true) answer came; CommunicationError when it could
+    not be sent at all (no connection).
+    """
     client = RpcClient(host, port, connect_timeout_s, reply_timeout_s)
     try:
-        return client.call("stop") is True
+        return client.stop(reply_timeout_s)
     finally:
         client.close()
