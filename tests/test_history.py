@@ -121,3 +121,16 @@ def test_refuses_newer_schema_and_foreign_files(tmp_path):
     junk.write_bytes(b"this is not a database" * 100)
     with pytest.raises(DataError, match="not a usable history database"):
         history.record(junk, entry())
+
+
+def test_entry_json_is_plain_json_with_the_intervals(tmp_path):
+    import json
+
+    db = tmp_path / "h.sqlite"
+    i = history.record(db, entry(tool="A"))
+    history.mark_applied(db, i, PayloadSetting(2.0, (0.04, -0.025, 0.07)))
+    [e] = history.entries(db)
+    d = json.loads(json.dumps(history.entry_json(e)))  # `history --json` prints exactly this
+    assert d["id"] == i and d["tool"] == "A" and d["applied"] is True
+    assert d["mass_ci95_kg"] == pytest.approx(1.96 * 0.001) and d["cog_ci95_mm"] == pytest.approx([1.96 * 0.2] * 3)
+    assert d["applied_cog_mm"] == pytest.approx([40.0, -25.0, 70.0])
