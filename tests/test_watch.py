@@ -179,10 +179,12 @@ def elite():
 
 
 def elite_driver(ctrl):
+    from payload_agent.drivers.base import MotionLimits
     from payload_agent.drivers.elite_ec import EliteECDriver
 
-    return EliteECDriver({"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port,
-                          "monitor_port": ctrl.monitor_port}, max_joint_speed_rad_s=2.6)
+    opts = EliteECDriver.parse_options({"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port,
+                                        "monitor_port": ctrl.monitor_port})
+    return EliteECDriver(opts, MotionLimits(2.6, 6.0))
 
 
 def test_elite_driver_reads_digital_inputs(elite):
