@@ -129,8 +129,10 @@ class FlangeFK:
         return [px * 1000.0, py * 1000.0, pz * 1000.0, rx, ry, rz]
 
 
-def _loopback(host: str) -> str:
-    return host if host.startswith("127.") else "127.0.0.1"
+def _sim_t(s) -> float:
+    """The exact simulated time of a SimState (``t`` may carry the simulated timestamp jitter)."""
+    t_true = getattr(s, "t_true", None)
+    return s.t if t_true is None else t_true
 
 
 class FakeEliteController(EliteMethods, SimulatedController):
@@ -190,7 +192,8 @@ class FakeEliteController(EliteMethods, SimulatedController):
     def from_config(cls, config: "Config") -> "FakeEliteController":
         """A fake EC controller and its SimRobot from a robot YAML's ``simulation`` and ``driver`` sections.
 
-        Ports of 0 in the driver section mean ephemeral ports (see ``bound_options``).
+        Ports of 0 in the driver section mean ephemeral ports (see ``bound_options``); the host must be
+        a loopback address (the TCP servers refuse any other).
         """
         from payload_agent.fakes.arms import SPECS
 
@@ -200,7 +203,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         spec = SPECS[sim.arm]()
         robot = SimRobot(spec, tick_s=TICK_S, **sim_robot_kwargs(config))
         opts = config.driver_options
-        return cls(robot, host=_loopback(str(opts.host)), rpc_port=int(opts.rpc_port),
+        return cls(robot, host=str(opts.host), rpc_port=int(opts.rpc_port),
                    monitor_port=int(opts.monitor_port), rated_torque_nm=spec.rated_torque_nm,
                    gain_error=sim.drive_gain_error, owns_robot=True)
 
@@ -370,7 +373,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
                 return STATE_COLLISION
             # the sim's own safety flags count too (set directly on the SimRobot), except in a
             # snapshot taken before the last clearAlarm (snapshots lag up to one tick)
-            if self._alarm or ((s.estop or s.protective_stop) and s.t > self._reset_t):
+            if self._alarm or ((s.estop or s.protective_stop) and _sim_t(s) > self._reset_t):
                 return STATE_ERROR
             if self._motion is not None:
                 return STATE_RUNNING
@@ -397,21 +400,22 @@ class FakeEliteController(EliteMethods, SimulatedController):
         return list(pose)
 
     def _on_tick(self, s) -> None:
+        t = _sim_t(s)
         with self._lock:
-            self._thermal.advance(s.t)
+            self._thermal.advance(t)
             m = self._motion
             if m is not None:
                 if s.moving:
                     m["seen"] = True
-                elif m.get("stopped") or (m["seen"] or s.t >= m["t0"] + m["dur"] - 1e-9) and \
+                elif m.get("stopped") or (m["seen"] or t >= m["t0"] + m["dur"] - 1e-9) and \
                         "never_finish" not in self.active_faults:
                     self._motion = None
             if self._next_frame_t is None:
-                self._next_frame_t = (math.floor(s.t / PERIOD_S + 1e-9)) * PERIOD_S
-            due = s.t >= self._next_frame_t - 1e-9
+                self._next_frame_t = (math.floor(t / PERIOD_S + 1e-9)) * PERIOD_S
+            due = t >= self._next_frame_t - 1e-9
             if due:
                 # one frame per 8 ms grid point (sample and hold if the tick is coarser)
-                while self._next_frame_t <= s.t + 1e-9:
+                while self._next_frame_t <= t + 1e-9:
                     self._next_frame_t += PERIOD_S
         if not due or "stall_stream" in self.active_faults or not self._monitor.has_clients():
             return
@@ -426,7 +430,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         pose = self._flange_pose(s.q)  # the fake's tools have no TCP offset: TCP pose = flange pose
         with self._lock:
             values = {
-                "TimeStamp": int(round(s.t * 1000.0)),
+                "TimeStamp": int(round(s.t * 1000.0)),  # the reported (possibly jittered) time
                 "autorun_cycleMode": 2,
                 "machinePos": q_deg + [0.0, 0.0],
                 "machinePose": pose, "machineUserPose": pose,
