@@ -120,6 +120,9 @@ def test_motion_is_commanded_only_through_the_safety_gate():
             continue  # the simulated controllers move their own simulated arm
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in MOTION_CALLS:
+                via_super = isinstance(node.func.value, ast.Call) and getattr(node.func.value.func, "id", "") == "super"
+                if via_super and mod.startswith("payload_agent.drivers"):
+                    continue  # a driver's override handing on to the supervised base method
                 if mod not in ALLOWED[node.func.attr]:
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {node.func.attr}")
     assert not offenders, "motion commanded outside the safety gate: " + "; ".join(offenders)
