@@ -471,6 +471,10 @@ class Driver(abc.ABC):
         """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
         raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
 
+    def read_trigger(self) -> bool:
+        """The controller's tool-change trigger register (non-zero: a tool change happened), for `watch`."""
+        raise UnsupportedCapability(f"driver {self.name!r} has no trigger register")
+
     def joint_temperatures_c(self) -> tuple[float, ...] | None:
         """Per-joint temperatures in °C as the controller reports them, or None if it does not."""
         return None

@@ -170,12 +170,16 @@ def test_no_reply_times_out_and_says_the_stop_was_not_heard(ur):
     drv = _driver(options, Supervision(max_stream_gap_s=0.3, stop_ack_timeout_s=0.6))
     try:
         import threading
-        threading.Timer(0.4, fake.inject_fault, args=("no_reply",)).start()
+        fault_t = []
+        threading.Timer(0.4, lambda: (fault_t.append(time.monotonic()), fake.inject_fault("no_reply"))).start()
         with pytest.raises((SupervisionTrip, MotionAbortedError)) as info:
             drv.move_joints(_sweep_target(Q0, deg=40), 0.3, 2.0, 10.0)
         report = drv.last_stop_report
-        assert report is not None and not report.acknowledged
-        assert "NOT acknowledged" in str(info.value) or "stalled" in report.reason
+        assert report is not None and not report.acknowledged and report.stop_sent_t is not None
+        assert "NOT acknowledged" in str(info.value)
+        # the device swallowed the replies, not the requests: the stop reached it all the same
+        stop = fake.first_event_after("stop", fault_t[0])
+        assert stop is not None and stop.t - fault_t[0] < 0.5
     finally:
         fake.clear_faults()
         drv.close()
@@ -272,10 +276,10 @@ def test_payload_write_and_read_back_and_inputs(ur):
         assert drv.read_digital_input(7) and not drv.read_digital_input(6)
         with pytest.raises(UnsupportedCapability):
             drv.read_digital_input(16)
-        assert not drv.read_tool_change()
+        assert not drv.read_trigger()
         fake.set_tool_change(1)
         time.sleep(0.05)
-        assert drv.read_tool_change()
+        assert drv.read_trigger()
     finally:
         drv.close()
 
@@ -316,3 +320,28 @@ def test_connect_failure_names_the_endpoint():
     drv = ModbusDriver(options, LIMITS)
     with pytest.raises(CommunicationError, match=r"127\.0\.0\.1:1 \(Modbus TCP, unit 1\)"):
         drv.connect()
+
+
+def test_watch_fires_on_the_tool_change_register(ur, tmp_path):
+    import yaml
+
+    from conftest import ROOT, tweak
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.session.watch import watch
+
+    fake, options = ur
+    data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
+    data = tweak(data, "watch", {"trigger": {"type": "register"}, "poll_interval_s": 0.02})
+    config = parse_config(data, source="test")
+    runs, lines = [], []
+
+    def run_once():
+        runs.append(time.monotonic())
+        return 0
+
+    import threading
+    threading.Timer(0.3, fake.set_tool_change, args=(1,)).start()
+    code = watch(config, run_once, driver_factory=lambda: ModbusDriver(options, LIMITS, RELAXED), out=lines.append,
+                 max_runs=1)
+    assert code == 0 and len(runs) == 1
+    assert any("the trigger register went high" in line for line in lines)

@@ -18,7 +18,7 @@ from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.base import MotionLimits, Supervision
 from payload_agent.drivers.modbus.driver import ModbusDriver
 from payload_agent.drivers.modbus.options import parse_modbus_options, resolve_map
-from payload_agent.errors import SupervisionTrip
+from payload_agent.errors import CommunicationError, SupervisionTrip
 from payload_agent.fakes.arms import ur5e_spec
 from payload_agent.fakes.modbus.controller import SimulatedModbusRobot
 from payload_agent.fakes.sim_robot import SimRobot
@@ -72,9 +72,8 @@ def test_rtu_unit_id_mismatch_gets_no_reply():
     import dataclasses
     drv = ModbusDriver(dataclasses.replace(options, unit_id=3, timeout_s=0.1), MotionLimits(math.pi, math.pi))
     try:
-        drv.connect()
-        with pytest.raises(Exception, match="no joint sample"):
-            drv.wait_sample(0.5)
+        with pytest.raises(CommunicationError, match=r"no reply .* \(Modbus RTU 115200 baud, unit 3\)"):
+            drv.connect()  # another unit's address: the device stays silent, as on a real bus
     finally:
         drv.close()
         fake.close()
@@ -92,9 +91,15 @@ def test_identification_over_rtu(tmp_path):
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
     cfg = parse_config(data, source="test")
     truth = data["simulation"]["payload"]
-    outcome = run_identification(cfg, RunOptions(assume_yes=True, result_path=tmp_path / "r.json",
-                                                 out=lambda line: None, report=False, retry_sweeps=2))
+    cells = []
+    outcome = run_identification(cfg, RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json",
+                                                 out=lambda line: None, report=False, retry_sweeps=2,
+                                                 on_cell=cells.append))
     result = json.loads((tmp_path / "r.json").read_text())
     assert abs(result["mass_kg"] - truth["mass_kg"]) < 0.05, result
     assert np.max(np.abs(np.array(result["cog_mm"]) - truth["cog_mm"])) < 8.0, result
-    assert outcome.run_dir.exists()
+    # --apply wrote the result through the map's payload fields and read it back
+    mass, cog = cells[0].controller.payload_setting
+    assert mass == pytest.approx(result["mass_kg"], abs=1e-5)
+    assert np.allclose(np.asarray(cog) * 1000, result["cog_mm"], atol=1e-3)
+    assert outcome.applied is not None

@@ -96,7 +96,7 @@ class StorageConfig:
     baseline_max_temperature_delta_c: float  # ... and one recorded this much colder/warmer (any joint)
 
 
-WATCH_TRIGGERS = ("file", "digital_input")
+WATCH_TRIGGERS = ("file", "digital_input", "register")
 
 
 @dataclass(frozen=True)
@@ -335,6 +335,8 @@ def _watch(node: Node, base_dir: Path | None) -> WatchConfig:
     if kind == "file":
         path = resolve_against(t.string("path"), base_dir)
         t.reject_unknown(["type", "path"])
+    elif kind == "register":  # the driver's trigger register (modbus: the map's tool_change)
+        t.reject_unknown(["type"])
     else:
         index = t.integer("index", min=0, max=255)
         t.reject_unknown(["type", "index"])

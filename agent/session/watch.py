@@ -82,6 +82,11 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
         if wc.path is None:
             raise ConfigError("watch.trigger.path", "a file trigger needs a path", config.source)
         trigger: _Trigger = _FileTrigger(Path(wc.path), out)
+    elif wc.trigger == "register":
+        if driver_factory is None:
+            raise ConfigError("watch.trigger", "a register trigger needs a driver connection (driver_factory)",
+                              config.source)
+        trigger = _InputTrigger(wc, driver_factory, out)
     elif wc.trigger == "digital_input":
         if wc.input_index is None:
             raise ConfigError("watch.trigger.index", "a digital_input trigger needs an input index", config.source)
@@ -224,14 +229,19 @@ class _FileTrigger(_Trigger):
 
 class _InputTrigger(_Trigger):
     def __init__(self, wc: WatchConfig, factory: Callable[[], Driver], out: Callable[[str], None]):
-        self.index = int(wc.input_index)  # type: ignore[arg-type]
+        self.index = None if wc.trigger == "register" else int(wc.input_index)  # type: ignore[arg-type]
         self.factory = factory
         self.out = out
         self.driver: Driver | None = None
         self.previous: bool | None = None  # None: no reference level yet (start, after a run or an error)
         self.failures = 0
 
+    def _what(self) -> str:
+        return "the trigger register" if self.index is None else f"digital input {self.index}"
+
     def describe(self) -> str:
+        if self.index is None:
+            return "a rising edge on the controller's trigger register"
         return f"a rising edge on the controller's digital input {self.index}"
 
     def wait_s(self, poll_interval_s: float) -> float:
@@ -244,23 +254,24 @@ class _InputTrigger(_Trigger):
             if self.driver is None:
                 self.driver = self.factory()
                 self.driver.connect()
-            level = bool(self.driver.read_digital_input(self.index))
+            level = bool(self.driver.read_trigger() if self.index is None
+                         else self.driver.read_digital_input(self.index))
         except UnsupportedCapability:
             self.close()
             raise
         except PayloadAgentError as exc:
             self.failures += 1
             if self.failures == 1 or self.failures % 10 == 0:
-                self.out(f"{_stamp()} watch: cannot read digital input {self.index}: {exc} (retrying)")
+                self.out(f"{_stamp()} watch: cannot read {self._what()}: {exc} (retrying)")
             self.close()
             self.previous = None
             return None
         if self.failures:
-            self.out(f"{_stamp()} watch: digital input {self.index} readable again")
+            self.out(f"{_stamp()} watch: {self._what()} readable again")
             self.failures = 0
         previous, self.previous = self.previous, level
         if previous is False and level:
-            return f"digital input {self.index} went high"
+            return f"{self._what()} went high"
         return None
 
     def before_run(self) -> None:

@@ -155,8 +155,12 @@ class ModbusBus:
             raise StaleReply(f"{text}: a late reply to an earlier request, discarded")
         raise CommunicationError(f"{text}: the device does not answer what was asked")
 
-    def write(self, entries: Sequence[tuple[Entry, Sequence[float]]]) -> None:
-        """Encode and write entries; adjacent ones share a request, in address order."""
+    def write(self, entries: Sequence[tuple[Entry, Sequence[float]]], wait_s: float | None = None) -> None:
+        """Encode and write entries; adjacent ones share a request, in address order.
+
+        ``wait_s``: how long to wait for a request already under way on this connection (None: as long as
+        it takes); ModbusTimeout if it is still busy then (a stop must not queue behind an unanswered read).
+        """
         words = {e.name: e.encode(v) for e, v in entries}
         for block in group_writes([e for e, _ in entries]):
             data: list = []
@@ -166,13 +170,15 @@ class ModbusBus:
             dev = self.endpoint.device_id
             if block.table == "coil":
                 if len(data) == 1:
-                    self._execute(what, "write_coil", block.address, bool(data[0]), device_id=dev)
+                    self._execute(what, "write_coil", block.address, bool(data[0]), device_id=dev, wait_s=wait_s)
                 else:
-                    self._execute(what, "write_coils", block.address, [bool(b) for b in data], device_id=dev)
+                    self._execute(what, "write_coils", block.address, [bool(b) for b in data], device_id=dev,
+                                  wait_s=wait_s)
             elif len(data) == 1:
-                self._execute(what, "write_register", block.address, int(data[0]), device_id=dev)
+                self._execute(what, "write_register", block.address, int(data[0]), device_id=dev, wait_s=wait_s)
             else:
-                self._execute(what, "write_registers", block.address, [int(w) for w in data], device_id=dev)
+                self._execute(what, "write_registers", block.address, [int(w) for w in data], device_id=dev,
+                              wait_s=wait_s)
 
     def _drain(self, client) -> None:
         """Wait out the line's silence and throw away whatever arrived (RTU after a timeout)."""
@@ -185,30 +191,37 @@ class ModbusBus:
             pass
         self._stale = False
 
-    def _execute(self, what: str, fn: str, *args, **kwargs):
-        with self._lock:
-            client = self._client
-            if client is None:
-                raise ConnectionLost(f"the Modbus {self.role} to {self.endpoint.describe()} is closed ({what})")
-            if self._stale:
-                self._drain(client)
-            try:
-                resp = getattr(client, fn)(*args, **kwargs)
-            except ConnectionException as exc:
+    def _execute(self, what: str, fn: str, *args, wait_s: float | None = None, **kwargs):
+        if not self._lock.acquire(timeout=-1 if wait_s is None else wait_s):
+            raise ModbusTimeout(f"the {what} could not go out: the {self.role} is waiting for another reply")
+        try:
+            return self._execute_locked(what, fn, *args, **kwargs)
+        finally:
+            self._lock.release()
+
+    def _execute_locked(self, what: str, fn: str, *args, **kwargs):
+        client = self._client
+        if client is None:
+            raise ConnectionLost(f"the Modbus {self.role} to {self.endpoint.describe()} is closed ({what})")
+        if self._stale:
+            self._drain(client)
+        try:
+            resp = getattr(client, fn)(*args, **kwargs)
+        except ConnectionException as exc:
+            self._lost = str(exc)
+            raise ConnectionLost(f"the {what} failed: the connection to {self.endpoint.describe()} "
+                                 f"is lost ({exc})") from None
+        except ModbusIOException as exc:
+            if not client.connected:
                 self._lost = str(exc)
-                raise ConnectionLost(f"the {what} failed: the connection to {self.endpoint.describe()} "
-                                     f"is lost ({exc})") from None
-            except ModbusIOException as exc:
-                if not client.connected:
-                    self._lost = str(exc)
-                    raise ConnectionLost(f"the {what} failed: {self.endpoint.describe()} stopped answering "
-                                         f"and the connection was closed") from None
-                self._stale = self.endpoint.transport == "rtu"
-                raise ModbusTimeout(f"no reply to the {what} from {self.endpoint.describe()} within "
-                                    f"{self.endpoint.timeout_s:g} s") from None
-            except (ModbusException, OSError, ValueError) as exc:
-                self._lost = str(exc)
-                raise ConnectionLost(f"the {what} failed: {type(exc).__name__}: {exc}") from None
+                raise ConnectionLost(f"the {what} failed: {self.endpoint.describe()} stopped answering "
+                                     f"and the connection was closed") from None
+            self._stale = self.endpoint.transport == "rtu"
+            raise ModbusTimeout(f"no reply to the {what} from {self.endpoint.describe()} within "
+                                f"{self.endpoint.timeout_s:g} s") from None
+        except (ModbusException, OSError, ValueError) as exc:
+            self._lost = str(exc)
+            raise ConnectionLost(f"the {what} failed: {type(exc).__name__}: {exc}") from None
         if resp is None:
             raise ModbusTimeout(f"no reply to the {what}")
         if (resp.function_code & 0x7F) != _FUNCTION_CODES[fn]:

@@ -30,6 +30,7 @@ from payload_agent.drivers.base import (ControllerInfo, ControllerState, Driver,
 from payload_agent.drivers.modbus import handshake as hs
 from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
 from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, parse_modbus_options, resolve_map
+from payload_agent.drivers.modbus.pose import flange_from_tcp
 from payload_agent.drivers.modbus.registers import EncodingError, Entry, group_reads, int_range
 from payload_agent.drivers.modbus.regmap import si_factor
 from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, RobotNotReadyError,
@@ -94,6 +95,11 @@ class ModbusDriver(Driver):
                 raise
         else:  # one serial line for both
             self._stream = self._cmd
+        try:
+            self.handshake.learn_stop(self._cmd)
+        except CommunicationError:
+            self._close()
+            raise
         self._last_raw = None
         self._next_poll = time.monotonic()
 
@@ -206,7 +212,8 @@ class ModbusDriver(Driver):
                     raise
                 time.sleep(self.command_poll_s)
                 continue
-            self.command_ok()
+            if self.endpoint.transport == "tcp":  # RTU: the stream shares the line, its watchdog covers it
+                self.command_ok()
             now = last_answer = ans.t
             if ans.heartbeat is not None and ans.heartbeat != beat:
                 beat, beat_t = ans.heartbeat, now
@@ -245,7 +252,9 @@ class ModbusDriver(Driver):
             time.sleep(self.command_poll_s)
 
     def _stop_command(self) -> bool:
-        value = self.handshake.request_stop(self._cmd)
+        # not behind a read that waits for its reply: then the base goes straight to a new connection
+        wait_s = 0.02 if self.endpoint.transport == "tcp" else 0.06  # RTU: a sample read may be on the line
+        value = self.handshake.request_stop(self._cmd, wait_s=wait_s)
         return self.handshake.wait_stop_ack(self._cmd, value, self.options.stop_ack_wait_s)
 
     def _stop_fresh(self) -> bool:
@@ -332,13 +341,9 @@ class ModbusDriver(Driver):
             return None
         names = ("tcp_position", "tcp_rotation", "tcp_offset_position", "tcp_offset_rotation")
         v = self._read(*names)
-        p = np.asarray(v["tcp_position"]) * si_factor(self.map["tcp_position"])
-        R = rotvec_matrix(np.asarray(v["tcp_rotation"]) * si_factor(self.map["tcp_rotation"]))
-        if "tcp_offset_position" in v:
-            po = np.asarray(v["tcp_offset_position"]) * si_factor(self.map["tcp_offset_position"])
-            Ro = rotvec_matrix(np.asarray(v["tcp_offset_rotation"]) * si_factor(self.map["tcp_offset_rotation"]))
-            R = R @ Ro.T  # T_flange = T_tcp · T_offset⁻¹
-            p = p - R @ po
+        si = {n: np.asarray(v[n]) * si_factor(self.map[n]) for n in v}
+        p, R = flange_from_tcp(si["tcp_position"], si["tcp_rotation"], si.get("tcp_offset_position"),
+                               si.get("tcp_offset_rotation"))
         return FlangePose(tuple(float(x) for x in p), tuple(tuple(float(x) for x in row) for row in R))
 
     def read_payload(self) -> PayloadSetting:
@@ -377,18 +382,8 @@ class ModbusDriver(Driver):
         raw = int(e.raw_values(self._cmd.read(group_reads([e])[0]))[0])
         return bool((raw >> index) & 1)
 
-    def read_tool_change(self) -> bool:
+    def read_trigger(self) -> bool:
         """The map's tool-change trigger register (non-zero: a tool change happened)."""
         if "tool_change" not in self.map:
             raise UnsupportedCapability("the register map has no tool_change entry")
         return bool(self._read("tool_change")["tool_change"][0])
-
-
-def rotvec_matrix(r: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (axis × angle), Rodrigues' formula."""
-    theta = float(np.linalg.norm(r))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = r / theta
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * K @ K

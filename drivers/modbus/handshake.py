@@ -86,6 +86,7 @@ class Handshake:
         self.map = regmap
         self._answers = [regmap[n] for n in ANSWER_SIGNALS if n in regmap]
         self._answer_blocks = group_reads(self._answers, bridge_gaps)
+        self._last_stop: int | None = None  # the stop_request value last read or written
 
     def _read_int(self, bus: ModbusBus, name: str) -> int:
         entry = self.map[name]
@@ -117,18 +118,40 @@ class Handshake:
             pass  # it may have arrived: the answers will tell (the caller waits for this number)
         return seq
 
-    def request_stop(self, bus: ModbusBus) -> int:
-        """Write a new value to stop_request; returns it (to compare with stop_ack)."""
+    def learn_stop(self, bus: ModbusBus) -> None:
+        """Read the current stop_request once (at connect), so that a stop needs no read first."""
+        self._last_stop = self._read_int(bus, "stop_request")
+
+    def request_stop(self, bus: ModbusBus, wait_s: float | None = None) -> int:
+        """Write a new value to stop_request at once; returns it (to compare with stop_ack).
+
+        The value follows the one read at connect (``learn_stop``), so the stop goes out in one request
+        even when the device has stopped answering; a write whose reply is lost may well have arrived
+        (the caller learns from stop_ack). Only a connection that cannot send raises.
+        """
         entry = self.map["stop_request"]
-        value = next_counter(entry, self._read_int(bus, "stop_request"))
-        bus.write([(entry, [value])])
+        if self._last_stop is None:
+            try:
+                self._last_stop = self._read_int(bus, "stop_request")
+            except ModbusTimeout:
+                self._last_stop = 0
+        value = next_counter(entry, self._last_stop)
+        self._last_stop = value
+        try:
+            bus.write([(entry, [value])], wait_s=wait_s)
+        except ModbusTimeout as exc:
+            if "could not go out" in str(exc):
+                raise  # nothing was sent: let the caller try another way
         return value
 
     def wait_stop_ack(self, bus: ModbusBus, value: int, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
         while True:
-            if self._read_int(bus, "stop_ack") == value:
-                return True
+            try:
+                if self._read_int(bus, "stop_ack") == value:
+                    return True
+            except ModbusTimeout:
+                pass
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.005)

@@ -44,6 +44,11 @@ class SensorImage:
         self.tool_change = 0
         self.digital_inputs = 0
         self._rng = np.random.default_rng(7)
+        self._last_q: np.ndarray | None = None
+        pose = [regmap[n] for n in ("tcp_position", "tcp_rotation", "tcp_offset_position", "tcp_offset_rotation")
+                if n in regmap]
+        if pose:  # computed from the newest angles when a client reads it (FK every cycle is costly here)
+            store.on_read.extend((e.table, e.address, e.end, self._fill_pose) for e in pose)
 
     def _words(self, name: str, values_si: Sequence[float]) -> tuple[str, int, list]:
         e = self.map[name]
@@ -73,10 +78,12 @@ class SensorImage:
             if self.nan and name in ("joint_angles", "joint_efforts") and m[name].type == "float32":
                 e = m[name]
                 joint[name] = (e.table, e.address, encode(e, [math.nan] * e.n_values))
-        items = list(joint.values()) + self._status(state)
-        if "tcp_position" in m:
-            items += self._pose(q)
-        self.store.set_many(items)
+        self._last_q = q
+        self.store.set_many(list(joint.values()) + self._status(state))
+
+    def _fill_pose(self) -> None:
+        if self._last_q is not None and not self.stalled:
+            self.store.set_many(self._pose(self._last_q))
 
     def _status(self, state: SimState) -> list[tuple[str, int, list]]:
         m = self.map

@@ -78,6 +78,9 @@ class RegisterStore:
         self.reply_delay_s = 0.0
         self.failing_reads: list[tuple[str, int, int, int]] = []  # (table, start, end, exception code)
         self.on_write: Callable[[str, int, list], None] | None = None
+        # registers computed only when read (table, start, end, fill): costly values a device refreshes
+        # every cycle but a client reads rarely (the TCP pose)
+        self.on_read: list[tuple[str, int, int, Callable[[], None]]] = []
 
     # -- direct access (controller side) ---------------------------------------------------------
     def set(self, table: str, address: int, words: Sequence) -> None:
@@ -130,6 +133,9 @@ class RegisterStore:
         for t, a, b, code in list(self.failing_reads):
             if t == table and address < b and a < address + count:
                 return ExcCodes(code)
+        for t, a, b, fill in self.on_read:
+            if t == table and address < b and a < address + count:
+                fill()
         return self.get(table, address, count)
 
     async def async_setValues(self, device_id: int, func_code: int, address: int, values):
