@@ -502,6 +502,7 @@ def test_slow_reply_executes_at_once_and_answers_late(ctrl, raw, sim):
 
 
 def test_no_reply_hangs_the_open_sessions_but_serves_a_new_one(ctrl, raw):
+    assert raw.result("getRobotMode") == 2  # the session is being served
     ctrl.inject_fault("no_reply")
     raw.send(b'{"jsonrpc":"2.0","method":"stop","params":{},"id":4}\n')
     assert raw.line(timeout=0.4) is None
