@@ -184,14 +184,6 @@ def test_report_is_self_contained_html_with_png_plots(report_with_history, run_d
     assert result["estimates"]["general"]["mass_kg"] == pytest.approx(TRUTH[0], abs=0.02)
 
 
-def test_report_without_history_and_custom_path(run_dir, cfg, tmp_path):
-    out = write_report(run_dir, cfg, out_path=tmp_path / "sub" / "r.html")
-    assert out == tmp_path / "sub" / "r.html"
-    text = out.read_text(encoding="utf-8")
-    assert len(re.findall(r'<img [^>]*src="data:image/png;base64,', text)) == _n_sweep_figures(cfg) + 1
-    assert "<h2>History</h2>" not in text
-
-
 @pytest.fixture(scope="module")
 def failed_report(cfg, tmp_path_factory) -> tuple[Path, str]:
     """A run whose quality checks fail (15 % gain error on joint 3), recorded through the UR driver and
@@ -205,7 +197,9 @@ def failed_report(cfg, tmp_path_factory) -> tuple[Path, str]:
                                "read_back": {"mass_kg": round(result["mass_kg"], 3), "cog_mm": result["cog_mm"],
                                              "tool_num": None}}
     (run / "manifest.json").write_text(json.dumps(m_json))
-    return run, write_report(run, cfg).read_text()
+    out = write_report(run, cfg, out_path=run / "sub" / "r.html")  # a custom path, no history
+    assert out == run / "sub" / "r.html" and not (run / "report.html").exists()
+    return run, out.read_text()
 
 
 @pytest.fixture(scope="module")
@@ -251,6 +245,7 @@ def test_failed_run_report_names_the_failed_check_and_by_how_much(failed_report)
         over = (c["limit"] - c["value"]) if minimum else (c["value"] - c["limit"])
         assert cells[4].startswith("exceeds the limit by" if not minimum else "short of the limit by")
         assert f"({100 * over / abs(c['limit']):.0f} %)" in cells[4]
+    assert "<h2>History</h2>" not in page  # written without a history database
     # passed checks follow, with units (σ, kg, × noise, samples)
     assert "≤ 3.00 σ" in text and "≤ 50.000 kg" in text and "samples" in text
 
@@ -315,11 +310,11 @@ def _has(px: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> bool:
 
 
 def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, stopped_report, tmp_path):
-    for run, _ in (failed_report, stopped_report):
-        px = _screenshot(run / "report.html", tmp_path / f"{run.name}.png")
-        assert len(np.unique(px, axis=0)) > 200, f"{run.name}: the page did not render"
-        assert _has(px, (0xc0, 0x39, 0x2b)), f"{run.name}: no red FAILED badge / stop box"
-        assert _has(px, (0x1f, 0x5f, 0xa8)), f"{run.name}: the recorded traces are not drawn"
+    for page in (failed_report[0] / "sub" / "r.html", stopped_report[0] / "report.html"):
+        px = _screenshot(page, tmp_path / f"{page.parent.name}.png")
+        assert len(np.unique(px, axis=0)) > 200, f"{page}: the page did not render"
+        assert _has(px, (0xc0, 0x39, 0x2b)), f"{page}: no red FAILED badge / stop box"
+        assert _has(px, (0x1f, 0x5f, 0xa8)), f"{page}: the recorded traces are not drawn"
 
 
 def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
