@@ -140,6 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tool", help="a label for the mounted tool (history compares results per tool)")
     run.add_argument("--result", metavar="PATH", help="also write the result JSON to this path")
     run.add_argument("--solver", choices=["three-step", "general"], help="override procedure.solver")
+    run.add_argument("--resume", metavar="RUN_DIR",
+                     help="finish an incomplete run folder: same robot, YAML and plan; only its unfinished sweeps "
+                          "are recorded")
 
     base = add("baseline", "record and store the empty-flange run (remove the tool first; moves the robot)")
     _robot_arg(base)

@@ -44,6 +44,7 @@ def _run_options(args, con: Console, mode: str, **extra):
                               report=not getattr(args, "no_report", False),
                               out=con.say, ask=con.asker(NO_TERMINAL_HINT[mode]), **extra)
     optional = {"retry_sweeps": getattr(args, "retry_sweeps", 0) or 0, "detail": con.detail,
+                "resume": Path(args.resume) if getattr(args, "resume", None) else None,
                 "progress_stream": con.human, "console": con}
     kw.update({k: v for k, v in optional.items() if k in fields})  # what this runner version accepts
     if con.json_mode and "progress_stream" not in fields:
