@@ -186,3 +186,28 @@ def test_clean_runs_pass_with_uncertainty_terms(base):
     for seed in range(3):
         q, _ = gate_with_terms(kin, noisy(clean, seed), gain_rel_std=CAL_GAIN_REL_STD, length_std_m=LENGTH_STD_M)
         assert q["passed"], (seed, q["reasons"])
+
+
+def test_primary_without_uncertainty_fails_and_three_step_primary_is_gated(base):
+    """The gate judges whichever solver is primary: no uncertainty fails; a three-step primary that
+    disagrees with the general estimate fails, one that agrees passes."""
+    from payload_agent.solvers import three_step
+    from payload_agent.solvers.results import Estimate
+
+    kin, clean = base
+    deltas = noisy(clean, 3)
+    gen = general.solve(deltas, kin)
+    bare = Estimate("my-solver", gen.mass_kg, gen.cog_m)
+    q = evaluate(deltas, kin, bare, others=[gen])
+    assert not q["passed"] and "uncertainty reported (my-solver)" in failed(q)
+
+    ts = three_step.solve(deltas, kin)
+    q = evaluate(deltas, kin, ts, others=[gen])
+    assert q["passed"], q["reasons"]
+    assert {"mass significance (three-step)", "mass three-step vs general", "cog three-step vs general"} <= {
+        c["check"] for c in q["checks"]}
+    biased = dataclasses.replace(ts, mass_kg=ts.mass_kg * 1.04)  # a 4 % bias, as one-way friction gives
+    q = evaluate(deltas, kin, biased, others=[gen])
+    assert "mass three-step vs general" in failed(q)
+    with pytest.raises(QualityGateError, match="three-step mass"):
+        require_passed(RunResult("sim-ec66", "runs/x", biased, [gen], quality=q))

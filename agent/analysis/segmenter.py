@@ -14,12 +14,12 @@ and the noise measured in the same data (so 1e-5 rad of angle noise at 1 % speed
 timestamp jitter at 25 % give the same relative precision), must stay within
 max(``REL_TOL``, ``Z_LIMIT`` standard errors) of the cruise speed. Samples that fail at the
 ends of the interval (a controller ramping longer than planned) are cut off, with a guard of
-half a fit window next to them; if less than
-``MIN_VERIFIED_FRACTION`` of the interval is left, the sweep is refused with the numbers.
+half a fit window next to them; if less than ``MIN_VERIFIED_FRACTION`` of the interval is
+left, the sweep is refused with the numbers.
 
 Without a command (data recorded by other tools, plans not on file) the window is found in
 the data alone: the longest run of samples at the cruise speed, with the same noise-aware
-velocity, less a guard of one fit window at each end.
+velocity, less a guard of half a fit window at each end.
 """
 
 from __future__ import annotations
@@ -234,7 +234,7 @@ def cruise_window(t: np.ndarray, angle: np.ndarray, command: SweepCommand | None
     ts, xs = t[a:b], angle[a:b]
     w, _ = fit_window_samples(ts, xs, command.speed_rad_s)
     v, se = local_velocity(ts, xs, w)
-    cruise = float(np.median(v))
+    cruise = float(np.nanmedian(v))
     if not cruise * command.direction > 0:
         raise DataError(f"{where}: joint {command.joint + 1} did not move in the commanded direction "
                         f"inside its planned constant-speed interval (median speed {math.degrees(cruise):.3f}°/s)")
@@ -257,7 +257,7 @@ def cruise_window(t: np.ndarray, angle: np.ndarray, command: SweepCommand | None
             "commanded speed and acceleration (speed override at 100 %)?")
     seg = xs[r0:r1]
     return Window(a + r0, a + r1, cruise, float(seg.min()), float(seg.max()), (lo, hi), w,
-                  float(np.median(se)))
+                  float(np.nanmedian(se)))
 
 
 def _window_from_data(t: np.ndarray, angle: np.ndarray, where: str) -> Window:

@@ -6,7 +6,6 @@ run can always be re-analysed and gives the same answer.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -15,16 +14,18 @@ import numpy as np
 from payload_agent.evaluation import quality
 from payload_agent.evaluation.calibration import effective_calibration, effective_gains
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.analysis.run_deltas import deltas_for
+from payload_agent.analysis.run_deltas import check_segmentation, deltas_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
+from payload_agent.recording.rundata import load_manifest
 from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.solvers import SOLVERS, general, three_step
 
 POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
-__all__ = ["deltas_for", "solve_all", "quality_checks", "analyse_run", "POSE_AGREEMENT_Z"]
+__all__ = ["deltas_for", "solve_all", "quality_checks", "analyse_run", "check_baseline_segmentation",
+           "POSE_AGREEMENT_Z"]
 
 
 def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
@@ -122,16 +123,13 @@ def check_baseline_segmentation(config: Config, run_dir: Path) -> None:
     """Raise DataError unless every sweep of the run's empty phase is complete and segments.
 
     A baseline is stored only after this passes, so a broken empty run never becomes the
-    reference of later identifications.
+    reference of later identifications. The windows come from the run's plan, as every later
+    analysis will take them (``analysis.run_deltas.check_segmentation``).
     """
-    from payload_agent.analysis.delta import window_of
-    from payload_agent.recording.rundata import load_manifest, load_phase
-
     manifest = load_manifest(run_dir)
     entries = manifest.get("phases", {}).get("empty", {}).get("sweeps", [])
     bad = [e.get("name", "?") for e in entries if e.get("status") != "complete"]
     if not entries or bad:
         raise DataError(f"{run_dir}: the empty-flange run is not complete (sweeps {', '.join(bad) or 'none'}); "
                         "it was not stored as the baseline")
-    for key, sweep in load_phase(run_dir, "empty", np.ones(6), manifest).items():
-        window_of(sweep)  # DataError naming the sweep when it has no constant-speed window
+    check_segmentation(run_dir, "empty")  # DataError naming every sweep without a verified window
