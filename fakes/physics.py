@@ -67,7 +67,12 @@ class PayloadTruth:
 class FrictionParams:
     """Joint friction: Coulomb + viscous + a Coulomb part proportional to the load torque.
 
-    τ_f = scale · [tanh(q̇/ε) · (coulomb + load_ratio·|τ_rigid|) + viscous · q̇]
+    τ_f = scale · factor · [d·(1 + a·d)·coulomb + d·load_ratio·|τ_load| + viscous · q̇],  d = tanh(q̇/ε)
+
+    ``asymmetry`` a: the constant Coulomb level is (1 + a)·coulomb moving positive and (1 − a)·coulomb
+    moving negative (Fc+ ≠ Fc−; 0: symmetric; d·(1 + a·d) vanishes at rest); the load-dependent part
+    stays symmetric. ``factor``: a per-joint multiplier the caller passes, e.g. the temperature
+    dependence (``PhysicsEffects.friction_factor``).
     """
 
     coulomb_nm: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -75,16 +80,19 @@ class FrictionParams:
     load_ratio: np.ndarray = field(default_factory=lambda: np.zeros(6))
     smoothing_rad_s: float = 1e-3
     scale: float = 1.0
+    asymmetry: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     def __post_init__(self) -> None:
         self.coulomb_nm = np.broadcast_to(np.asarray(self.coulomb_nm, float), (6,)).copy()
         self.viscous_nm_s_rad = np.broadcast_to(np.asarray(self.viscous_nm_s_rad, float), (6,)).copy()
         self.load_ratio = np.broadcast_to(np.asarray(self.load_ratio, float), (6,)).copy()
+        self.asymmetry = np.broadcast_to(np.asarray(self.asymmetry, float), (6,)).copy()
 
-    def torque(self, qd: np.ndarray, tau_rigid: np.ndarray) -> np.ndarray:
+    def torque(self, qd: np.ndarray, tau_rigid: np.ndarray, factor: np.ndarray | float = 1.0) -> np.ndarray:
         direction = np.tanh(qd / self.smoothing_rad_s)
-        return self.scale * (direction * (self.coulomb_nm + self.load_ratio * np.abs(tau_rigid))
-                             + self.viscous_nm_s_rad * qd)
+        coulomb = (direction * (1.0 + self.asymmetry * direction) * self.coulomb_nm
+                   + direction * self.load_ratio * np.abs(tau_rigid))
+        return self.scale * np.asarray(factor) * (coulomb + self.viscous_nm_s_rad * qd)
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:

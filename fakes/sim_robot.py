@@ -7,6 +7,7 @@ so every front end sees a gap-free sample stream in simulated time).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import threading
 import time
@@ -15,6 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from payload_agent.fakes.effects import PhysicsEffects, ripple_phases
 from payload_agent.fakes.physics import ArmPhysics, ArmSpec, FrictionParams, PayloadTruth
 from payload_agent.model.profile import JointPath
 
@@ -25,16 +27,28 @@ class SimRefused(Exception):
 
 @dataclass(frozen=True)
 class SimState:
+    """What the controller reports at one tick (``t``, ``q``, ``torque_nm``), and the truth behind it.
+
+    ``t`` and ``q`` carry the timestamp jitter and angle noise of ``PhysicsEffects``; front ends serve
+    them as they are. ``t_true`` / ``q_true`` are the exact simulated time and the controller's
+    noise-free (motor-side) angles; ``q_link`` the links' physical angles (zero offsets and gear
+    elasticity applied); ``temperature_c`` the joint temperatures the friction model used.
+    """
+
     t: float
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
-    torque_nm: np.ndarray  # rigid-body dynamics + friction + noise: what the drives report
+    torque_nm: np.ndarray  # rigid-body dynamics + friction + effects + noise: what the drives report
     moving: bool
     estop: bool
     protective_stop: bool
     servo_on: bool
     move_id: int
+    t_true: float | None = None
+    q_true: np.ndarray | None = None
+    q_link: np.ndarray | None = None
+    temperature_c: np.ndarray | None = None
 
 
 StateCallback = Callable[[SimState], None]
@@ -44,14 +58,26 @@ class SimRobot:
     def __init__(self, spec: ArmSpec, *, q0_rad: Sequence[float], tick_s: float = 0.008,
                  time_scale: float = 1.0, friction: FrictionParams | None = None,
                  noise_nm: float | Sequence[float] = 0.0, seed: int | None = None,
-                 payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0):
+                 payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0,
+                 effects: PhysicsEffects | None = None):
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)
         self.time_scale = float(time_scale)
-        self.friction = friction or FrictionParams()
+        self.effects = effects or PhysicsEffects()
+        friction = friction or FrictionParams()
+        if any(self.effects.coulomb_asymmetry):
+            friction = dataclasses.replace(friction, asymmetry=np.asarray(self.effects.coulomb_asymmetry))
+        self.friction = friction
         self.noise_nm = np.broadcast_to(np.asarray(noise_nm, float), (6,)).copy()
         self.rng = np.random.default_rng(seed)
+        # angle noise and timestamp jitter draw from their own stream: switching them on leaves the
+        # effort noise of a seeded robot unchanged
+        self._sensor_rng = np.random.default_rng(None if seed is None else [int(seed), 10])
+        self._ripple_phases = ripple_phases(seed)
+        self._temperature_c = np.full(6, self.effects.temperature_ref_c)
+        self._tau_gear = np.zeros(6)  # last tick's torque through the gears (start of the elastic fixed point)
+        self._cable_rest: np.ndarray | None = None
         self.stop_decel_rad_s2 = stop_decel_rad_s2
         self._max_speed = np.asarray(spec.max_speed_rad_s, float)
         self._max_accel = np.asarray(spec.max_accel_rad_s2, float)
@@ -123,10 +149,47 @@ class SimRobot:
             q, qd, qdd = self._path.at(t)
         else:
             q, qd, qdd = self._q, np.zeros(6), np.zeros(6)
-        rigid = self.physics.rigid_torque(q, qd, qdd)
-        tau = rigid + self.friction.torque(qd, rigid) + self.rng.normal(0.0, 1.0, 6) * self.noise_nm
-        return SimState(t, q.copy(), qd.copy(), qdd.copy(), tau, self._path is not None, self._estop,
-                        self._protective, self._servo, self._move_id)
+        fx = self.effects
+        temps = self.temperatures_c()
+        factor = fx.friction_factor(temps) if fx.friction_per_c else 1.0
+        cable = fx.tool_cable.active and self.physics.payload is not None
+        q_zero = q - np.asarray(fx.zero_offset_rad)
+        tau_gear = self._tau_gear
+        for _ in range(2 if fx.elastic else 1):  # link angle = motor angle − τ/k: a fixed point, 2 passes
+            q_link = q_zero - fx.compliance_rad_per_nm * tau_gear
+            load = self.physics.rigid_torque(q_link, qd, qdd)
+            if cable:
+                load = load + fx.tool_cable.torque(q_link, self._cable_rest_for(q_link))
+            tau_gear = load + self.friction.torque(qd, load, factor)
+        self._tau_gear = tau_gear
+        tau = tau_gear
+        if fx.ripple.active:
+            tau = tau + fx.ripple.torque(q, tau_gear, self._ripple_phases)
+        tau = fx.quantise(tau + self.rng.normal(0.0, 1.0, 6) * self.noise_nm)
+        q_rep = q + fx.angle_noise(self._sensor_rng)
+        t_rep = t + fx.jitter(self._sensor_rng, self.tick_s)
+        return SimState(t_rep, q_rep, qd.copy(), qdd.copy(), tau, self._path is not None, self._estop,
+                        self._protective, self._servo, self._move_id, t_true=t, q_true=q.copy(),
+                        q_link=q_link.copy(), temperature_c=temps)
+
+    def _cable_rest_for(self, q_link: np.ndarray) -> np.ndarray:
+        """The wrist angles where the tool cable is relaxed: given, or where the tool was mounted
+        (``set_payload`` notes them; a robot built with a payload takes its first angles)."""
+        if self.effects.tool_cable.rest_rad is not None:
+            return np.asarray(self.effects.tool_cable.rest_rad)
+        if self._cable_rest is None:
+            self._cable_rest = np.asarray(q_link[3:6], float).copy()
+        return self._cable_rest
+
+    def temperatures_c(self) -> np.ndarray:
+        """Joint temperatures the friction model uses: the set ones, warmer by tool_warmup_c with a tool on."""
+        warm = self.effects.tool_warmup_c if self.physics.payload is not None else 0.0
+        return self._temperature_c + warm
+
+    def set_joint_temperatures(self, values_c: Sequence[float]) -> None:
+        """Set the joints' temperatures (°C, 6 values; without the tool warm-up)."""
+        with self._lock:
+            self._temperature_c = np.broadcast_to(np.asarray(values_c, float), (6,)).copy()
 
     def now(self) -> float:
         with self._lock:
@@ -151,10 +214,15 @@ class SimRobot:
             raise SimRefused("target must have 6 joint values")
         with self._lock:
             self._refuse_unless_ready()
-            self._path = JointPath(self._state.q, target, self._t, speed_rad_s, accel_rad_s2,
+            self._path = JointPath(self._q_now(), target, self._t, speed_rad_s, accel_rad_s2,
                                    self._max_speed, self._max_accel)
             self._move_id += 1
             return self._path.t_end - self._t
+
+    def _q_now(self) -> np.ndarray:
+        """The controller's exact (noise-free) joint angles now (caller holds the lock)."""
+        q = self._state.q_true
+        return np.asarray(self._state.q if q is None else q, float).copy()
 
     def _refuse_unless_ready(self) -> None:
         """What a real controller checks before accepting a motion command (caller holds the lock)."""
@@ -177,8 +245,8 @@ class SimRobot:
         """
         with self._lock:
             self._refuse_unless_ready()
-            path = make_path(self._t, self._state.q.copy())
-            if np.max(np.abs(np.asarray(path.at(self._t)[0]) - self._state.q)) > 1e-6:
+            path = make_path(self._t, self._q_now())
+            if np.max(np.abs(np.asarray(path.at(self._t)[0]) - self._q_now())) > 1e-6:
                 raise SimRefused("trajectory does not start at the current joint angles")
             self._path = path
             self._move_id += 1
@@ -190,8 +258,11 @@ class SimRobot:
                 self._path.stop_at(self._t, decel_rad_s2 or self.stop_decel_rad_s2)
 
     def set_payload(self, payload: PayloadTruth | None) -> None:
+        """Mount (or remove, None) the tool. A tool cable without given rest angles relaxes where it is mounted."""
         with self._lock:
             self.physics.set_payload(payload)
+            here = self._state.q_link
+            self._cable_rest = None if here is None else np.asarray(here[3:6], float).copy()
 
     @property
     def payload(self) -> PayloadTruth | None:
