@@ -182,7 +182,8 @@ def record_excitation(robot: SimRobot, traj: FourierTrajectory, *, torque_scale:
     the same trajectory share one time base. Effort is N·m × ``torque_scale`` (drive gain error).
     """
     scale = np.ones(6) if torque_scale is None else np.asarray(torque_scale, float)
-    if np.max(np.abs(robot.snapshot().q - traj.q_start)) > 1e-9:
+    here = robot.snapshot()
+    if np.max(np.abs((here.q if here.q_true is None else here.q_true) - traj.q_start)) > 1e-9:  # exact, not noisy, angles
         robot.move_joints(traj.q_start, approach_speed_rad_s, approach_accel_rad_s2)
         while robot.step().moving:
             pass
