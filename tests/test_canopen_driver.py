@@ -105,7 +105,7 @@ def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
     # the simulated wire runs on the simulated clock: SYNCs 1/250 s apart arrive time_scale/250 apart
     assert np.median(np.diff(t)) == pytest.approx(4.0 / 250.0, rel=0.5)
     q = np.array(samples[-1].q)
-    assert np.max(np.abs(q - START)) < 1e-6
+    assert np.max(np.abs(q - START)) < 1e-4  # where the arm stands, with the encoders' noise
     wall = samples[-1].t_recv - samples[0].t_recv
     print(f"\nPDO stream: {len(samples)} samples in {wall:.2f} s wall = {(len(samples) - 1) / wall:.0f} Hz "
           f"(SYNC 250 Hz; {answered} SYNCs answered)")

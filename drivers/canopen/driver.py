@@ -77,6 +77,7 @@ class CANopenDriver(Driver):
         self.fault_codes: dict[int, int] = {}  # joint -> 0x603F of drives found in FAULT at connect
         self.cleared_faults: list[str] = []
         self.profile_cache: dict[tuple[int, int], int] = {}
+        self.commanded: list[int | None] = [None] * self.n  # each drive's last set-point (counts) since enabled
         self._sdo_locks = [threading.Lock() for _ in range(self.n)]
         self._info: ControllerInfo | None = None
 
@@ -125,6 +126,7 @@ class CANopenDriver(Driver):
         self.tpdo = TpdoCollector(self.n)
         self.enabled = False
         self.profile_cache.clear()
+        self.commanded = [None] * self.n
         self.network = canopen.Network(open_bus(opts))
         try:
             self.network.connect()
@@ -148,6 +150,7 @@ class CANopenDriver(Driver):
             self.monitor.expect_operational = True
             self.sync = SyncProducer(self.network.send_message, self.nominal_period_s).start()
             self._wait_first_tpdos()
+            self._wait_operational()
             self._check_faults_at_connect()
         except BaseException:
             self._close()
@@ -227,6 +230,16 @@ class CANopenDriver(Driver):
                 silent = [self.labels[j] for j, s in enumerate(self.monitor.seq) if s == 0]
                 raise CommunicationError(f"no TPDO within {FIRST_TPDO_WAIT_S:g} s of SYNC from {', '.join(silent)}: "
                                          "is the drive NMT OPERATIONAL, and does it accept the PDO layout?")
+            time.sleep(0.005)
+
+    def _wait_operational(self) -> None:
+        """Every drive's heartbeat reports NMT OPERATIONAL (those sent before the start command may not)."""
+        deadline = time.monotonic() + self.options.heartbeat_timeout_ms / 1000.0
+        while not all(self.monitor.operational):
+            if time.monotonic() > deadline:
+                late = [self.labels[j] for j, ok in enumerate(self.monitor.operational) if not ok]
+                raise CommunicationError(f"no heartbeat reporting NMT OPERATIONAL from {', '.join(late)} within "
+                                         f"{self.options.heartbeat_timeout_ms} ms of the start command")
             time.sleep(0.005)
 
     def _check_faults_at_connect(self) -> None:

@@ -40,6 +40,7 @@ class DriveMonitor:
         self.nmt_state: list[int | None] = [None] * n
         self.heartbeat_since: float | None = None  # consumer monitoring starts when 0x1017 was written
         self.expect_operational = False  # NMT start was sent
+        self.operational = [False] * n  # a heartbeat reported OPERATIONAL since then
         self.expect_enabled = [False] * n  # the driver put the drive in OPERATION ENABLED
         self.emcy: list[tuple[int, int, int]] = []  # (joint, code, error register), every EMCY received
         self.fault: str | None = None
@@ -60,7 +61,9 @@ class DriveMonitor:
     def on_heartbeat(self, j: int, nmt_state: int) -> None:
         self.t_heartbeat[j] = time.monotonic()
         self.nmt_state[j] = nmt_state
-        if self.expect_operational and nmt_state != NMT_OPERATIONAL:
+        if nmt_state == NMT_OPERATIONAL:
+            self.operational[j] = True
+        elif self.expect_operational and self.operational[j]:  # it was OPERATIONAL (a heartbeat says so) and left
             what = "restarted (boot-up message)" if nmt_state == NMT_BOOTUP else \
                 f"left NMT OPERATIONAL (heartbeat reports {NMT_NAMES.get(nmt_state, hex(nmt_state))})"
             self.set_fault(f"{self.labels[j]} {what}; its PDOs no longer run")

@@ -30,6 +30,7 @@ log = logging.getLogger(__name__)
 STOP_CONFIRM_S = 0.25  # statuswords confirming a quick stop: TPDOs first, then SDO
 FRESH_STOP_WAIT_S = 0.3
 MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
+DEG = math.pi / 180.0
 
 
 def ensure_enabled(drv: "CANopenDriver") -> None:
@@ -83,13 +84,15 @@ def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s
                    duration_s: float) -> None:
     """Profile velocity and acceleration = deceleration of joint ``j``, in position units.
 
-    Rounding to whole counts must not make a joint with a tiny travel late: its values are at least
-    those of a triangle over ``travel_counts`` that lasts the leading joint's ``duration_s``.
+    The synchronised values rounded up to whole counts, so no joint arrives late; a joint whose
+    travel is so small that even 1 count/s or 1 count/s² would make it late gets the triangle
+    over its travel that lasts the leading joint's ``duration_s``.
     """
     cpr = drv.options.counts_per_rad[j]
     d, t = abs(travel_counts), max(duration_s, 1e-3)
-    v = max(1, round(speed_rad_s * cpr), math.ceil(2 * d / t))
-    a = max(1, round(accel_rad_s2 * cpr), math.ceil(4 * d / (t * t)))
+    v, a = max(1, math.ceil(speed_rad_s * cpr)), max(1, math.ceil(accel_rad_s2 * cpr))
+    if trapezoid_duration(d, v, a) > 1.01 * t:  # (rounding of the travel itself makes ~1e-7 s of difference)
+        v, a = max(v, math.ceil(2 * d / t)), max(a, math.ceil(4 * d / (t * t)))
     for index, value in ((obj.PROFILE_VELOCITY, v), (obj.PROFILE_ACCELERATION, a), (obj.PROFILE_DECELERATION, a)):
         if drv.profile_cache.get((j, index)) != value:
             drv.sdo_write(j, index, value)
@@ -110,7 +113,10 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
     speeds, accels = synchronised_joint_rates(q0, target, lead_v, lead_a)
     duration = trapezoid_duration(float(np.max(np.abs(np.asarray(target) - q0))), lead_v, lead_a)
     counts = [round(o.zero_counts[j] + o.direction[j] * float(target[j]) * o.counts_per_rad[j]) for j in range(n)]
-    moving = [j for j in range(n) if counts[j] != m.position[j]]
+    window = o.position_window_deg * DEG
+    # a joint moves if its target changed; before its first set-point, if it stands outside the target window
+    moving = [j for j in range(n) if (counts[j] != drv.commanded[j] if drv.commanded[j] is not None
+                                      else abs(counts[j] - m.position[j]) > window * o.counts_per_rad[j])]
     if not moving:
         return
     for j in moving:
@@ -140,7 +146,8 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
         drv.stop()
         raise MotionAbortedError(f"{', '.join(drv.labels[j] for j in late)} did not report target reached "
                                  f"(statusword bit 10) within {timeout_s:.1f} s; every drive was quick-stopped")
-    window = o.position_window_deg * 0.017453292519943295
+    for j in moving:
+        drv.commanded[j] = counts[j]
     off = [j for j in moving if abs(m.position[j] - counts[j]) > max(2.0, window * o.counts_per_rad[j])]
     if off:
         j = off[0]
@@ -151,6 +158,7 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
 def _forget_enabled(drv: "CANopenDriver") -> None:
     drv.monitor.expect_enabled = [False] * drv.n  # our own stop is not a fault
     drv.enabled = False
+    drv.commanded = [None] * drv.n  # stopped short of their targets
 
 
 def quick_stop(drv: "CANopenDriver") -> bool:

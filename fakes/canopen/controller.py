@@ -1,18 +1,19 @@
 """Six simulated CiA 402 drives on python-can's virtual bus, moving one simulated arm.
 
 The simulated-controller contract (fakes/base.py) for the ``canopen`` driver. One ``SimRobot``
-(the physics core, its own clock thread at ``time_scale``) is the arm; six ``SimDrive``s, one
-canopen ``LocalNode`` each, share one bus object on a virtual channel of their own (the wire;
-the driver opens its own bus on the same channel).
+(the physics core) is the arm; six ``SimDrive``s, one canopen ``LocalNode`` each, share one bus
+object on a virtual channel of their own (the wire; the driver opens its own bus on the same
+channel).
 
-Time: the simulated wire's clock is the simulated clock. Every frame the drives send carries
-it as its timestamp (``msg.timestamp``, what a hardware-timestamping interface gives), so the
-samples are spaced in simulated time: a SYNC every 1/``sync_rate_hz`` of wall time is
-``time_scale``/``sync_rate_hz`` of simulated time apart (250 Hz at time_scale 2: 125 samples per
-simulated second). On SYNC the drives latch the newest physics tick (up to one tick old, as a
-drive samples its last servo cycle), act on their synchronous RPDOs and send their TPDOs, stamped
-with that tick's time plus each frame's place on the wire. A SYNC that finds no new tick (the
-physics thread fell behind on a busy machine) gets no TPDOs.
+Time: the drives' control cycle is locked to SYNC, and so is the simulated arm: every SYNC
+advances the physics core by one tick of ``time_scale``/``sync_rate_hz`` simulated seconds
+(``SyncSteppedRobot``), so 250 Hz of SYNC at time_scale 4 is 62.5 samples per simulated second.
+A starved or jittery SYNC producer (a busy machine) then slows simulated time instead of leaving
+holes in the samples; without SYNC the simulated arm stands still (a real drive would finish its
+profile on its own clock). The simulated wire's clock is the simulated clock: every frame the
+drives send carries it as its timestamp (``msg.timestamp``, what a hardware-timestamping
+interface gives); the TPDOs carry the tick's reported time (with the physics core's timestamp
+jitter) plus each frame's place on the wire.
 
 Faults (``inject_fault``; ``joint=`` 1..6 limits one to a drive): ``drop_connections`` (drives
 off the bus: no heartbeat, SDO, PDO; ``heartbeat_only=True``: only the heartbeat stops),
@@ -50,6 +51,18 @@ CODE_FOLLOWING_ERROR, CODE_UNDERVOLTAGE = 0x8611, 0x3220
 FRAME_BITS = 130  # an 8-byte CAN 2.0A data frame with stuff bits and inter-frame space
 
 
+class SyncSteppedRobot(SimRobot):
+    """A SimRobot without its own clock thread: the simulated drives step it once per SYNC."""
+
+    def start(self) -> "SyncSteppedRobot":
+        return self
+
+
+def _true_t(state) -> float:
+    """The exact simulated time of a physics tick (``t`` carries the reported timestamp's jitter)."""
+    return state.t_true if getattr(state, "t_true", None) is not None else state.t
+
+
 class SimClockBus(VirtualBus):
     """The simulated wire: every frame sent on it carries the simulated bus clock as its timestamp."""
 
@@ -81,7 +94,7 @@ class SimulatedCANopenArm(SimulatedController):
         self._robot, self.options = robot, options
         self.channel = f"{options.channel}-{uuid.uuid4().hex[:8]}"  # its own wire: no crosstalk between cells
         self.epoch = time.time()
-        self._tick = (robot.now(), time.monotonic())
+        self._tick = (robot.now(), time.monotonic())  # (exact simulated time of the newest tick, wall time)
         self._state = robot.snapshot()
         self._latched = None
         rated_current = rated_current_a or [t / 10.0 for t in rated_torque_nm]  # 10 N·m/A at the joint
@@ -103,6 +116,7 @@ class SimulatedCANopenArm(SimulatedController):
         self.sync_count = 0
         self.skipped_syncs = 0
         self._last_sync_t: float | None = None
+        self._last_stamp = 0.0
         self.frame_s = FRAME_BITS / options.bitrate  # one 8-byte frame on the wire
 
     @classmethod
@@ -112,9 +126,7 @@ class SimulatedCANopenArm(SimulatedController):
 
         opts, sim = config.driver_options, config.simulation
         spec = SPECS[sim.arm]()
-        # a few physics ticks per SYNC: each SYNC latches a fresh one
-        tick = min(0.008, max(0.001, sim.time_scale / (2.0 * opts.sync_rate_hz)))
-        robot = SimRobot(spec, tick_s=tick, **sim_robot_kwargs(config))
+        robot = SyncSteppedRobot(spec, tick_s=sim.time_scale / opts.sync_rate_hz, **sim_robot_kwargs(config))
         return cls(robot, opts, **{"rated_torque_nm": spec.rated_torque_nm, "gain_error": sim.drive_gain_error,
                                    **kwargs})
 
@@ -159,8 +171,8 @@ class SimulatedCANopenArm(SimulatedController):
         self._robot.close()
 
     # -- clocks ---------------------------------------------------------------------------------
-    def _on_tick(self, state) -> None:  # the physics clock thread
-        self._tick = (state.t, time.monotonic())
+    def _on_tick(self, state) -> None:  # a robot with its own clock thread (tests may pass one)
+        self._tick = (_true_t(state), time.monotonic())
         self._state = state
 
     def tick_time(self) -> float:
@@ -168,8 +180,10 @@ class SimulatedCANopenArm(SimulatedController):
         return self._tick[0]
 
     def sim_time(self) -> float:
-        """Simulated now: the newest tick, advanced by the wall time since it (at most one tick)."""
+        """Simulated now: the newest tick, advanced by the wall time since it if the robot runs its own clock."""
         t, mono = self._tick
+        if isinstance(self._robot, SyncSteppedRobot):
+            return t
         return t + min((time.monotonic() - mono) * self._robot.time_scale, self._robot.tick_s)
 
     def bus_time(self) -> float:
@@ -215,6 +229,8 @@ class SimulatedCANopenArm(SimulatedController):
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
             self.sync_count += 1
+            if isinstance(self._robot, SyncSteppedRobot):
+                self._on_tick(self._robot.step())  # the drives' cycle, locked to SYNC
             self._latched = self._state
             self._in_sync = True
             try:
@@ -230,15 +246,17 @@ class SimulatedCANopenArm(SimulatedController):
                 d.update()
                 frames += d.tpdo_frames(self.sync_count)
             latched, self._latched = self._latched, None
-        if latched.t == self._last_sync_t:  # the physics clock fell behind: no new sample to send
+        if _true_t(latched) == self._last_sync_t:  # a free-running physics clock fell behind: nothing new
             self.skipped_syncs += 1
             return
-        self._last_sync_t = latched.t
-        # the drives sample at SYNC (the latched tick) and their TPDOs follow each other on the wire
-        t0 = self.epoch + latched.t
+        self._last_sync_t = _true_t(latched)
+        # the drives sample at SYNC (the latched tick, its reported time with the physics core's jitter) and
+        # their TPDOs follow each other on the wire
+        t0 = max(self.epoch + latched.t, self._last_stamp)
         for k, (cob, payload) in enumerate(frames, start=1):
             self.network.bus.send_stamped(can.Message(arbitration_id=cob, data=payload, is_extended_id=False,
                                                       timestamp=t0 + k * self.frame_s))
+        self._last_stamp = t0 + len(frames) * self.frame_s
 
     # -- motion ---------------------------------------------------------------------------------
     def request_setpoint(self, d: SimDrive) -> None:
