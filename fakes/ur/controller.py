@@ -36,7 +36,7 @@ from payload_agent.fakes.ur.constants import (DASHBOARD_PORT, DEFAULT_CURRENT_NO
                                               SSB_STOPPED_BY_SAFETY, UR5E_HOME_Q, pick_loopback_host)
 from payload_agent.fakes.ur.dashboard import serve_dashboard
 from payload_agent.fakes.ur.faults import FaultState
-from payload_agent.fakes.ur.outputs import Snapshot, build_snapshot, matrix_to_pose, pose_to_matrix
+from payload_agent.fakes.ur.outputs import Snapshot, TcpPose, build_snapshot
 from payload_agent.fakes.ur.programs import ProgramHost
 from payload_agent.fakes.ur.rtde_session import RTDESession
 
@@ -314,13 +314,11 @@ class URControllerCore:
 
     def tcp_pose(self, q: Sequence[float], tcp_offset: Sequence[float]) -> tuple[float, ...]:
         """actual_TCP_pose: the flange pose of the simulated kinematics times the TCP offset."""
-        if not np.all(np.isfinite(q)):
+        if not all(math.isfinite(v) for v in q):
             return tuple(_NAN6)
         if self._kin is None:
-            from payload_agent.model.kinematics import Kinematics
-
-            self._kin = Kinematics(self.robot.spec.dh)
-        return matrix_to_pose(self._kin.flange(q) @ pose_to_matrix(tcp_offset))
+            self._kin = TcpPose(self.robot.spec.dh)
+        return self._kin.pose(q, tcp_offset)
 
     def safety(self, st: SimState) -> tuple[int, int]:
         """(safety_mode, safety_status_bits) of a simulation state."""

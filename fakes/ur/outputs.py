@@ -7,6 +7,7 @@ Costly fields (the model torque, the TCP pose) are computed only when a recipe a
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
@@ -67,17 +68,64 @@ def build_snapshot(ctrl: "URControllerCore", st: "SimState", current: np.ndarray
     return s
 
 
+class TcpPose:
+    """actual_TCP_pose from joint angles, fast enough for every package at 500 Hz × the time scale.
+
+    The standard-DH chain (frame i from i-1: Rz(q + offset) Tz(d) Tx(a) Rx(alpha), as
+    ``payload_agent.model.kinematics``) in plain floats, times the TCP offset; the TCP's
+    matrix is cached, and so is the last pose (the arm often stands still).
+    """
+
+    def __init__(self, dh_rows):
+        self.rows = [(r.a_m, r.d_m, math.cos(r.alpha_rad), math.sin(r.alpha_rad), r.offset_rad) for r in dh_rows]
+        self._tcp_key: tuple | None = None
+        self._tcp: list[list[float]] = []
+        self._last: tuple | None = None
+
+    def flange(self, q: Sequence[float]) -> list[list[float]]:
+        """The 3x4 flange transform [R | p] (rows) of the base frame."""
+        T = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
+        for qi, (a, d, ca, sa, off) in zip(q, self.rows):
+            ct, st = math.cos(qi + off), math.sin(qi + off)
+            A = ((ct, -st * ca, st * sa, a * ct), (st, ct * ca, -ct * sa, a * st), (0.0, sa, ca, d))
+            T = [[r[0] * A[0][0] + r[1] * A[1][0] + r[2] * A[2][0],
+                  r[0] * A[0][1] + r[1] * A[1][1] + r[2] * A[2][1],
+                  r[0] * A[0][2] + r[1] * A[1][2] + r[2] * A[2][2],
+                  r[0] * A[0][3] + r[1] * A[1][3] + r[2] * A[2][3] + r[3]] for r in T]
+        return T
+
+    def pose(self, q: Sequence[float], tcp_offset: Sequence[float]) -> tuple[float, ...]:
+        key = (tuple(float(v) for v in q), tuple(tcp_offset))
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        if self._tcp_key != key[1]:
+            self._tcp_key, self._tcp = key[1], pose_to_matrix(tcp_offset)[:3].tolist()
+        F, C = self.flange(key[0]), self._tcp
+        T = [[f[0] * C[0][j] + f[1] * C[1][j] + f[2] * C[2][j] for j in range(4)] for f in F]
+        pose = (T[0][3] + F[0][3], T[1][3] + F[1][3], T[2][3] + F[2][3], *_rotvec(T))
+        self._last = (key, pose)
+        return pose
+
+
+def _rotvec(R: list[list[float]]) -> tuple[float, float, float]:
+    """Rotation matrix (the 3x3 part of R) -> rotation vector (angle in [0, π]), as UR poses carry it."""
+    v = (R[2][1] - R[1][2], R[0][2] - R[2][0], R[1][0] - R[0][1])  # 2 sin(angle) · axis
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    c = (R[0][0] + R[1][1] + R[2][2] - 1.0) / 2.0
+    if n < 1e-4 and c < 0:  # angle near π: the axis is not in v
+        return tuple(float(x) for x in Rotation.from_matrix(np.asarray(R)[:3, :3]).as_rotvec())
+    if n == 0.0:
+        return (0.0, 0.0, 0.0)
+    k = math.atan2(n / 2.0, c) / n
+    return (v[0] * k, v[1] * k, v[2] * k)
+
+
 def pose_to_matrix(pose: Sequence[float]) -> np.ndarray:
     """UR pose [x, y, z, rx, ry, rz] (m, rotation vector) -> 4x4 homogeneous transform."""
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(np.asarray(pose[3:6], float)).as_matrix()
     T[:3, 3] = np.asarray(pose[:3], float)
     return T
-
-
-def matrix_to_pose(T: np.ndarray) -> tuple[float, ...]:
-    """4x4 homogeneous transform -> UR pose [x, y, z, rx, ry, rz] (rotation angle in [0, π])."""
-    return (*(float(v) for v in T[:3, 3]), *(float(v) for v in Rotation.from_matrix(T[:3, :3]).as_rotvec()))
 
 
 def _const(value: Any) -> Callable[[Snapshot], Any]:

@@ -29,6 +29,8 @@ from payload_agent.fakes.ur.outputs import GETTERS, Snapshot
 if TYPE_CHECKING:
     from payload_agent.fakes.ur.controller import URControllerCore
 
+CLIENT_STALL_S = 0.5  # a client whose socket takes nothing for this long is dropped
+
 
 @dataclass
 class OutputRecipe:
@@ -63,8 +65,10 @@ class RTDESession:
         self.send_lock = threading.Lock()
         self.cv = threading.Condition()
         self.queue: collections.deque = collections.deque()
-        self.max_queue = 1000  # the real controller drops a client whose buffer overflows
+        self.max_queue = 1000
         self.overflowed = False
+        self.blocked_since: float | None = None  # the sender waits in sendall: the client does not read
+        self.dropped_packages = 0
         self.sent_packages = 0
         self.errors: list[str] = []
         self.sender = threading.Thread(target=self._send_loop, daemon=True, name="ur-fake-rtde-send")
@@ -252,8 +256,14 @@ class RTDESession:
                     if rec.next_t < s.t:  # fell behind (paused clock): do not burst
                         rec.next_t = s.t + rec.period
             if len(self.queue) > self.max_queue:
-                self.overflowed = True
-                self.alive = False
+                blocked = self.blocked_since
+                if blocked is not None and time.monotonic() - blocked > CLIENT_STALL_S:
+                    self.overflowed = True  # the real controller drops a client that does not read
+                    self.alive = False
+                else:  # the fake's own sender fell behind (a busy machine): the oldest packages are lost
+                    while len(self.queue) > self.max_queue:
+                        self.queue.popleft()
+                        self.dropped_packages += 1
             self.cv.notify()
         if self.overflowed:
             self.ctrl.note("rtde: client does not read; closing its connection")
@@ -271,6 +281,14 @@ class RTDESession:
                 return os.urandom(len(payload) + rp.HEADER_SIZE)
             payload = payload[:1] + os.urandom(len(payload) - 1)  # well framed, content corrupted
         return rp.pack(rp.DATA_PACKAGE, payload)
+
+    def _send(self, data: bytes) -> None:
+        with self.send_lock:
+            self.blocked_since = time.monotonic()
+            try:
+                self.conn.sendall(data)
+            finally:
+                self.blocked_since = None
 
     def _send_loop(self) -> None:
         # The real controller sends one package every cycle. The simulated clock may fall
@@ -299,12 +317,10 @@ class RTDESession:
                         wait = last_send + min_gap - time.monotonic()
                         if wait > 0:
                             time.sleep(wait)
-                        with self.send_lock:
-                            self.conn.sendall(chunk)
+                        self._send(chunk)
                         last_send = time.monotonic()
                 else:
-                    with self.send_lock:
-                        self.conn.sendall(b"".join(chunks))
+                    self._send(b"".join(chunks))
                     last_send = time.monotonic()
                 self.sent_packages += len(chunks)
             except OSError:

@@ -1,0 +1,447 @@
+"""``URRTDEDriver``: Universal Robots CB3 / e-Series through SDU's ur-rtde client library.
+
+Three controller services, all through their documented protocols:
+
+* RTDE (30004) through ``rtde_receive.RTDEReceiveInterface`` with an explicit recipe
+  (``RECIPE``) at the controller's rate (500 Hz e-Series, 125 Hz CB3): the sample stream;
+* ur-rtde's control script (uploaded on 30003 by ``rtde_control.RTDEControlInterface``, which
+  runs in a worker process: ``control``): moveJ / stopJ / setPayload / getTCPOffset /
+  stopScript, the command channel;
+* the dashboard server (29999, ``dashboard``): identification, Remote Control, and the stop
+  over a new connection when RTDE is gone.
+
+Design notes:
+
+* ``_read_sample``: RTDEReceiveInterface keeps only the latest data package, so the reader polls
+  ``getTimestamp()`` and reads q and current when it changes (timestamp read again afterwards:
+  the getters then came from one package); ``samples_missed`` counts the packages skipped,
+  from the controller timestamps. Values no arm can have (angles beyond ±2 turns, currents
+  beyond 100 A, time running backwards) are a broken stream: corrupt RTDE data parses.
+* ``effort`` is ``actual_current`` in A (motor current; torque = gain × current).
+* Every ur-rtde command runs bounded (``COMMAND_TIMEOUT_S``; a stop ``STOP_REPLY_S``): a
+  control script that does not answer is a failed command channel, never a hung agent.
+* The control script is uploaded by the first command (a move, a payload write, the TCP read
+  of the kinematic cross-check), not by ``connect()``: uploading it replaces the program the
+  robot runs, and a connection that only reads (``watch``) must not do that. It is uploaded
+  before the motion supervision is armed (the watchdog would take the missing command
+  channel for a lost one).
+* Stops: stopJ over the control interface when it lives (``_stop_command``), otherwise the
+  dashboard's ``stop`` on a new connection (``_stop_fresh``); the base class retries and
+  reports which one the controller acknowledged.
+* ur-rtde's constructors return even when the connection failed; ``isConnected()`` is
+  checked after each of them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import socket
+import threading
+import time
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import rtde_receive
+from scipy.spatial.transform import Rotation
+
+from payload_agent.drivers.base import Driver, MotionLimits, Supervision
+from payload_agent.drivers.ur_rtde.control import ControlChannel
+from payload_agent.drivers.ur_rtde.dashboard import dashboard_query, dashboard_stop
+from payload_agent.drivers.ur_rtde.options import URRTDEOptions
+from payload_agent.drivers.ur_rtde.states import (DIGITAL_INPUT_NAMES, RUNTIME_PLAYING, controller_state,
+                                                  runtime_name, safety_stop)
+from payload_agent.errors import (CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError,
+                                  UnsupportedCapability)
+from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
+
+RTDE_PORT = 30004
+# RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the payload
+# fields exist from PolyScope 5.5.1 / 3.11 on and are added only there).
+RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_pose", "robot_mode", "safety_mode",
+          "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
+PAYLOAD_FIELDS = ["payload", "payload_cog"]
+COMMAND_TIMEOUT_S = 2.0  # a ur-rtde command (moveJ async, setPayload, getTCPOffset) answers in a few cycles
+POLL_TIMEOUT_S = 0.5  # reading the async progress word during a move (a local read in the worker)
+STOP_REPLY_S = 0.25  # stopJ over the command channel; then the dashboard is tried
+DASHBOARD_STOP_TIMEOUT_S = 0.5
+MAX_ANGLE_RAD = 4 * math.pi  # UR joints turn ±2 turns at most
+MAX_CURRENT_A = 100.0
+MAX_ACCEL_RAD_S2 = 40.0  # ur-rtde's limit for moveJ
+
+
+class URRTDEDriver(Driver):
+    name = "ur_rtde"
+    options_class = URRTDEOptions
+    simulator = "payload_agent.fakes.ur:FakeURController"
+    reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
+    options: URRTDEOptions
+
+    def __init__(self, options: URRTDEOptions, limits: MotionLimits, supervision: Supervision | None = None):
+        super().__init__(options, limits, supervision)
+        self.effort_unit = "A"
+        self.host = options.host.strip()
+        self.frequency_hz: float = options.frequency_hz or 500.0  # CB3 (125 Hz) is known only at connect
+        self.nominal_period_s = 1.0 / self.frequency_hz
+        self.target_tolerance_rad = math.radians(options.target_tolerance_deg)
+        self._recv: Any = None
+        self._control = ControlChannel(self.host, self.frequency_hz, options.upper_range_registers)
+        self._info: ControllerInfo | None = None
+        self._version: tuple[int, ...] = ()
+        self._remote: bool | None = None
+        self._has_payload_fields = False
+        self._abort = threading.Event()
+        self._last_ts: float | None = None
+        self._last_conn_check = 0.0
+        self.samples_delivered = 0
+        self.samples_missed = 0
+
+    def describe_endpoint(self) -> str:
+        return f"{self.host}:{RTDE_PORT}"
+
+    # -- connection ----------------------------------------------------------------------------
+    def _open(self) -> None:
+        # ur-rtde connects without a timeout (an unreachable address blocks for minutes): check first
+        try:
+            socket.create_connection((self.host, RTDE_PORT), timeout=self.options.connect_timeout_s).close()
+        except OSError as exc:
+            raise CommunicationError(f"cannot reach the UR controller at {self.host}:{RTDE_PORT} (RTDE): {exc}") \
+                from exc
+        self._identify_dashboard()
+        if self.options.frequency_hz is None and not (self._version and self._version[0] >= 5):
+            self.frequency_hz = 125.0  # CB3
+        self.nominal_period_s = 1.0 / self.frequency_hz
+        self._control.frequency_hz = self.frequency_hz
+        v = self._version + (0, 0, 0)
+        self._has_payload_fields = (v[0] == 3 and v[1] >= 11) or (v[0] == 5 and (v[1], v[2]) >= (5, 1)) or v[0] > 5
+        variables = RECIPE + (PAYLOAD_FIELDS if self._has_payload_fields else [])
+        try:
+            recv = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, variables, False,
+                                                     self.options.upper_range_registers)
+        except RuntimeError as exc:
+            raise CommunicationError(f"RTDE receive interface to {self.host}:{RTDE_PORT} failed: {exc}") from exc
+        if not recv.isConnected():
+            raise CommunicationError(f"RTDE receive interface to {self.host}:{RTDE_PORT} did not connect "
+                                     "(ur-rtde returned without a connection)")
+        self._recv = recv
+        self._last_ts = None
+
+    def _identify_dashboard(self) -> None:
+        timeout = self.options.connect_timeout_s
+        version_line, model = dashboard_query(self.host, "PolyscopeVersion", "get robot model", timeout_s=timeout)
+        m = re.search(r"(\d+)\.(\d+)\.(\d+)\.(\d+)", version_line)
+        if not m:
+            raise CommunicationError(f"unexpected PolyscopeVersion reply from {self.host}: {version_line!r}")
+        self._version = tuple(int(x) for x in m.groups())
+        serial = ""
+        if self._version[0] == 5 and self._version[1] >= 6:
+            serial, remote = dashboard_query(self.host, "get serial number", "is in remote control", timeout_s=timeout)
+            self._remote = "true" in remote.lower()
+            if not serial.isdigit():
+                serial = ""
+        suffix = "e" if self._version[0] >= 5 and not model.endswith("e") else ""
+        self._info = ControllerInfo(vendor="Universal Robots", model=f"{model}{suffix}", firmware=m.group(0),
+                                    serial=serial)
+
+    def _close(self) -> None:
+        self._abort.set()
+        self._control.close(STOP_REPLY_S * 4)
+        recv, self._recv = self._recv, None
+        if recv is not None:
+            try:
+                recv.disconnect()
+            except Exception:
+                pass
+
+    def _receive(self):
+        if self._recv is None:
+            raise CommunicationError("the ur_rtde driver is not connected; call connect() first")
+        if not self._recv.isConnected():
+            raise CommunicationError(f"lost the RTDE connection to {self.host}:{RTDE_PORT}")
+        return self._recv
+
+    def _ensure_control(self) -> None:
+        """ur-rtde's control interface connected and its script running (built or re-uploaded if needed)."""
+        with self._control.lock:
+            if self._control.get(lambda: self._state(refresh_remote=True).reason):
+                self._wait_receive_playing()
+
+    def _wait_receive_playing(self) -> None:
+        """The receive interface's packages may predate the script start: _move_joints reads the
+        runtime state from them and would take STOPPED for a dead script."""
+        r = self._receive()
+        self._wait(lambda: r.getRuntimeState() == RUNTIME_PLAYING, 2.0,
+                   "the RTDE receive interface to report the control script running")
+
+    def _command_alive(self) -> bool:
+        return self._control.alive()
+
+    # -- identity and state ----------------------------------------------------------------------
+    def identify(self) -> ControllerInfo:
+        if self._info is None:
+            self._identify_dashboard()
+        return self._info
+
+    def state(self) -> ControllerState:
+        return self._state(refresh_remote=True)
+
+    def _state(self, refresh_remote: bool) -> ControllerState:
+        r = self._receive()
+        if refresh_remote and self._version[:2] >= (5, 6):
+            try:
+                reply = dashboard_query(self.host, "is in remote control",
+                                        timeout_s=min(self.options.connect_timeout_s, 1.0))[0]
+                self._remote = "true" in reply.lower()
+            except CommunicationError:
+                pass  # keep the last known answer
+        moving = bool(np.any(np.abs(np.asarray(r.getActualQd())) > 1e-3))
+        return controller_state(r.getRobotMode(), r.getSafetyMode(), r.getSafetyStatusBits(), r.getRuntimeState(),
+                                moving, self._remote)
+
+    # -- sample stream ---------------------------------------------------------------------------
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        r = self._recv
+        if r is None:
+            raise CommunicationError("the ur_rtde driver is not connected")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            ts = r.getTimestamp()
+            if ts != self._last_ts:
+                break
+            now = time.monotonic()
+            if now - self._last_conn_check > 0.01:
+                self._last_conn_check = now
+                if not r.isConnected():
+                    raise CommunicationError(f"lost the RTDE connection to {self.host}:{RTDE_PORT}")
+            if now > deadline:
+                return None
+            time.sleep(self.options.poll_interval_s)
+        for _ in range(4):  # the getters are separate calls: make sure they saw one package
+            q = r.getActualQ()
+            cur = r.getActualCurrent()
+            ts2 = r.getTimestamp()
+            if ts2 == ts:
+                break
+            ts = ts2
+        t_recv = time.monotonic()
+        self._check_plausible(ts, q, cur)
+        if self._last_ts is not None:
+            gap = int(round((ts - self._last_ts) * self.frequency_hz)) - 1
+            if gap > 0:
+                self.samples_missed += gap
+        self._last_ts = ts
+        self.samples_delivered += 1
+        return Sample(t_ctrl=ts, t_recv=t_recv, q=tuple(q), effort=tuple(cur))
+
+    def _check_plausible(self, ts: float, q: Sequence[float], cur: Sequence[float]) -> None:
+        """Corrupt RTDE packages parse into numbers; numbers no UR arm reports end the stream."""
+        bad = None
+        if self._last_ts is not None and math.isfinite(ts) and ts < self._last_ts:
+            bad = f"the controller timestamp went back from {self._last_ts:.6g} s to {ts:.6g} s"
+        elif any(math.isfinite(v) and abs(v) > MAX_ANGLE_RAD for v in q):
+            bad = f"joint angles {[round(v, 3) for v in q]} rad are beyond any UR joint's range"
+        elif any(math.isfinite(v) and abs(v) > MAX_CURRENT_A for v in cur):
+            bad = f"motor currents {[round(v, 3) for v in cur]} A are beyond any UR drive's"
+        if bad:
+            raise CommunicationError(f"the RTDE stream from {self.host} sent values that cannot be real ({bad}): "
+                                     "the data is corrupt")
+
+    # -- motion ----------------------------------------------------------------------------------
+    def move_joints(self, target_rad: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
+                    timeout_s: float) -> None:
+        if self._connected and self._stream_error is None:
+            self._ensure_control()  # may start the control interface and upload its script: before arming
+        super().move_joints(target_rad, speed_rad_s, accel_rad_s2, timeout_s)
+
+    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+        if speed_rad_s > self.limits.max_joint_speed_rad_s + 1e-12:
+            raise SafetyError(f"joint speed {speed_rad_s} rad/s above the robot's {self.limits.max_joint_speed_rad_s} "
+                              "rad/s (robot.max_joint_speed_deg_s)")
+        if accel_rad_s2 > MAX_ACCEL_RAD_S2:
+            raise SafetyError(f"joint acceleration {accel_rad_s2} rad/s² above ur-rtde's {MAX_ACCEL_RAD_S2} rad/s²")
+        state = self._state(refresh_remote=False)
+        if not state.motion_allowed:
+            raise RobotNotReadyError(f"UR controller {self.host}: {state.reason} ({state.detail})")
+        self._abort.clear()
+        r = self._receive()
+        self._ensure_control()
+        ctl = self._control
+        with ctl.lock:
+            t_start = time.monotonic()
+            op0 = ctl.request("progress", timeout_s=COMMAND_TIMEOUT_S)[0]
+            ok = ctl.request("moveJ", target.tolist(), speed_rad_s, accel_rad_s2, True, timeout_s=COMMAND_TIMEOUT_S)
+        if not ok:
+            raise MotionAbortedError(f"UR controller {self.host}: the controller refused the move "
+                                     f"({self._why_not_running()})")
+        seen_new_op = False
+        while True:
+            self.check_supervision()
+            if self._abort.is_set():
+                self._stop_now()
+                raise MotionAbortedError("move stopped on request")
+            fault = safety_stop(r.getSafetyStatusBits(), r.getSafetyMode())
+            if fault:
+                self._stop_now()
+                raise MotionAbortedError(f"UR controller {self.host} stopped the move: {fault}")
+            op_id, running = ctl.request("progress", timeout_s=POLL_TIMEOUT_S)
+            if not r.isConnected() or not ctl.connected:
+                raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
+            self.command_ok()
+            if r.getRuntimeState() != RUNTIME_PLAYING:
+                self._stop_now()
+                raise MotionAbortedError(f"UR controller {self.host}: the control script stopped during the move "
+                                         f"({self._why_not_running()})")
+            seen_new_op = seen_new_op or op_id != op0
+            if seen_new_op and not running:
+                break
+            if time.monotonic() - t_start > timeout_s:
+                self._stop_now()
+                raise MotionAbortedError(f"move did not finish within {timeout_s:.1f} s; the arm was stopped")
+            time.sleep(0.002)
+        self._check_arrival(r, target)
+
+    def _check_arrival(self, r, target: np.ndarray) -> None:
+        # The receive interface's packages may trail the control interface's by a cycle or
+        # two: wait until they show the arm at rest, then check the position.
+        deadline = time.monotonic() + 10.0 / self.frequency_hz + 0.05 + self.gap_limit_s
+        while True:
+            self.check_supervision()
+            err = float(np.max(np.abs(np.asarray(r.getActualQ()) - target)))
+            at_rest = float(np.max(np.abs(np.asarray(r.getActualQd())))) < 1e-4
+            if err <= self.target_tolerance_rad and at_rest:
+                return
+            if time.monotonic() > deadline:
+                if err <= self.target_tolerance_rad:
+                    raise MotionAbortedError("the controller reported the move finished but the arm is still moving")
+                raise MotionAbortedError(f"move ended {math.degrees(err):.3f} deg from its target "
+                                         f"(tolerance {self.options.target_tolerance_deg:.3f} deg)")
+            time.sleep(0.002)
+
+    def _why_not_running(self) -> str:
+        try:
+            st = self._state(refresh_remote=True)
+        except CommunicationError as exc:
+            return str(exc)
+        return st.reason or f"runtime state {runtime_name(self._recv.getRuntimeState())}; {st.detail}"
+
+    def _stop_now(self) -> None:
+        try:
+            if not (self._command_alive() and self._stop_command()):
+                self._stop_fresh()
+        except Exception:
+            pass
+
+    def _stop_command(self) -> bool:
+        """stopJ (asynchronous: done once the script took it) over the control interface, if it runs.
+
+        Not when the receive interface has lost its connection: then the link to the controller is
+        likely gone, ur-rtde's control interface would try to reconnect before sending, and the
+        dashboard's stop (``_stop_fresh``) is the quicker and surer way.
+        """
+        r = self._recv
+        if r is None or not r.isConnected():
+            return False
+        return self._control.stop(self.options.stop_decel_rad_s2, STOP_REPLY_S)
+
+    def _stop_fresh(self) -> bool:
+        """The dashboard's ``stop`` on a new connection: independent of RTDE and of the script's state."""
+        return dashboard_stop(self.host, min(self.options.connect_timeout_s, DASHBOARD_STOP_TIMEOUT_S))
+
+    def stop(self) -> None:
+        self._abort.set()
+        super().stop()
+
+    # -- kinematic cross-check -------------------------------------------------------------------
+    def flange_pose(self) -> FlangePose:
+        """actual_TCP_pose with the TCP offset the controller reports (getTCPOffset) taken out.
+
+        Builds the control interface (uploads ur-rtde's script) if no command has yet: the
+        cross-check runs right before the first move, which needs it anyway.
+        """
+        self._ensure_control()
+        with self._control.lock:
+            offset = self._control.request("getTCPOffset", timeout_s=COMMAND_TIMEOUT_S)
+        pose = self._receive().getActualTCPPose()
+        for what, v in (("getTCPOffset", offset), ("actual_TCP_pose", pose)):
+            if v is None or len(v) != 6 or not all(math.isfinite(x) for x in v):
+                raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not 6 finite numbers")
+        flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
+        return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
+                          rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
+
+    # -- digital inputs, temperatures --------------------------------------------------------------
+    def read_digital_input(self, index: int) -> bool:
+        """Bit ``index`` of RTDE ``actual_digital_input_bits``: 0-7 DI0-7, 8-15 CI0-7, 16-17 tool TI0-1.
+
+        Read with ur-rtde's ``getDigitalInState`` from the receive interface's latest package;
+        needs no control script and no Remote Control.
+        """
+        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(DIGITAL_INPUT_NAMES):
+            raise ValueError(f"UR digital input index must be an integer in [0, {len(DIGITAL_INPUT_NAMES) - 1}] "
+                             f"(0-7 standard DI0-7, 8-15 configurable CI0-7, 16-17 tool TI0-1), got {index!r}")
+        try:
+            return bool(self._receive().getDigitalInState(index))
+        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
+            raise CommunicationError(f"UR controller {self.host}: cannot read digital input "
+                                     f"{DIGITAL_INPUT_NAMES[index]} (bit {index} of actual_digital_input_bits): {exc}") \
+                from exc
+
+    def joint_temperatures_c(self) -> tuple[float, ...]:
+        """RTDE ``joint_temperatures`` (°C) of the latest package, through ``getJointTemperatures``."""
+        try:
+            values = tuple(float(v) for v in self._receive().getJointTemperatures())
+        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
+            raise CommunicationError(f"UR controller {self.host}: cannot read joint_temperatures: {exc}") from exc
+        if len(values) != 6:
+            raise CommunicationError(f"UR controller {self.host}: joint_temperatures has {len(values)} values, "
+                                     "expected 6")
+        return values
+
+    # -- payload ---------------------------------------------------------------------------------
+    def read_payload(self) -> PayloadSetting:
+        if not self._has_payload_fields:
+            raise UnsupportedCapability(f"UR controller {self.host} (PolyScope {'.'.join(map(str, self._version))}) "
+                                        "has no RTDE payload fields (they need 5.5.1 / 3.11 or newer)")
+        r = self._receive()
+        cog = r.getPayloadCog()
+        return PayloadSetting(mass_kg=float(r.getPayload()), cog_m=(float(cog[0]), float(cog[1]), float(cog[2])))
+
+    def write_payload(self, payload: PayloadSetting) -> None:
+        mass = float(payload.mass_kg)
+        cog = [float(c) for c in payload.cog_m]
+        if not (math.isfinite(mass) and mass >= 0 and len(cog) == 3 and all(math.isfinite(c) for c in cog)):
+            raise ValueError(f"invalid payload {payload!r}")
+        # ur-rtde's control script keeps the current centre of gravity when it is sent
+        # [0, 0, 0] (rtde_control.script, set_payload branch for PolyScope >= 5.0): send 1 nm instead.
+        sent_cog = cog if any(cog) else [0.0, 0.0, 1e-9]
+        state = self._state(refresh_remote=False)
+        if not state.motion_allowed:
+            raise RobotNotReadyError(f"UR controller {self.host}: {state.reason}")
+        self._ensure_control()
+        with self._control.lock:
+            ok = self._control.request("setPayload", mass, sent_cog, timeout_s=COMMAND_TIMEOUT_S)
+        if not ok:
+            raise MotionAbortedError(f"UR controller {self.host}: set_payload was not executed "
+                                     f"({self._why_not_running()})")
+        if self._has_payload_fields:
+            def matches() -> bool:
+                got = self.read_payload()
+                return abs(got.mass_kg - mass) < 1e-6 and all(abs(a - b) < 1e-6 for a, b in zip(got.cog_m, cog))
+
+            self._wait(matches, 2.0, "the controller to report the new payload")
+
+    # -- helpers ---------------------------------------------------------------------------------
+    def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise CommunicationError(f"UR controller {self.host}: timed out waiting for {what}")
+            time.sleep(0.005)
+
+
+def _pose_matrix(pose: Sequence[float]) -> np.ndarray:
+    """UR pose [x, y, z, rx, ry, rz] (m, rotation vector) -> 4x4 homogeneous transform."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(np.asarray(pose[3:6], float)).as_matrix()
+    T[:3, 3] = np.asarray(pose[:3], float)
+    return T
