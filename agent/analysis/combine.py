@@ -6,8 +6,9 @@ load-dependent Coulomb part sign(q̇)·k·|τ|) flips sign. The average of the t
 the same angle cancels all of them, including what the empty-flange baseline could not
 remove (load-dependent friction, friction drift between the runs).
 
-The combined sweep has direction ``"both"``; the general solver prefers it over the two
-legs, the three-step solver keeps using the "up" leg as published.
+The combined sweep has direction ``"both"``; the general and the three-step solver both
+prefer it over the two legs (the three-step solver falls back to the published "up" leg
+where only one direction was recorded).
 """
 
 from __future__ import annotations
