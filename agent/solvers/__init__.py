@@ -2,7 +2,7 @@
 
 Each solver is ``solve(deltas, kinematics) -> Estimate``; SOLVERS maps the CLI name to it.
 ``general`` (weighted least squares over every loaded joint and sweep) is the default of
-new configs; ``three-step`` is the paper's method, kept as published.
+new configs; ``three-step`` is the paper's method (both directions combined where recorded).
 """
 
 from payload_agent.solvers import general, three_step
