@@ -235,6 +235,19 @@ def test_stalled_stream_trips_the_watchdog_and_the_stop_is_confirmed_over_sdo(ri
     assert drv.last_stop_report.acknowledged  # no TPDO to confirm it, so the statuswords came over SDO
 
 
+@with_rig(supervision=Supervision(max_stream_gap_s=0.1, stop_ack_timeout_s=1.0))
+def test_a_trip_while_the_drives_are_being_enabled_sends_no_set_point(rig):
+    drv, fake = rig
+    drv.start_stream(lambda s: None)
+    drv.wait_sample(1.0, after=time.monotonic())
+    fake.inject_fault("stall_stream")  # the enable steps wait for statuswords that never come
+    with pytest.raises(SupervisionTrip, match="stalled"):
+        drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    time.sleep(0.1)
+    assert not [e for e in fake.events if e.kind == "move"]
+    assert all(d.end_t is None for d in fake.drives)
+
+
 def test_never_finishing_move_times_out_and_stops(rig):
     drv, fake = rig
     drv.start_stream(lambda s: None)

@@ -81,6 +81,10 @@ class SyncProducer:
         with self._lock:
             self._after.extend(frames)
 
+    def cancel_pending(self) -> None:
+        with self._lock:
+            self._after = []
+
     def _run(self) -> None:
         next_t = time.monotonic()
         while self._running.is_set():

@@ -33,6 +33,12 @@ MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
 DEG = math.pi / 180.0
 
 
+def _poll(drv: "CANopenDriver") -> None:
+    """Between every step of a move: act on a drive fault, and stop if the supervision has tripped."""
+    drv.poll_faults()
+    drv.check_supervision()
+
+
 def ensure_enabled(drv: "CANopenDriver") -> None:
     """Profile position mode and OPERATION ENABLED on every drive (a no-op once done)."""
     m = drv.monitor
@@ -51,6 +57,7 @@ def ensure_enabled(drv: "CANopenDriver") -> None:
             if time.monotonic() > deadline:
                 raise RobotNotReadyError(f"{drv.labels[j]} does not switch to profile position mode: 0x6061 shows "
                                          f"{mode} after 0x6060 = {MODE_PROFILE_POSITION}")
+            _poll(drv)
             time.sleep(0.005)
     for _ in range(6):  # at most 4 transitions from SWITCH ON DISABLED / QUICK STOP ACTIVE
         states = m.states()
@@ -65,10 +72,11 @@ def ensure_enabled(drv: "CANopenDriver") -> None:
             if enable_step(states[j]) is None:
                 raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]}: the power state machine has no "
                                          "command out of it; check the drive's power supply")
+        _poll(drv)
         seq0 = list(m.seq)
         for j in todo:
             drv._send_command(j, enable_step(states[j]))
-        stuck = m.wait_for(lambda j, sw: state_of(sw) != states[j], seq0, todo, timeout)
+        stuck = m.wait_for(lambda j, sw: state_of(sw) != states[j], seq0, todo, timeout, lambda: _poll(drv))
         if stuck:
             j = stuck[0]
             raise RobotNotReadyError(f"{drv.labels[j]} stayed in {states[j]} for {timeout:g} s after controlword "
@@ -123,12 +131,12 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
         _write_profile(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)
 
     def poll() -> None:
-        drv.poll_faults()
-        drv.check_supervision()
+        _poll(drv)
 
     def setpoints(controlword: int) -> list[tuple[int, bytes]]:
         return [(RPDO1_COB + o.node_ids[j], RPDO_SETPOINT.pack(controlword, counts[j])) for j in moving]
 
+    poll()  # nothing is sent once the supervision has stopped the arm
     seq0 = list(m.seq)
     drv.sync.after_next_sync(setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))  # all act at the same SYNC
     ack_wait = max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
@@ -165,6 +173,8 @@ def quick_stop(drv: "CANopenDriver") -> bool:
     """Quick stop controlword to every drive over the driver's bus; True once every statusword confirms it."""
     m = drv.monitor
     _forget_enabled(drv)
+    if drv.sync is not None:
+        drv.sync.cancel_pending()  # set-points queued for the next SYNC never go out
     seq0 = list(m.seq)
     for j in range(drv.n):
         drv._send_command(j, CW_QUICK_STOP)
