@@ -19,7 +19,7 @@ from pathlib import Path
 
 from payload_agent import __version__
 from payload_agent.cli_commands import COMMANDS
-from payload_agent.errors import PayloadAgentError
+from payload_agent.errors import PayloadAgentError, Terminated
 from payload_agent.output.console import Console, setup_logging
 
 DESCRIPTION = ("Identify the mass and centre of mass of the tool on a robot's flange from point-to-point "
@@ -54,8 +54,6 @@ CLIENT_LIBRARIES = ("ur_rtde", "pymodbus", "pyserial", "python-can", "canopen", 
                     "matplotlib", "PyYAML")
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread like Ctrl-C so every session stops the robot the same way."""
 
 
 def version_text() -> str:

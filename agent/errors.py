@@ -101,3 +101,7 @@ class MotionNotFinished(MotionAbortedError):
     def __init__(self, message: str, stop_report=None):
         self.stop_report = stop_report
         super().__init__(message)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so every session stops the robot the same way."""

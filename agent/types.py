@@ -76,14 +76,34 @@ class SweepKey:
 
 @dataclass
 class StreamStats:
-    """How the sample stream behaved over one sweep (written to the manifest)."""
+    """How the sample stream behaved over one sweep (written to the manifest).
+
+    Holes in the data are measured on the controller's own timestamps where the protocol has
+    them (a late delivery of complete data is not a hole), else on receive times; the
+    largest wall-clock gap between deliveries is kept beside them.
+    """
 
     nominal_period_s: float
     count: int = 0
     first_t: float | None = None  # receive times (monotonic)
     last_t: float | None = None
-    largest_gap_s: float = 0.0
+    last_ctrl_t: float | None = None
+    largest_gap_s: float = 0.0  # largest step between samples (controller time where available)
+    largest_wall_gap_s: float = 0.0  # largest step between deliveries (receive time)
     gaps: list[tuple[float, float]] = field(default_factory=list)  # (offset from first sample s, length s) > limit
+
+    def add(self, t_recv: float, t_ctrl: float | None, limit_s: float) -> None:
+        if self.first_t is None:
+            self.first_t = t_recv
+        elif self.last_t is not None:
+            self.largest_wall_gap_s = max(self.largest_wall_gap_s, t_recv - self.last_t)
+            step = (t_ctrl - self.last_ctrl_t if t_ctrl is not None and self.last_ctrl_t is not None
+                    else t_recv - self.last_t)
+            self.largest_gap_s = max(self.largest_gap_s, step)
+            if step > limit_s:
+                self.gaps.append((self.last_t - self.first_t, step))
+        self.last_t, self.last_ctrl_t = t_recv, t_ctrl
+        self.count += 1
 
     @property
     def achieved_rate_hz(self) -> float:
@@ -94,6 +114,7 @@ class StreamStats:
     def to_json(self) -> dict:
         return {"nominal_period_s": self.nominal_period_s, "count": self.count,
                 "achieved_rate_hz": round(self.achieved_rate_hz, 3), "largest_gap_s": round(self.largest_gap_s, 6),
+                "largest_wall_gap_s": round(self.largest_wall_gap_s, 6),
                 "gaps": [[round(a, 6), round(b, 6)] for a, b in self.gaps]}
 
 

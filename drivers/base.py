@@ -282,21 +282,10 @@ class Driver(abc.ABC):
             self._on_sample(sample)
 
     def _on_sample(self, sample: Sample) -> None:
-        prev = self._latest
         self._latest = sample
         with self._stats_lock:
-            st = self._stats
-            if st is not None:
-                if st.first_t is None:
-                    st.first_t = sample.t_recv
-                elif st.last_t is not None:
-                    gap = sample.t_recv - st.last_t
-                    st.largest_gap_s = max(st.largest_gap_s, gap)
-                    if gap > self.gap_limit_s:
-                        st.gaps.append((st.last_t - st.first_t, gap))
-                st.last_t = sample.t_recv
-                st.count += 1
-        del prev
+            if self._stats is not None:
+                self._stats.add(sample.t_recv, sample.t_ctrl, self.gap_limit_s)
         with self._sink_lock:
             sink = self._sink
             if sink is not None:

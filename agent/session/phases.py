@@ -19,7 +19,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (CommunicationError, MotionAbortedError, PayloadAgentError, SafetyError,
-                                  SupervisionTrip)
+                                  SupervisionTrip, Terminated)
 from payload_agent.motion.crosscheck import compare_pose
 from payload_agent.motion.planner import Plan
 from payload_agent.motion.safety import SafetyGate
@@ -138,8 +138,9 @@ class PhaseRunner:
                 self.recorder.manifest["phases"][name]["stop"] = report.to_json()
             self.recorder.end_phase(f"aborted: {type(exc).__name__}: {exc}")
             if isinstance(exc, KeyboardInterrupt):
-                raise MotionAbortedError("interrupted by the operator (Ctrl-C); the robot was stopped, "
-                                         f"recorded data kept in {self.recorder.run_dir}") from None
+                how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted by the operator (Ctrl-C)"
+                raise MotionAbortedError(f"{how}; the robot was stopped, recorded data kept in "
+                                         f"{self.recorder.run_dir}") from None
             raise
         self.recorder.manifest["phases"][name]["joint_temperatures_c"]["end"] = joint_temperatures(self.driver)
         self.recorder.end_phase("complete")

@@ -18,28 +18,29 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, TextIO
 
 import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
-                                  QualityGateError, RobotNotReadyError, SafetyError)
+                                  QualityGateError, RobotNotReadyError, SafetyError, Terminated)
 from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
 from payload_agent.session import baseline as baselines
-from payload_agent.session.apply import apply_result
+from payload_agent.output.console import attach_run_log, detach_run_log
+from payload_agent.output.plan_table import format_plan
+from payload_agent.session.finish import RunOutcome, finish, write_run_report
 from payload_agent.session.connection import build_driver, simulated_cell
 from payload_agent.session.manifest import RunManifest, new_run_dir
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
 from payload_agent.session.resume import ResumeState, config_fingerprint, load_resume
-from payload_agent.solvers.results import RunResult, format_table
 from payload_agent.types import PayloadSetting
 
 SAMPLE_WAIT_S = 5.0
@@ -65,30 +66,9 @@ class RunOptions:
     cell: Any = None  # an already started SimulatedCell to use (left running afterwards)
     retry_sweeps: int = 0  # redo a sweep whose sample stream had a gap, up to this many times per phase
     resume: Path | None = None  # an incomplete run folder to finish (only its unfinished sweeps are recorded)
-
-
-@dataclass
-class RunOutcome:
-    run_dir: Path
-    result: RunResult | None
-    truth: dict | None = None
-    timings: dict[str, float] = field(default_factory=dict)
-    applied: PayloadSetting | None = None
-    history_id: int | None = None
-    report_path: Path | None = None
-    calibration: Any = None
-
-
-def describe_plan(plan: Plan, durations: list[float]) -> str:
-    lines = [f"Plan: procedure {plan.procedure.name}, {len(plan.moves)} moves per run"]
-    for i, (m, d) in enumerate(zip(plan.moves, durations), 1):
-        tgt = ", ".join(f"{math.degrees(v):7.2f}" for v in m.target_rad)
-        dur = "   ?  " if math.isnan(d) else f"{d:6.1f}"
-        lines.append(f"  {i:2d}. {m.kind:8s} {m.label:22s} [{tgt}] deg  {math.degrees(m.speed_rad_s):6.2f} deg/s "
-                     f"{dur} s")
-    total = sum(d for d in durations if not math.isnan(d))
-    lines.append(f"  robot time per run: {total:.1f} s")
-    return "\n".join(lines)
+    detail: Callable[[str], None] | None = None  # per-move lines (the CLI shows them with -v); default: out
+    progress_stream: TextIO | None = None  # where the live progress line is drawn (default sys.stdout)
+    console: Any = None  # the CLI's console, if any (unused by the session itself)
 
 
 def _phases_for(config: Config, opts: RunOptions, state: RobotState, current: baselines.BaselineInfo,
@@ -142,30 +122,14 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
 
 def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: Driver,
                    resume: ResumeState | None) -> RunOutcome:
-    out = opts.out
+    out, detail = opts.out, opts.detail or opts.out
     gate = SafetyGate(config)
     state = RobotState.for_config(config)
     t0 = time.monotonic()
-    recorder = None
+    recorder = log = None
     try:
         driver.connect()
-        info = driver.identify()
-        ctl_state = driver.state()
-        out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}"
-            + (f" ({ctl_state.detail})" if ctl_state.detail else ""))
-        if not ctl_state.motion_allowed:  # refuse before the plan is shown, not at the first move
-            raise RobotNotReadyError(f"the robot is not ready: {ctl_state.reason}")
-        if opts.mode == "identify":
-            from payload_agent.evaluation.calibration import effective_gains
-
-            note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
-            out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
-                "`payload-agent calibrate` with a known reference payload removes their error")
-        start_q = np.asarray(driver.wait_sample(SAMPLE_WAIT_S).q, float)
-        pose_check = check_kinematics(config, driver, start_q, "before any motion")
-        if pose_check is not None:
-            out(f"Kinematic cross-check: YAML model and controller agree within "
-                f"{1000 * pose_check.position_error_m:.1f} mm, {math.degrees(pose_check.rotation_error_rad):.2f}°")
+        info, start_q, pose_check = _check_controller(config, opts, driver)
         if resume is None:
             current = baselines.describe_for(config, plan, info, source_run=Path("."),
                                              joint_temperatures_c=joint_temperatures(driver))
@@ -179,40 +143,20 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
             out(f"Resuming {resume.run_dir}: " + "; ".join(
                 f"{p} run, {len(sub.sweeps)} of {len(plan.sweeps)} sweeps left" for p, _, sub in todo))
         shown = todo[0][2]
-        verdict = gate.check(shown, start_q)
-        durations = expected_durations(shown, start_q)
-        out(describe_plan(shown, durations))
-        out("Safety gate: " + verdict.describe())
-        if not verdict.ok:
-            gate.approve(plan, start_q)  # raises SafetyError with every problem listed
-        _confirm_without_pose_check(config, driver, plan, opts)
-        if not (opts.unattended or opts.assume_yes):
-            what = " and ".join({"empty": "the empty-flange run", "loaded": "the loaded run"}[p] for p, _ in phases)
-            answer = opts.ask(f"Record {what} now? The robot will move. [y/N] ")
-            if answer.strip().lower() not in ("y", "yes"):
-                raise MotionAbortedError("the operator declined; nothing moved")
-        if resume is not None:
-            recorder = RunRecorder.reopen(resume.run_dir)
-            recorder.update(status="recording", resumed_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
-        else:
-            recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")), {
-                **RunManifest(config, plan, opts.mode, baselines.controller_identity(info), driver.effort_unit,
-                              opts.tool, None if stored_info is None else {"dir": str(state.baseline_dir),
-                                                                          **stored_info.to_json()},
-                              opts.reference, cell.truth_json if cell else None,
-                              None if pose_check is None else pose_check.to_json()).to_json(),
-                "config_fingerprint": config_fingerprint(config), "phases_planned": phases,
-                "store_empty": store_empty})
+        durations = _show_and_confirm(config, opts, driver, gate, shown, start_q, phases)
+        changing = len(phases) > 1 or opts.mode == "baseline"
+        _prepare_tool(todo[0][0], todo[0][1], cell, opts, out, changing)  # asked before any folder exists
+        recorder = _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases, stored_info,
+                                  store_empty, pose_check)
+        log = attach_run_log(recorder.run_dir)
         out(f"Run folder: {recorder.run_dir}")
-        if stored_info is not None and resume is None:  # the run folder keeps its own copy: self-contained
-            recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
-            recorder.write_manifest()
-        phase_runner = PhaseRunner(config, driver, gate, recorder, out,
+        phase_runner = PhaseRunner(config, driver, gate, recorder, detail,
                                    _make_progress(opts, config, plan, durations, [p for p, _ in phases]),
                                    retry_sweeps=opts.retry_sweeps)
         driver.start_stream(phase_runner.sink)
-        for phase, mounted, phase_plan in todo:
-            _prepare_tool(phase, mounted, cell, opts, out, changing=len(phases) > 1 or opts.mode == "baseline")
+        for i, (phase, mounted, phase_plan) in enumerate(todo):
+            if i > 0:
+                _prepare_tool(phase, mounted, cell, opts, out, changing)
             phase_runner.run_phase(phase, phase_plan, resume=resume is not None)
         if phase_runner.progress is not None:
             phase_runner.progress.close()
@@ -227,26 +171,101 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
             recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
             return RunOutcome(recorder.run_dir, None, cell.truth_json if cell else None,
                               {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion})
-        outcome = _finish(config, opts, state, driver, recorder.run_dir, stored_info, cell)
+        outcome = finish(config, opts, state, driver, recorder.run_dir, stored_info, cell)
         outcome.timings = {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion}
         recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
     except BaseException as exc:
         driver.stop()
         if recorder is not None:
-            report = getattr(exc, "stop_report", None)
-            recorder.update(status="incomplete", stopped_because=f"{type(exc).__name__}: {exc}",
-                            stop=None if report is None else report.to_json())
+            _mark_stopped(config, recorder, exc, opts, out)
         raise
     finally:
         driver.close()
+        detach_run_log(log)
     if outcome.result is not None:
         from payload_agent.evaluation.quality import require_passed
 
         try:
             require_passed(outcome.result)
         except QualityGateError as exc:
-            raise QualityGateError(f"{exc}\nData, result and report kept in {outcome.run_dir}") from None
+            error = QualityGateError(f"{exc}\nData, result and report kept in {outcome.run_dir}")
+            error.outcome, error.run_dir = outcome, outcome.run_dir
+            raise error from None
     return outcome
+
+
+def _check_controller(config: Config, opts: RunOptions, driver: Driver):
+    """Identity, readiness, drive gains and the kinematic cross-check, before anything is shown or moved."""
+    out = opts.out
+    info = driver.identify()
+    ctl_state = driver.state()
+    out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}"
+        + (f" ({ctl_state.detail})" if ctl_state.detail else ""))
+    if not ctl_state.motion_allowed:  # refuse before the plan is shown, not at the first move
+        raise RobotNotReadyError(f"the robot is not ready: {ctl_state.reason}")
+    if opts.mode == "identify":
+        from payload_agent.evaluation.calibration import effective_gains
+
+        note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
+        out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
+            "`payload-agent calibrate` with a known reference payload removes their error")
+    start_q = np.asarray(driver.wait_sample(SAMPLE_WAIT_S).q, float)
+    pose_check = check_kinematics(config, driver, start_q, "before any motion")
+    if pose_check is not None:
+        out(f"Kinematic cross-check: YAML model and controller agree within "
+            f"{1000 * pose_check.position_error_m:.1f} mm, {math.degrees(pose_check.rotation_error_rad):.2f}°")
+    return info, start_q, pose_check
+
+
+def _show_and_confirm(config: Config, opts: RunOptions, driver: Driver, gate: SafetyGate, plan: Plan,
+                      start_q: np.ndarray, phases: list) -> list[float]:
+    """Show the plan and the gate's verdict; refuse a failing plan; ask before the robot moves."""
+    verdict = gate.check(plan, start_q)
+    durations = expected_durations(plan, start_q)
+    opts.out(format_plan(plan, durations))
+    opts.out("Safety gate: " + verdict.describe())
+    if not verdict.ok:
+        gate.approve(plan, start_q)  # raises SafetyError with every problem listed
+    _confirm_without_pose_check(config, driver, plan, opts)
+    if not (opts.unattended or opts.assume_yes):
+        what = " and ".join({"empty": "the empty-flange run", "loaded": "the loaded run"}[p] for p, _ in phases)
+        answer = opts.ask(f"Record {what} now? The robot will move. [y/N] ")
+        if answer.strip().lower() not in ("y", "yes"):
+            raise MotionAbortedError("the operator declined; nothing moved")
+    return durations
+
+
+def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases, stored_info, store_empty,
+                   pose_check) -> RunRecorder:
+    """The run folder: a new one with its manifest, or the resumed one."""
+    if resume is not None:
+        recorder = RunRecorder.reopen(resume.run_dir)
+        recorder.update(status="recording", resumed_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+        return recorder
+    recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")), {
+        **RunManifest(config, plan, opts.mode, baselines.controller_identity(info), driver.effort_unit,
+                      opts.tool, None if stored_info is None else {"dir": str(state.baseline_dir),
+                                                                  **stored_info.to_json()},
+                      opts.reference, cell.truth_json if cell else None,
+                      None if pose_check is None else pose_check.to_json()).to_json(),
+        "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty})
+    if stored_info is not None:  # the run folder keeps its own copy: self-contained
+        recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
+        recorder.write_manifest()
+    return recorder
+
+
+def _mark_stopped(config: Config, recorder: RunRecorder, exc: BaseException, opts: RunOptions, out) -> None:
+    """An aborted run: the manifest says why and how the arm was stopped; a report shows what was recorded."""
+    report = getattr(exc, "stop_report", None)
+    why = "terminated (SIGTERM)" if isinstance(exc, Terminated) else f"{type(exc).__name__}: {exc}"
+    recorder.update(status="incomplete", stopped_because=why, stop=None if report is None else report.to_json())
+    try:
+        exc.run_dir = recorder.run_dir
+    except AttributeError:
+        pass
+    if opts.report:
+        write_run_report(config, recorder.run_dir, None, out)
 
 
 def _confirm_without_pose_check(config: Config, driver: Driver, plan: Plan, opts: RunOptions) -> None:
@@ -285,85 +304,18 @@ def _store_baseline(config: Config, plan: Plan, info, state: RobotState, recorde
                                                            joint_temperatures_c=temps))
 
 
-def _finish(config: Config, opts: RunOptions, state: RobotState, driver: Driver, run_dir: Path,
-            stored: baselines.BaselineInfo | None, cell) -> RunOutcome:
-    """Analysis, calibration, history, report and write-back, while the controller is still connected."""
-    out = opts.out
-    truth = cell.truth_json if cell else None
-    calibration = None
-    if opts.mode == "calibrate":
-        from payload_agent.evaluation.calibration import fit_gains, save_calibration
-
-        ref = opts.reference
-        calibration = fit_gains(config, run_dir, ref.mass_kg, ref.cog_m)
-        path = save_calibration(state.ensure(), calibration)
-        out("Drive-gain calibration (fitted / nominal): " + ", ".join(
-            f"J{j + 1} {calibration.scale[j]:.4f} ± {1.96 * calibration.scale_std[j]:.4f}"
-            for j in calibration.fitted_joints) + f"; stored in {path}")
-    result = analyse(config, run_dir, solver=opts.solver)
-    if opts.result_path is not None:
-        result.write(opts.result_path)
-    out(format_table(result, truth))
-    out(f"Result written to {Path(run_dir) / 'result.json'}")
-    outcome = RunOutcome(Path(run_dir), result, truth, calibration=calibration)
-    outcome.history_id = _record_history(config, opts, state, result, stored, out)
-    passed = bool(result.quality.get("passed", False))
-    if opts.apply and opts.mode == "identify" and passed:
-        outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,
-                                       out)
-        if outcome.history_id is not None:
-            from payload_agent.output import history
-
-            history.mark_applied(state.history_db, outcome.history_id, outcome.applied)
-    elif opts.apply and not passed:
-        out("Not applied: the quality checks failed (see above).")
-    if opts.report:
-        outcome.report_path = _write_report(config, run_dir, state, out)
-    return outcome
-
-
-def _record_history(config: Config, opts: RunOptions, state: RobotState, result: RunResult,
-                    stored: baselines.BaselineInfo | None, out) -> int | None:
-    if opts.mode == "calibrate":
-        return None  # a reference payload, not a tool: kept out of the tool history
-    from payload_agent.output import history
-
-    entry = history.HistoryEntry.from_result_json(
-        result.to_json(), tool=opts.tool,
-        baseline_run_dir=None if stored is None else stored.source_run,
-        baseline_fingerprint=None if stored is None else stored.plan_fingerprint,
-        gains_note=result.extra.get("gains_source"),
-        config_fingerprint=config.fingerprint("robot", "effort", "procedure"))
-    entry_id = history.record(state.ensure().history_db, entry)
-    flag = history.flag_for(state.history_db, entry_id)
-    if flag is not None:
-        out(f"Note: this result changed by more than its uncertainty since the last one: {flag.describe()}")
-    return entry_id
-
-
-def _write_report(config: Config, run_dir: Path, state: RobotState, out) -> Path | None:
-    from payload_agent.output.report import write_report
-
-    try:
-        path = write_report(Path(run_dir), config, history_db=state.history_db)
-    except Exception as exc:  # a report must never cost the result
-        out(f"Report not written ({type(exc).__name__}: {exc}); the result is unaffected.")
-        return None
-    out(f"Report: {path}")
-    return path
-
-
 def _make_progress(opts: RunOptions, config: Config, plan: Plan, durations: list[float], phases: list[str]):
     """The live progress line (terminal only, unless asked for)."""
     import sys
 
     from payload_agent.output.progress import Progress
 
-    enabled = opts.progress if opts.progress is not None else (sys.stdout.isatty() and not opts.unattended)
+    stream = opts.progress_stream or sys.stdout
+    enabled = opts.progress if opts.progress is not None else (stream.isatty() and not opts.unattended)
     if not enabled:
         return None
     scale = config.simulation.time_scale if config.simulation is not None else 1.0
-    return Progress(sys.stdout, plan, durations, enabled=True, phases=phases, time_scale=scale)
+    return Progress(stream, plan, durations, enabled=True, phases=phases, time_scale=scale)
 
 
 def _prepare_tool(phase: str, mounted: bool, cell, opts: RunOptions, out, changing: bool) -> None:
@@ -380,12 +332,3 @@ def _prepare_tool(phase: str, mounted: bool, cell, opts: RunOptions, out, changi
                                  "which an unattended run cannot ask for")
     what = "Mount the tool" if mounted else "Remove the tool (empty flange)"
     opts.ask(f"{what}, keep clear of the robot, then press Enter to continue. ")
-
-
-def analyse(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None) -> RunResult:
-    """Analyse a run folder (gains: the robot's valid calibration, else nominal) and write result.json."""
-    from payload_agent.evaluation.pipeline import analyse_run
-
-    result = analyse_run(config, run_dir, solver, baseline_dir)
-    result.write(Path(run_dir) / "result.json")
-    return result
