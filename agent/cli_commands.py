@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from datetime import datetime
 from pathlib import Path
 from typing import Any, Callable
 
@@ -55,13 +54,13 @@ def _run_options(args, con: Console, mode: str, **extra):
 def _session(args, con: Console, mode: str, **extra):
     from payload_agent.recording.state import describe_locations
     from payload_agent.session.preflight import preflight
-    from payload_agent.session.runner import run_identification
+    from payload_agent.api import run_session
 
     config = load_robot(args)
     preflight(config, calibration=mode == "identify").require()  # what `plan` checks, before anything starts
     con.say(describe_locations(config))
     try:
-        outcome = run_identification(config, _run_options(args, con, mode, **extra))
+        outcome = run_session(config, _run_options(args, con, mode, **extra))
     except QualityGateError as exc:
         outcome = getattr(exc, "outcome", None)
         if outcome is not None:

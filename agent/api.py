@@ -1,0 +1,45 @@
+"""The Python API: what cell software calls instead of a subprocess.
+
+    import payload_agent
+    result = payload_agent.identify("ec66", unattended=True, apply=False)
+    print(result.primary.mass_kg, result.primary.cog_mm)
+
+``identify`` does what ``payload-agent run`` does (find the robot YAML, check everything
+before connecting, run the session through the safety gate, analyse, optionally write the
+result to the controller) and returns the result dataclass. Errors are the project's
+exception hierarchy (``payload_agent.errors``), each with its documented ``exit_code``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+from payload_agent.configuration.config import Config, load_config
+from payload_agent.configuration.paths import find_robot
+from payload_agent.session.finish import RunOutcome
+from payload_agent.session.preflight import preflight
+from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.solvers.results import RunResult
+
+
+def run_session(config: Config, options: RunOptions) -> RunOutcome:
+    """One session: every check `plan` makes, then the run. The CLI's run, baseline and calibrate use this."""
+    preflight(config, calibration=options.mode == "identify").require()
+    return run_identification(config, options)
+
+
+def identify(robot: str | Path | Config, *, unattended: bool = True, apply: bool = False, tool: str | None = None,
+             solver: str | None = None, fresh_baseline: bool = False,
+             out: Callable[[str], None] | None = None) -> RunResult:
+    """Identify the mounted tool's mass and centre of mass; returns the result (see ``solvers.results``).
+
+    ``robot`` is a robot YAML path, a name found on the robot search path, or a loaded Config.
+    Unattended by default: it never prompts and fails where a person would be asked (for
+    instance when no stored empty-flange baseline fits). ``apply`` writes the result to the
+    controller only when every quality check passed, then reads it back.
+    """
+    config = robot if isinstance(robot, Config) else load_config(find_robot(robot))
+    options = RunOptions(unattended=unattended, assume_yes=not unattended, apply=apply, tool=tool, solver=solver,
+                         fresh_baseline=fresh_baseline, progress=False, out=out or (lambda _text: None))
+    return run_session(config, options).result
