@@ -138,7 +138,7 @@ def _result_page(run_dir: Path, manifest: dict, result: dict, config: Config, hi
     figures = _sweep_figures(loaded, empty, kin, theta, theta_from, {})
     residual_fig = None
     try:
-        residual_fig = P.residual_figure(loaded, empty, kin, theta, theta_from, result)
+        residual_fig = P.residual_figure(loaded, empty, kin, theta, theta_from, result, _commands(manifest))
     except DataError as exc:
         notes.append(f"residuals not plotted: {exc}")
     history_rows, trend_fig, this_entry = [], None, None
@@ -293,3 +293,14 @@ def _stopped_page(run_dir: Path, manifest: dict, config: Config, baseline_dir: P
     if figures:
         parts += ["<h2>Recorded sweeps: effort versus angle</h2>", *[H.img(f) for f in figures]]
     return "\n".join(parts + H.footer_html(manifest)) + "\n"
+
+
+def _commands(manifest: dict) -> dict | None:
+    """Each sweep's commanded motion (the constant-speed windows the analysis used), if the manifest has the plan."""
+    from payload_agent.analysis.run_deltas import commands_of
+    from payload_agent.errors import DataError
+
+    try:
+        return commands_of(manifest)
+    except DataError:
+        return None

@@ -146,7 +146,8 @@ def sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, 
 
 
 def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, SweepData], kin,
-                    theta: np.ndarray | None, theta_from: str, result: dict[str, Any]) -> Figure | None:
+                    theta: np.ndarray | None, theta_from: str, result: dict[str, Any],
+                    commands: dict | None = None) -> Figure | None:
     from matplotlib.figure import Figure as MplFigure
 
     from payload_agent.analysis.combine import add_combined
@@ -155,7 +156,7 @@ def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Swe
 
     if theta is None or not empty:
         return None
-    deltas, _ = add_combined(subtract_all(loaded, empty))  # what analysis.deltas_for computes, without re-reading
+    deltas, _ = add_combined(subtract_all(loaded, empty, commands))  # as analysis.deltas_for, without re-reading
     sweeps = select_sweeps(deltas)
     rms_reported = ((result.get("estimates") or {}).get(theta_from) or {}).get("residual_rms_nm") or {}
     if not sweeps:
