@@ -52,6 +52,7 @@ log = logging.getLogger(__name__)
 CIA402_PROFILE = 402  # 0x1000 device type, low 16 bits
 FIRST_TPDO_WAIT_S = 1.0
 RATED_MISMATCH = 0.01  # a YAML rated value more than 1 % off the drive's is refused
+NOTIFIER_CYCLE_S = 0.1  # python-can's receive thread wakes this often when idle: close() waits at most this
 
 
 class CANopenDriver(Driver):
@@ -128,6 +129,7 @@ class CANopenDriver(Driver):
         self.profile_cache.clear()
         self.commanded = [None] * self.n
         self.network = canopen.Network(open_bus(opts))
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         try:
             self.network.connect()
             self.nodes = []

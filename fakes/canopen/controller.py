@@ -141,6 +141,7 @@ class SimulatedCANopenArm(SimulatedController):
     def start(self) -> "SimulatedCANopenArm":
         self._token = self._robot.subscribe(self._on_tick)
         self.network = canopen.Network(SimClockBus(self.channel, self.bus_time))
+        self.network.NOTIFIER_CYCLE = 0.1  # close() waits at most this for the receive thread
         self.network.connect()
         for d in self.drives:
             self.network[d.node_id] = d.node
