@@ -93,18 +93,24 @@ class CANopenDriver(Driver):
         return f"{o.interface} {o.channel}, nodes {', '.join(map(str, o.node_ids))}"
 
     # -- SDO (configuration only) ----------------------------------------------------------
-    def sdo_read(self, j: int, index: int, sub: int | None = None, lock_timeout: float = -1) -> Any:
-        return self._sdo(j, index, sub, None, lock_timeout)
+    def sdo_read(self, j: int, index: int, sub: int | None = None, lock_timeout: float = -1,
+                 timeout_s: float | None = None) -> Any:
+        """One SDO upload; ``lock_timeout``: give up if another thread uses the drive's SDO channel;
+        ``timeout_s``: a shorter reply timeout than ``sdo_timeout_s`` (the stop's confirmation)."""
+        return self._sdo(j, index, sub, None, lock_timeout, timeout_s)
 
     def sdo_write(self, j: int, index: int, value: Any, sub: int | None = None) -> None:
-        self._sdo(j, index, sub, value, -1)
+        self._sdo(j, index, sub, value, -1, None)
 
-    def _sdo(self, j: int, index: int, sub: int | None, value: Any, lock_timeout: float) -> Any:
+    def _sdo(self, j: int, index: int, sub: int | None, value: Any, lock_timeout: float,
+             timeout_s: float | None) -> Any:
         lock = self._sdo_locks[j]
         if not lock.acquire(timeout=lock_timeout):
             raise CommunicationError(f"{self.labels[j]}: its SDO channel is busy")
+        client = self.nodes[j].sdo
+        client.RESPONSE_TIMEOUT = self.options.sdo_timeout_s if timeout_s is None else timeout_s
         try:
-            var = self.nodes[j].sdo[index] if sub is None else self.nodes[j].sdo[index][sub]
+            var = client[index] if sub is None else client[index][sub]
             if value is None:
                 return var.raw
             var.raw = value
@@ -118,6 +124,7 @@ class CANopenDriver(Driver):
             raise CommunicationError(f"{self.labels[j]} refused to {what} object 0x{index:04X}"
                                      f"{'' if sub is None else f' sub {sub}'}: SDO abort {exc}") from exc
         finally:
+            client.RESPONSE_TIMEOUT = self.options.sdo_timeout_s
             lock.release()
 
     # -- connection --------------------------------------------------------------------------

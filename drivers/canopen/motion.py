@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STOP_CONFIRM_S = 0.25  # statuswords confirming a quick stop: TPDOs first, then SDO
+SDO_CONFIRM_S = 0.1  # ... each drive's SDO reply (a drive off the bus never answers)
 FRESH_STOP_WAIT_S = 0.3
 MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
 DEG = math.pi / 180.0
@@ -181,7 +182,7 @@ def quick_stop(drv: "CANopenDriver") -> bool:
     pending = m.wait_for(lambda j, sw: stopped(state_of(sw)), seq0, list(range(drv.n)), STOP_CONFIRM_S)
     for j in list(pending):  # no TPDO confirmed it (stream stalled?): ask over SDO, if the channel is free
         try:
-            if stopped(state_of(drv.sdo_read(j, obj.STATUSWORD, lock_timeout=0.05))):
+            if stopped(state_of(drv.sdo_read(j, obj.STATUSWORD, lock_timeout=0.05, timeout_s=SDO_CONFIRM_S))):
                 pending.remove(j)
         except CommunicationError:
             pass
