@@ -312,3 +312,17 @@ def test_rated_torque_comes_from_the_drive_or_the_yaml():
         finally:
             drv.close()
             fake.close()
+
+
+@with_rig(effort_object="current")
+def test_current_actual_is_scaled_by_the_rated_current_the_drive_reports(rig):
+    drv, fake = rig
+    assert drv.effort_unit == "A"
+    assert drv.effort_per_permille == pytest.approx([0.0056, 0.0056, 0.0028, 0.0012, 0.0012, 0.0012])  # 0x6075 mA
+    for d in fake.drives:
+        assert [e[0] for e in d.tpdos()[0][3]] == [0x6041, 0x6064, 0x6078]
+    drv.start_stream(lambda s: None)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    s = drv.wait_sample(2.0, after=time.monotonic())
+    # the simulated joints' torque constant is 10 N·m/A: current = torque / 10
+    assert np.max(np.abs(10 * np.array(s.effort) - fake.robot.snapshot().torque_nm)) < 0.5
