@@ -1,0 +1,210 @@
+"""The general fit with nuisance offsets: torques the payload's weight cannot explain, estimated alongside θ.
+
+Two unmodelled torques are constant along a sweep while the payload's gravity torque is not:
+
+- on the **moving joint**: friction the baseline and the two-direction average leave. The average
+  of the up and down legs cancels every term odd in speed; a term even in speed survives, e.g. the
+  direction asymmetry of Coulomb friction, ((1 + a) − (1 − a))/2 · F_c = a·F_c, which no longer
+  cancels against the empty run when the friction level changed between the runs (a baseline
+  recorded cold, a tool run warm; a friction drift). One offset per (combined sweep, moving joint);
+- on the **wrist joints**: a tool cable or hose from the forearm to the tool acts as a spring on
+  joints 4–6, constant while the wrist stands still (it does during every arm sweep, at the same
+  angles in every sweep of a pose). One offset per (pose, wrist joint). ``evaluation.cable_check``
+  tests whether these are there.
+
+The payload torque along a 55° sweep varies like cos/sin of the link angle, so an offset is
+separable from it; the price is a wider σ (the fit has fewer effective degrees of freedom). Fitting
+the moving joint's offsets also makes the estimate sensitive to slow position-dependent torque
+(gear ripple once per output turn), which then biases it (benchmarks: +4 g mean in the ripple-only
+ablation); ``friction_offset_covariance`` instead keeps the plain estimate and puts the offsets'
+plausible size, from the friction the baseline shows, into σ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable, Iterable, Mapping
+
+import numpy as np
+
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.errors import DataError
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.recording.rundata import SweepData
+from payload_agent.solvers import general
+from payload_agent.solvers.results import Estimate
+from payload_agent.solvers.wls import FitResult, Group, fit
+from payload_agent.types import SweepKey
+
+WRIST_JOINTS = (3, 4, 5)  # 0-based
+
+Selector = Callable[[Group, DeltaSweep], "str | None"]  # the offset's name for a group, None: no offset
+
+
+def moving_joint(group: Group, sweep: DeltaSweep) -> str | None:
+    """One offset per (sweep, moving joint): the rows of the joint that moves in this sweep."""
+    return group.label if group.joint == sweep.moving else None
+
+
+def wrist_joint(group: Group, sweep: DeltaSweep) -> str | None:
+    """One offset per (pose, wrist joint 4–6) standing still: the wrist keeps its angles through every
+    sweep of a pose, so a cable's torque is the same in all of them."""
+    if group.joint in WRIST_JOINTS and group.joint != sweep.moving:
+        return f"{sweep.key.pose}/j{group.joint + 1}"
+    return None
+
+
+@dataclass(frozen=True)
+class OffsetFit:
+    """θ = [m, m·c] and the offsets fitted with it."""
+
+    result: FitResult  # over [θ (4), offsets (k)]
+    labels: list[str]  # the offsets' group labels, in column order
+    groups: list[Group]  # the augmented groups
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self.result.theta[:4]
+
+    @property
+    def offsets_nm(self) -> np.ndarray:
+        return self.result.theta[4:]
+
+    @property
+    def offsets_cov(self) -> np.ndarray:
+        return self.result.cov[4:, 4:]
+
+    def wald(self) -> float:
+        """χ² = bᵀ·Cov(b)⁻¹·b of the offsets (k degrees of freedom)."""
+        b = self.offsets_nm
+        if not len(b):
+            return 0.0
+        return float(b @ np.linalg.lstsq(self.offsets_cov, b, rcond=None)[0])
+
+
+def plain_groups(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics) -> tuple[list[DeltaSweep], list[Group]]:
+    sweeps = general.select_sweeps(deltas)
+    if not sweeps:
+        raise DataError("offsets: no sweep to solve with")
+    return sweeps, general.build_groups(sweeps, kin)
+
+
+def augment(sweeps: list[DeltaSweep], groups: list[Group], *selectors: Selector) -> tuple[list[Group], list[str]]:
+    """The groups with one indicator column per offset the selectors name (groups naming the same
+    offset share its column)."""
+    by_name = {d.key.name: d for d in sweeps}
+    names: list[str] = []
+    picks: list[list[int]] = []
+    for g in groups:
+        cols = []
+        for sel in selectors:
+            name = sel(g, by_name[g.sweep])
+            if name is None:
+                continue
+            if name not in names:
+                names.append(name)
+            cols.append(names.index(name))
+        picks.append(cols)
+    out = []
+    for g, cols in zip(groups, picks):
+        extra = np.zeros((len(g.y), len(names)))
+        extra[:, cols] = 1.0
+        out.append(replace(g, Y=np.hstack([g.Y, extra])))
+    return out, names
+
+
+def fit_offsets(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *selectors: Selector,
+                gain_rel_std: Iterable[float] | None = None) -> OffsetFit:
+    sweeps, groups = plain_groups(deltas, kin)
+    aug, labels = augment(sweeps, groups, *selectors)
+    return OffsetFit(fit(aug, gain_rel_std), labels, aug)
+
+
+def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *selectors: Selector, name: str = "general-offsets",
+          **general_kw) -> Estimate:
+    """``general.solve`` with nuisance offsets (default: the moving joint's, see the module docstring).
+
+    The systematic terms the general solver adds on top of its fit (DH lengths, calibration
+    absorption) are taken from the plain solve: they depend on the geometry, not on the offsets.
+    """
+    selectors = selectors or (moving_joint,)
+    plain = general.solve(deltas, kin, name=name, **general_kw)
+    sweeps, groups = plain_groups(deltas, kin)
+    gain_std = general_kw.get("gain_rel_std")
+    plain_fit = fit(groups, gain_std)
+    aug, labels = augment(sweeps, groups, *selectors)
+    res = fit(aug, gain_std)
+    systematic = np.asarray(plain.covariance, float) - plain_fit.cov
+    cov = res.cov[:4, :4] + systematic
+    theta = res.theta[:4]
+    if not theta[0] > 0:
+        raise DataError(f"{name}: identified mass {theta[0]:.4f} kg is not positive; is a payload mounted?")
+    c, cov_c = general.cog_with_covariance(theta, cov)
+    notes = list(plain.notes) + [f"constant offsets fitted on {len(labels)} (sweep, joint) pairs: "
+                                 + ", ".join(f"{lab} {v:+.3f} N·m" for lab, v in zip(labels, res.theta[4:]))]
+    return replace(plain, mass_kg=float(theta[0]), cog_m=tuple(float(v) for v in c),
+                   residual_rms_nm=res.residual_rms_nm, mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
+                   cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)), covariance=cov.tolist(),
+                   condition_number=res.condition_number, notes=notes)
+
+
+# -- the friction residual as an uncertainty instead of an estimate -------------------------------------
+
+def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
+    """Per moving joint (0-based): the friction level the empty run shows, half the up − down effort gap.
+
+    At the same angle of the moving joint, gravity is the same in both legs and friction odd in
+    speed flips: (τ_up − τ_down)/2 is its level at the sweep speed (Coulomb + viscous·speed).
+    Median over the legs' common constant-speed angles, largest over the joint's sweeps.
+    """
+    from payload_agent.analysis.delta import window_of
+
+    out: dict[int, float] = {}
+    for key, up in empty.items():
+        if key.direction != "up":
+            continue
+        down = empty.get(SweepKey(key.pose, key.joint, "down", key.speed_percent))
+        if down is None:
+            continue
+        j = key.joint - 1
+        try:
+            wu, wd = window_of(up), window_of(down)
+        except DataError:
+            continue
+        xu, tu = up.q[wu.slice, j], up.effort_nm[wu.slice, j]
+        xd, td = down.q[wd.slice, j], down.effort_nm[wd.slice, j]
+        order = np.argsort(xd)
+        inside = (xu >= xd[order][0]) & (xu <= xd[order][-1])
+        if inside.sum() < 10:
+            continue
+        gap = 0.5 * np.abs(np.median(tu[inside] - np.interp(xu[inside], xd[order], td[order])))
+        out[j] = max(out.get(j, 0.0), float(gap))
+    return out
+
+
+def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, friction_nm: Mapping[int, float],
+                               rel_std: float, gain_rel_std: Iterable[float] | None = None) -> np.ndarray:
+    """Covariance of θ from an unknown constant torque on each moving joint, σ_j = rel_std × friction_nm[j].
+
+    What the two-direction average leaves is even in speed: a Coulomb direction asymmetry a times
+    the change of the friction level f between the empty and the loaded run, a·Δf·F. ``rel_std`` is
+    the standard uncertainty of a·Δf (e.g. 0.087 × 0.082: asymmetry uniform ±15 %, friction change by
+    drift and warm-up). One cause per joint, so the offsets of all sweeps of a joint move together:
+    Σ = Σ_j σ_j² · s_j s_jᵀ with s_j = (YᵀWY)⁻¹·YᵀW·1_j over joint j's moving rows.
+    """
+    sweeps, groups = plain_groups(deltas, kin)
+    res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
+    w, inv = res.weights, res.normal_inverse
+    by_name = {d.key.name: d for d in sweeps}
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    s: dict[int, np.ndarray] = {}
+    for i, g in enumerate(groups):
+        if g.joint != by_name[g.sweep].moving or g.joint not in friction_nm:
+            continue
+        wi = w[starts[i]:starts[i + 1]]
+        s[g.joint] = s.get(g.joint, 0.0) + inv @ (g.Y.T @ wi)
+    cov = np.zeros((4, 4))
+    for j, v in s.items():
+        sigma = rel_std * friction_nm[j]
+        cov += sigma ** 2 * np.outer(v, v)
+    return cov
