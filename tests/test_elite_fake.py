@@ -370,7 +370,7 @@ def test_from_config_builds_robot_and_binds_ephemeral_ports(sim_ec66_data):
 
 def test_events_log_every_accepted_move_and_every_stop(ctrl, raw):
     t0 = time.monotonic()
-    assert raw.result("moveByJoint", {"targetPos": [5, -90, 90, 0, 90, 0], "speed": 50}) is True
+    assert raw.result("moveByJoint", {"targetPos": [60, -90, 90, 0, 90, 0], "speed": 1}) is True  # ~1 s of wall time
     assert raw.result("moveByJoint", {"targetPos": [9, -90, 90, 0, 90, 0], "speed": 50}) is False  # still running
     assert raw.result("stop") is True
     ctrl.set_mode(0)
