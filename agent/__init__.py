@@ -3,7 +3,7 @@
 ``payload_agent.identify(robot, unattended=True, apply=False)`` is the Python API (see ``api``).
 """
 
-__version__ = "0.1.0"
+from payload_agent.version import __version__
 
 
 def identify(robot, **options):

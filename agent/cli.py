@@ -17,7 +17,7 @@ import sys
 import traceback
 from pathlib import Path
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.cli_commands import COMMANDS
 from payload_agent.errors import PayloadAgentError, Terminated
 from payload_agent.output.console import Console, setup_logging

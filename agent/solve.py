@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.configuration.config import Config
 from payload_agent.configuration.recorded import recorded_effort
 from payload_agent.errors import ConfigError, DataError

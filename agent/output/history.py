@@ -34,7 +34,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
 

@@ -9,7 +9,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, Sequence
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.output.checks import check_rows
 from payload_agent.output.report_plots import Figure
 

@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.configuration.config import Config
 from payload_agent.types import ControllerInfo
 from payload_agent.errors import BaselineError

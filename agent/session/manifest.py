@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from payload_agent import __version__
+from payload_agent.version import __version__
 from payload_agent.configuration.config import Config, config_snapshot
 from payload_agent.motion.planner import Plan
 from payload_agent.types import PayloadSetting
