@@ -90,6 +90,8 @@ class Driver(abc.ABC):
     options_class: ClassVar[type[DriverOptions]] = DriverOptions
     simulator: ClassVar[str | None] = None
     reports_flange_pose: ClassVar[bool] = False  # can flange_pose() answer (kinematic cross-check)
+    # whose clock paces the samples: the controller's ("controller"), or the agent's own (CANopen SYNC: "agent")
+    sampling_clock: ClassVar[str] = "controller"
 
     def __init__(self, options: DriverOptions, limits: MotionLimits, supervision: Supervision | None = None):
         self.options = options

@@ -201,9 +201,11 @@ def _stream_check(driver, report: DoctorReport, window_s: float, config: Config)
     wall_gap = float(np.max(np.diff(t_wall)))
     simulated = config.simulation is not None and np.all(np.isfinite(t_ctrl))
     if simulated:  # the simulated controller's own clock: what a run at its time scale sees
+        if driver.sampling_clock == "agent":  # the agent paces the samples in wall time: fewer per simulated s
+            nominal /= config.simulation.time_scale
         rate = (len(t_ctrl) - 1) / max(t_ctrl[-1] - t_ctrl[0], 1e-9)
         gap = float(np.max(np.diff(t_ctrl)))
-        limit = max(5 * driver.nominal_period_s, 0.0)
+        limit = driver.gap_limit_s  # the supervision's limit (sims set their own: they share a loaded CPU)
         where = (f"{rate:.1f} Hz and largest gap {1000 * gap:.1f} ms in simulated time (wall: {wall_rate:.0f} Hz, "
                  f"largest gap {1000 * wall_gap:.0f} ms at time_scale {config.simulation.time_scale:g})")
     else:

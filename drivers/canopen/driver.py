@@ -60,6 +60,7 @@ class CANopenDriver(Driver):
     options_class = CANopenOptions
     simulator = "payload_agent.fakes.canopen:SimulatedCANopenArm"
     reports_flange_pose = False
+    sampling_clock = "agent"  # the driver produces SYNC: in a simulation, simulated time follows it
 
     def __init__(self, options: CANopenOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
