@@ -157,8 +157,9 @@ def test_stream_has_no_unreported_gap(ur, healthy):
     t_ctrl = np.array([s.t_ctrl for s in samples])
     t_recv = np.array([s.t_recv for s in samples])
     assert np.all(np.diff(t_ctrl) > 0)  # de-duplicated, in order
-    holes = np.diff(t_recv)
+    holes = np.diff(t_ctrl)  # packages ur-rtde replaced before they were read show as steps of 4, 6 ms...
     assert stats.count >= len(samples) and stats.largest_gap_s >= holes.max() - 1e-9
+    assert stats.largest_wall_gap_s >= np.diff(t_recv).max() - 1e-9
     assert len(stats.gaps) >= int(np.sum(holes > healthy.gap_limit_s))
     assert len(samples) <= sent + 2  # nothing invented (the counter runs on while the sink is set)
     span = t_ctrl[-1] - t_ctrl[0]

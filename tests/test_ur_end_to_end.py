@@ -1,13 +1,14 @@
-"""The whole product against the simulated UR5e: real ur_rtde client, fake UR controller, loopback.
+"""The whole product against the simulated UR5e: real ur_rtde client, simulated UR controller, loopback.
 
-The fake UR controller runs in a child process (ur_rtde's constructors hold the GIL) on a
-127.0.0.x address of its own: ur_rtde's ports are fixed, so each fake needs its own
-address. ``pick_loopback_host`` picks one whose UR ports are free right now (the same way
-as the other UR tests), so parallel test runs and the other UR tests never collide.
+The simulated controller runs in a child process (ur_rtde's constructors hold the GIL) on a
+127.0.0.x address of its own: ur_rtde's ports are fixed, so each one needs its own address.
+``pick_loopback_host`` picks one whose UR ports are free right now, so parallel test runs and
+the other UR tests never collide.
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import threading
 from pathlib import Path
@@ -22,7 +23,7 @@ from conftest import ROOT, tweak  # noqa: E402
 from payload_agent.cli import main  # noqa: E402
 from payload_agent.configuration.config import parse_config  # noqa: E402
 from payload_agent.errors import MotionAbortedError  # noqa: E402
-from payload_agent.fakes.ur_controller import pick_loopback_host  # noqa: E402
+from payload_agent.fakes.ur import pick_loopback_host  # noqa: E402
 from payload_agent.recording.rundata import load_manifest  # noqa: E402
 from payload_agent.session.runner import RunOptions, run_identification  # noqa: E402
 
@@ -35,9 +36,17 @@ def sim_ur5e_data():
 def _data(sim_ur5e_data, tmp_path: Path, **changes):
     data = tweak(sim_ur5e_data, "driver.host", pick_loopback_host())
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    data.pop("watch", None)
     for path, value in changes.items():
         data = tweak(data, path.replace("__", "."), value)
     return data
+
+
+def _largest_recorded_step_s(run_dir: Path, sweep: dict) -> float:
+    """The largest step between the controller timestamps of a sweep's recorded samples."""
+    with open(run_dir / sweep["file"], newline="") as f:
+        t = np.array([float(row["t_ctrl_s"]) for row in csv.DictReader(f)])
+    return float(np.max(np.diff(t))) if len(t) > 1 else 0.0
 
 
 def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
@@ -45,7 +54,7 @@ def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
     cfg_path = tmp_path / "sim-ur5e.yaml"
     cfg_path.write_text(yaml.safe_dump(_data(sim_ur5e_data, tmp_path)))
     truth = sim_ur5e_data["simulation"]["payload"]
-    rc = main(["run", "--robot", str(cfg_path), "--yes", "--result", str(tmp_path / "r.json")])
+    rc = main(["run", "--robot", str(cfg_path), "--yes", "--retry-sweeps", "4", "--result", str(tmp_path / "r.json")])
     assert rc == 0
     result = json.loads((tmp_path / "r.json").read_text())
     err_mass = result["mass_kg"] - truth["mass_kg"]
@@ -60,11 +69,23 @@ def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
     assert manifest["effort_unit"] == "A"
     assert manifest["controller"]["model"] == "UR5e"
     assert manifest["simulation_truth"]["mass_kg"] == truth["mass_kg"]
+    assert manifest["kinematic_check"]["ok"]  # actual_TCP_pose less the TCP offset = the YAML's FK
+    gap_limit_s = sim_ur5e_data["safety"].get("max_stream_gap_ms", 50) / 1000.0
+    rates = []
     for phase in ("empty", "loaded"):
-        sweeps = manifest["phases"][phase]["sweeps"]
+        sweeps = [s for s in manifest["phases"][phase]["sweeps"] if s["status"] == "complete"]
         assert [s["name"] for s in sweeps] == [f"{p}-j{j}-{d}" for p in "bd" for j in (2, 3) for d in ("up", "down")]
-        # 500 Hz stream: several hundred samples per second of sweep even when packages are missed
-        assert all(s["status"] == "complete" and s["samples"] > 1000 for s in sweeps), sweeps
+        for s in sweeps:
+            # no unreported gap: a complete sweep's own file has no hole beyond the watchdog's limit, and its
+            # statistics saw what the file holds (how many of the 500 packages a second arrive is the
+            # scheduler's business on a loaded machine, not a guarantee of the agent's)
+            stream = s["stream"]
+            assert stream["count"] >= s["samples"] > 100 and not stream["gaps"], s
+            step = _largest_recorded_step_s(run_dir, s)
+            assert step <= gap_limit_s and step <= stream["largest_gap_s"] + 1e-6, (step, s)
+            rates.append(stream["achieved_rate_hz"])
+    print(f"RTDE rate per sweep (receive time): {min(rates):.0f}-{max(rates):.0f} Hz "
+          f"(500 Hz in controller time × time_scale {sim_ur5e_data['simulation']['time_scale']})")
 
 
 def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_data, tmp_path):
@@ -73,10 +94,10 @@ def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_da
 
     def out(line):
         if "[empty] 2/12" in line:  # the first sweep has just been commanded
-            threading.Timer(0.4, cells[0].controller.trigger_protective_stop).start()
+            threading.Timer(0.4, cells[0].controller.inject_fault, ("protective_stop",)).start()
 
     with pytest.raises(MotionAbortedError, match="protective stop"):
-        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append))
+        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append, progress=False))
     run_dir = next((tmp_path / "runs").iterdir())
     manifest = load_manifest(run_dir)
     phase = manifest["phases"]["empty"]

@@ -32,6 +32,7 @@ from payload_agent.errors import CommunicationError, RobotNotReadyError
 
 RTDE_PORT = 30004
 WORKER = Path(__file__).with_name("control_worker.py")
+COMMAND_TIMEOUT_S = 2.0  # a ur-rtde command (moveJ async, setPayload, getTCPOffset) answers in a few cycles
 OPEN_TIMEOUT_S = 15.0  # worker start + ur-rtde's constructor (dashboard, recipes, script upload: 5 s limit)
 
 

@@ -39,21 +39,20 @@ import re
 import socket
 import threading
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NoReturn, Sequence
 
 import numpy as np
 import rtde_receive
 from scipy.spatial.transform import Rotation
 
 from payload_agent.drivers.base import Driver, MotionLimits, Supervision
-from payload_agent.drivers.ur_rtde.control import ControlChannel
+from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
+from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S, ControlChannel
 from payload_agent.drivers.ur_rtde.dashboard import dashboard_query, dashboard_stop
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
-from payload_agent.drivers.ur_rtde.states import (DIGITAL_INPUT_NAMES, RUNTIME_PLAYING, controller_state,
-                                                  runtime_name, safety_stop)
-from payload_agent.errors import (CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError,
-                                  UnsupportedCapability)
-from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
+from payload_agent.drivers.ur_rtde.states import RUNTIME_PLAYING, controller_state, runtime_name, safety_stop
+from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError
+from payload_agent.types import ControllerInfo, ControllerState, FlangePose, Sample
 
 RTDE_PORT = 30004
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the payload
@@ -61,7 +60,6 @@ RTDE_PORT = 30004
 RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_pose", "robot_mode", "safety_mode",
           "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
-COMMAND_TIMEOUT_S = 2.0  # a ur-rtde command (moveJ async, setPayload, getTCPOffset) answers in a few cycles
 POLL_TIMEOUT_S = 0.5  # reading the async progress word during a move (a local read in the worker)
 STOP_REPLY_S = 0.25  # stopJ over the command channel; then the dashboard is tried
 DASHBOARD_STOP_TIMEOUT_S = 0.5
@@ -70,7 +68,7 @@ MAX_CURRENT_A = 100.0
 MAX_ACCEL_RAD_S2 = 40.0  # ur-rtde's limit for moveJ
 
 
-class URRTDEDriver(Driver):
+class URRTDEDriver(URCapabilities, Driver):
     name = "ur_rtde"
     options_class = URRTDEOptions
     simulator = "payload_agent.fakes.ur:FakeURController"
@@ -275,37 +273,18 @@ class URRTDEDriver(Driver):
                                      f"({self._why_not_running()})")
         seen_new_op = False
         while True:
-            self.check_supervision()
-            if self._abort.is_set():
-                self._stop_now()
-                raise MotionAbortedError("move stopped on request")
-            fault = safety_stop(r.getSafetyStatusBits(), r.getSafetyMode())
-            if fault:
-                self._stop_now()
-                raise MotionAbortedError(f"UR controller {self.host} stopped the move: {fault}")
-            op_id, running = ctl.request("progress", timeout_s=POLL_TIMEOUT_S)
-            if not r.isConnected() or not ctl.connected:
-                raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
-            self.command_ok()
-            if r.getRuntimeState() != RUNTIME_PLAYING:
-                self._stop_now()
-                raise MotionAbortedError(f"UR controller {self.host}: the control script stopped during the move "
-                                         f"({self._why_not_running()})")
+            op_id, running = self._poll_move(r)
             seen_new_op = seen_new_op or op_id != op0
             if seen_new_op and not running:
                 break
             if time.monotonic() - t_start > timeout_s:
-                self._stop_now()
-                raise MotionAbortedError(f"move did not finish within {timeout_s:.1f} s; the arm was stopped")
+                self._abort_move(lambda: f"move did not finish within {timeout_s:.1f} s; the arm was stopped")
             time.sleep(0.002)
-        self._check_arrival(r, target)
-
-    def _check_arrival(self, r, target: np.ndarray) -> None:
         # The receive interface's packages may trail the control interface's by a cycle or
         # two: wait until they show the arm at rest, then check the position.
         deadline = time.monotonic() + 10.0 / self.frequency_hz + 0.05 + self.gap_limit_s
         while True:
-            self.check_supervision()
+            self._poll_move(r)
             err = float(np.max(np.abs(np.asarray(r.getActualQ()) - target)))
             at_rest = float(np.max(np.abs(np.asarray(r.getActualQd())))) < 1e-4
             if err <= self.target_tolerance_rad and at_rest:
@@ -316,6 +295,36 @@ class URRTDEDriver(Driver):
                 raise MotionAbortedError(f"move ended {math.degrees(err):.3f} deg from its target "
                                          f"(tolerance {self.options.target_tolerance_deg:.3f} deg)")
             time.sleep(0.002)
+
+    def _poll_move(self, r) -> tuple[int, bool]:
+        """One look at the controller during a move: (async operation id, running); aborts on any stop."""
+        self.check_supervision()
+        if self._abort.is_set():
+            self._abort_move(lambda: "move stopped on request")
+        fault = safety_stop(r.getSafetyStatusBits(), r.getSafetyMode())
+        if fault:
+            self._abort_move(lambda: f"UR controller {self.host} stopped the move: {fault}")
+        op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
+        if not r.isConnected() or not self._control.connected:
+            raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
+        self.command_ok()
+        if r.getRuntimeState() != RUNTIME_PLAYING:
+            self._abort_move(lambda: f"UR controller {self.host}: the control script stopped during the move "
+                                     f"({self._why_not_running()})")
+        return op_id, running
+
+    def _abort_move(self, message: Callable[[], str]) -> NoReturn:
+        """Stop the arm and end the move with MotionAbortedError(message()).
+
+        The controller has just answered; the stop and the explanation (a dashboard round trip)
+        may take a while, which the reply watchdog must not take for a silent controller.
+        """
+        self.command_ok()
+        self._stop_now()
+        self.command_ok()
+        text = message()
+        self.command_ok()
+        raise MotionAbortedError(text)
 
     def _why_not_running(self) -> str:
         try:
@@ -368,67 +377,6 @@ class URRTDEDriver(Driver):
         flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
         return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
                           rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
-
-    # -- digital inputs, temperatures --------------------------------------------------------------
-    def read_digital_input(self, index: int) -> bool:
-        """Bit ``index`` of RTDE ``actual_digital_input_bits``: 0-7 DI0-7, 8-15 CI0-7, 16-17 tool TI0-1.
-
-        Read with ur-rtde's ``getDigitalInState`` from the receive interface's latest package;
-        needs no control script and no Remote Control.
-        """
-        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(DIGITAL_INPUT_NAMES):
-            raise ValueError(f"UR digital input index must be an integer in [0, {len(DIGITAL_INPUT_NAMES) - 1}] "
-                             f"(0-7 standard DI0-7, 8-15 configurable CI0-7, 16-17 tool TI0-1), got {index!r}")
-        try:
-            return bool(self._receive().getDigitalInState(index))
-        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
-            raise CommunicationError(f"UR controller {self.host}: cannot read digital input "
-                                     f"{DIGITAL_INPUT_NAMES[index]} (bit {index} of actual_digital_input_bits): {exc}") \
-                from exc
-
-    def joint_temperatures_c(self) -> tuple[float, ...]:
-        """RTDE ``joint_temperatures`` (°C) of the latest package, through ``getJointTemperatures``."""
-        try:
-            values = tuple(float(v) for v in self._receive().getJointTemperatures())
-        except RuntimeError as exc:  # the field is missing from the recipe / no package yet
-            raise CommunicationError(f"UR controller {self.host}: cannot read joint_temperatures: {exc}") from exc
-        if len(values) != 6:
-            raise CommunicationError(f"UR controller {self.host}: joint_temperatures has {len(values)} values, "
-                                     "expected 6")
-        return values
-
-    # -- payload ---------------------------------------------------------------------------------
-    def read_payload(self) -> PayloadSetting:
-        if not self._has_payload_fields:
-            raise UnsupportedCapability(f"UR controller {self.host} (PolyScope {'.'.join(map(str, self._version))}) "
-                                        "has no RTDE payload fields (they need 5.5.1 / 3.11 or newer)")
-        r = self._receive()
-        cog = r.getPayloadCog()
-        return PayloadSetting(mass_kg=float(r.getPayload()), cog_m=(float(cog[0]), float(cog[1]), float(cog[2])))
-
-    def write_payload(self, payload: PayloadSetting) -> None:
-        mass = float(payload.mass_kg)
-        cog = [float(c) for c in payload.cog_m]
-        if not (math.isfinite(mass) and mass >= 0 and len(cog) == 3 and all(math.isfinite(c) for c in cog)):
-            raise ValueError(f"invalid payload {payload!r}")
-        # ur-rtde's control script keeps the current centre of gravity when it is sent
-        # [0, 0, 0] (rtde_control.script, set_payload branch for PolyScope >= 5.0): send 1 nm instead.
-        sent_cog = cog if any(cog) else [0.0, 0.0, 1e-9]
-        state = self._state(refresh_remote=False)
-        if not state.motion_allowed:
-            raise RobotNotReadyError(f"UR controller {self.host}: {state.reason}")
-        self._ensure_control()
-        with self._control.lock:
-            ok = self._control.request("setPayload", mass, sent_cog, timeout_s=COMMAND_TIMEOUT_S)
-        if not ok:
-            raise MotionAbortedError(f"UR controller {self.host}: set_payload was not executed "
-                                     f"({self._why_not_running()})")
-        if self._has_payload_fields:
-            def matches() -> bool:
-                got = self.read_payload()
-                return abs(got.mass_kg - mass) < 1e-6 and all(abs(a - b) < 1e-6 for a, b in zip(got.cog_m, cog))
-
-            self._wait(matches, 2.0, "the controller to report the new payload")
 
     # -- helpers ---------------------------------------------------------------------------------
     def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:

@@ -22,7 +22,8 @@ from payload_agent.fakes.ur.constants import (CMD_GET_TCP_OFFSET, CMD_IS_STEADY,
                                               CMD_SET_PAYLOAD, CMD_SET_TARGET_PAYLOAD, CMD_SET_WATCHDOG,
                                               CMD_STOP_SCRIPT, CMD_STOPJ, CMD_STOPL, REALTIME_CMDS,
                                               UR_CONTROLLER_DONE_WITH_CMD, UR_CONTROLLER_RDY_FOR_CMD)
-from payload_agent.fakes.ur.urscript import DEF_RE, Program, ProgramError, ScriptCompileError, compile_plain
+from payload_agent.fakes.ur.urscript import (DEF_RE, Program, ProgramError, ScriptCompileError, compile_plain,
+                                             exact_time)
 
 if TYPE_CHECKING:
     from payload_agent.fakes.ur.controller import URControllerCore
@@ -107,11 +108,12 @@ class RtdeControlProgram(Program):
 
     def poll_async(self) -> None:
         st = self.ctrl.robot.snapshot()
-        if self.async_move_t0 is not None and st.t > self.async_move_t0 and not st.moving \
+        t = exact_time(st)
+        if self.async_move_t0 is not None and t > self.async_move_t0 and not st.moving \
                 and not self.ctrl.faults.is_active("never_finish"):
             self.async_move_t0 = None
             self.write_async_progress(-1)  # move_thread: signal_async_operation_finished()
-        if self.async_stop_t0 is not None and st.t > self.async_stop_t0 and not st.moving:
+        if self.async_stop_t0 is not None and t > self.async_stop_t0 and not st.moving:
             self.async_stop_t0 = None
             self.write_async_progress(-1)  # stop_thread finished
 

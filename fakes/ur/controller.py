@@ -395,9 +395,3 @@ class URControllerCore:
                 for name, owner in list(self.input_owner.items()):
                     if owner is sess:
                         del self.input_owner[name]
-
-    @property
-    def stream_packages_sent(self) -> int:
-        """Data packages sent so far to the open sample stream sessions (not the control interface's)."""
-        with self.lock:
-            return sum(s.sent_packages for s in self.rtde_sessions if s.is_sample_stream)

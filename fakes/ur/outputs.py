@@ -28,7 +28,7 @@ _NAN6 = np.full(6, np.nan)
 class Snapshot:
     """The controller's outputs in one control cycle (immutable once built)."""
 
-    __slots__ = ("ctrl", "t", "q", "qd", "qdd", "tau", "current", "moving", "robot_mode", "safety_mode",
+    __slots__ = ("ctrl", "t", "t_exact", "q", "qd", "qdd", "tau", "current", "moving", "robot_mode", "safety_mode",
                  "safety_bits", "runtime_state", "robot_status_bits", "out_int", "out_dbl", "in_int", "in_dbl",
                  "out_bits", "in_bits", "digital_in", "joint_temps", "payload_mass", "payload_cog", "payload_inertia",
                  "tcp_offset", "_cache")
@@ -48,11 +48,12 @@ def build_snapshot(ctrl: "URControllerCore", st: "SimState", current: np.ndarray
     s = Snapshot()
     s.ctrl = ctrl
     s.t, s.q, s.qd, s.qdd, s.tau, s.moving = st.t, st.q, st.qd, st.qdd, st.torque_nm, st.moving
+    s.t_exact = st.t_true if st.t_true is not None else st.t  # s.t is reported, with timestamp jitter
     s.current = current
     if nan:
         s.q, s.qd, s.current = _NAN6, _NAN6, _NAN6
     s._cache = None
-    s.joint_temps = ctrl.advance_temperatures(st.t)
+    s.joint_temps = ctrl.advance_temperatures(s.t_exact)
     with ctrl.lock:
         s.safety_mode, s.safety_bits = ctrl.safety(st)
         s.robot_mode = ctrl.robot_mode

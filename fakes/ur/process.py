@@ -69,7 +69,7 @@ def _ctrl_attrs(core: URControllerCore) -> dict[str, Callable[[], Any]]:
             "serial_number": lambda: core.serial_number, "out_int": lambda: core.out_int,
             "out_dbl": lambda: core.out_dbl, "in_int": lambda: core.in_int, "in_dbl": lambda: core.in_dbl,
             "digital_in": lambda: core.digital_in, "joint_temperatures": lambda: core.joint_temperatures,
-            "tcp_offset": lambda: core.tcp_offset, "stream_packages_sent": lambda: core.stream_packages_sent}
+            "tcp_offset": lambda: core.tcp_offset, "stream_packages_sent": lambda: _stream_packages_sent(core)}
 
 
 # what the parent may read (``FakeURController.<name>``); _ctrl_attrs answers each in the child
@@ -78,6 +78,12 @@ CTRL_ATTR_NAMES = frozenset({"last_script", "programs_run", "runtime_state", "ro
                              "current_noise_a", "controller_version", "serial_number", "out_int", "out_dbl",
                              "in_int", "in_dbl", "digital_in", "joint_temperatures", "tcp_offset",
                              "stream_packages_sent"})
+
+
+def _stream_packages_sent(core: URControllerCore) -> int:
+    """Data packages sent so far to the open sample stream sessions (not the control interface's)."""
+    with core.lock:
+        return sum(s.sent_packages for s in core.rtde_sessions if s.is_sample_stream)
 
 
 def _copy_out(value: Any) -> Any:

@@ -247,14 +247,14 @@ class RTDESession:
         stalled = self._stream_fault() == "stall_stream"
         with self.cv:
             for rec in self.outputs:
-                if rec.next_t is None:
-                    rec.next_t = s.t
-                if s.t + 1e-9 >= rec.next_t:
+                if rec.next_t is None:  # packages are due on the exact clock; they carry the reported time
+                    rec.next_t = s.t_exact
+                if s.t_exact + 1e-9 >= rec.next_t:
                     if not stalled:
                         self.queue.append((rec, s))
                     rec.next_t += rec.period
-                    if rec.next_t < s.t:  # fell behind (paused clock): do not burst
-                        rec.next_t = s.t + rec.period
+                    if rec.next_t < s.t_exact:  # fell behind (paused clock): do not burst
+                        rec.next_t = s.t_exact + rec.period
             if len(self.queue) > self.max_queue:
                 blocked = self.blocked_since
                 if blocked is not None and time.monotonic() - blocked > CLIENT_STALL_S:

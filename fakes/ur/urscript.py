@@ -25,6 +25,11 @@ if TYPE_CHECKING:
 DEF_RE = re.compile(r"^(def|sec)\s+([A-Za-z_]\w*)\s*\(\s*\)\s*:\s*(#.*)?$")
 
 
+def exact_time(st) -> float:
+    """A simulation state's exact clock time (``t`` is the reported one, with timestamp jitter)."""
+    return st.t_true if st.t_true is not None else st.t
+
+
 class ProgramStopped(Exception):
     """The running program was stopped (dashboard stop, new program, safety stop, close)."""
 
@@ -109,7 +114,7 @@ class Program:
         robot = self.ctrl.robot
         while True:
             st = robot.snapshot()
-            if st.t > t_after and not st.moving:
+            if exact_time(st) > t_after and not st.moving:
                 return
             self.sync()
 
