@@ -8,19 +8,17 @@ other and against register values worked out by hand from the vendors' documenta
 import math
 
 import pytest
+import yaml
 
-from conftest import tweak
+from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
-from payload_agent.drivers.modbus.options import parse_modbus_options, resolve_map
+from payload_agent.drivers.modbus.options import resolve_map
 from payload_agent.drivers.modbus.registers import EncodingError, Entry, group_reads, group_writes
 from payload_agent.drivers.modbus.regmap import load_preset
 from payload_agent.drivers.registry import parse_driver_options
 from payload_agent.errors import ConfigError
 from payload_agent.fakes.modbus.store import decode as fake_decode
 from payload_agent.fakes.modbus.store import encode as fake_encode
-
-import yaml
-from conftest import ROOT
 
 
 def _opts(**changes):

@@ -4,7 +4,9 @@ The base class (``payload_agent.drivers.base``) runs the sample stream and the m
 supervision; this module fills the hooks:
 
 * ``_read_sample``: one block read per sample where the map allows (``registers.group_reads``),
-  timestamped on receipt, paced at ``sample_rate_hz``. A block identical to the previous one is
+  timestamped on receipt, paced at ``sample_rate_hz``; a reply that took far longer than the usual
+  round trip is dropped (its values' time is unknown), unless the stream would then come close to
+  the watchdog's gap limit. A block identical to the previous one is
   not a new sample (the device has not refreshed it yet, or it stalled); the watchdog then sees
   the gap. Decoded angles beyond ``max_abs_angle_deg`` and non-finite values are garbage: the
   stream fails and names the register.
@@ -20,6 +22,7 @@ several clients); over RTU they share the one serial line.
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 
@@ -75,6 +78,7 @@ class ModbusDriver(Driver):
         self._next_poll = 0.0
         self._last_raw: tuple | None = None
         self._t_wrap = 0.0
+        self._round_trips: collections.deque[float] = collections.deque(maxlen=64)
         self._t_last: float | None = None
         self._tol_rad = math.radians(options.target_tolerance_deg)
         self._max_angle = math.radians(options.max_abs_angle_deg)
@@ -119,6 +123,7 @@ class ModbusDriver(Driver):
             if time.monotonic() < self._next_poll:
                 return None
         self._next_poll = max(self._next_poll + self.poll_period_s, time.monotonic())
+        t_send = time.monotonic()
         try:
             words = [self._stream.read(b) for b in self._sample_blocks]
         except ModbusTimeout:
@@ -128,6 +133,10 @@ class ModbusDriver(Driver):
         if self.options.repeat_is_stale and raw == self._last_raw:
             return None
         self._last_raw = raw
+        latest = self.latest_sample
+        if self._reply_too_slow(t_recv - t_send) and latest is not None \
+                and t_recv - latest.t_recv < 0.5 * self.gap_limit_s:
+            return None  # when within the round trip the device took these values is unknown: not a sample
         values = self._decode(self._sample_blocks, words)
         q = np.asarray(values["joint_angles"]) * si_factor(self.map["joint_angles"])
         if "joint_revolutions" in values:
@@ -141,6 +150,15 @@ class ModbusDriver(Driver):
                 raise CommunicationError(self._garbage_text("joint_efforts", j, v, self.effort_unit))
         t_ctrl = self._controller_time(values["timestamp"][0]) if "timestamp" in values else None
         return Sample(t_ctrl, t_recv, tuple(float(v) for v in q), tuple(float(v) for v in effort))
+
+    def _reply_too_slow(self, round_trip_s: float) -> bool:
+        """A reply far slower than usual (a loaded host, a congested link) cannot be timed on receipt."""
+        trips = self._round_trips
+        trips.append(round_trip_s)
+        if len(trips) < 16:
+            return False
+        limit = self.options.max_round_trip_s or max(0.005, 3.0 * float(np.median(trips)) + 0.002)
+        return round_trip_s > limit
 
     def _garbage_text(self, name: str, j: int, value: float, unit: str) -> str:
         e = self.map[name]

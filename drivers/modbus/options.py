@@ -55,6 +55,8 @@ class ModbusOptions(DriverOptions):
     target_tolerance_deg: float = option(0.3, gt=0, max=10)
     max_abs_angle_deg: float = option(720.0, gt=0, max=7200, help="a decoded angle beyond this is garbage")
     repeat_is_stale: bool = option(True, help="a sample identical to the previous one is not new")
+    max_round_trip_s: float | None = option(None, gt=0, max=10, help="slower replies are not samples "
+                                            "(default: 3 × the median round trip + 2 ms, at least 5 ms)")
 
 
 def parse_modbus_options(data: Any, key_path: str = "driver", source: str | None = None) -> ModbusOptions:

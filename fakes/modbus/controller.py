@@ -67,6 +67,9 @@ class SimulatedModbusRobot(SimulatedController):
         self.wall_locked = "timestamp" not in regmap
         self._clock_thread: threading.Thread | None = None
         self._running = threading.Event()
+        self._clock_lock = threading.Lock()
+        self._t0 = 0.0
+        self._done = 0
 
     @classmethod
     def from_config(cls, config: "Config") -> "SimulatedModbusRobot":
@@ -109,6 +112,9 @@ class SimulatedModbusRobot(SimulatedController):
             self.server.start()
             if self._owns_robot:  # our own clock: the controller cycle, one robot tick at a time
                 self._running.set()
+                self._t0 = time.monotonic()
+                if self.wall_locked:
+                    self.store.before_read = self._catch_up
                 self._clock_thread = threading.Thread(target=self._clock, name="modbus-robot-clock", daemon=True)
                 self._clock_thread.start()
             else:  # someone else runs the robot's clock
@@ -127,19 +133,28 @@ class SimulatedModbusRobot(SimulatedController):
 
     def _clock(self) -> None:
         period = self._robot.tick_s / self._robot.time_scale
-        t0 = time.monotonic()
-        done = 0
         while self._running.is_set():
-            due = int((time.monotonic() - t0) / period)
-            if not self.wall_locked and due - done > 6:  # a timestamped map: slow simulated time down instead
-                t0 = time.monotonic() - done * period
-                due = done + 1
-            while done < due and self._running.is_set():
-                self._on_tick(self._robot.step())
-                done += 1
-            delay = t0 + (done + 1) * period - time.monotonic()
+            self._catch_up()
+            delay = self._t0 + (self._done + 1) * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
+
+    def _catch_up(self) -> None:
+        """Run the control cycles that are due by now (from the clock thread, or before a read is served).
+
+        A real controller never falls behind. When this process's threads are held up on a busy host,
+        the due cycles run at once; with a wall-locked map a read also brings the device up to date first,
+        so what it returns is the state at the time it was asked for, as with a real server.
+        """
+        with self._clock_lock:
+            period = self._robot.tick_s / self._robot.time_scale
+            due = int((time.monotonic() - self._t0) / period)
+            if not self.wall_locked and due - self._done > 6:  # a timestamped map: slow simulated time instead
+                self._t0 = time.monotonic() - self._done * period
+                due = self._done + 1
+            while self._done < due and self._running.is_set():
+                self._on_tick(self._robot.step())
+                self._done += 1
 
     def __enter__(self) -> "SimulatedModbusRobot":
         return self.start()

@@ -49,7 +49,7 @@ def encode(entry: Entry, values: Sequence[float]) -> list:
             lo, hi = int_range(entry.type)
             value = min(max(int(round(raw)), lo), hi) if math.isfinite(raw) else 0
         words = ModbusClientMixin.convert_to_registers(value, _DATATYPES[entry.type], word_order=entry.word_order)
-        out.extend(_swap(w) for w in words) if entry.byte_order == "little" else out.extend(words)
+        out.extend([_swap(w) for w in words] if entry.byte_order == "little" else words)
     return out
 
 
@@ -81,6 +81,7 @@ class RegisterStore:
         # registers computed only when read (table, start, end, fill): costly values a device refreshes
         # every cycle but a client reads rarely (the TCP pose)
         self.on_read: list[tuple[str, int, int, Callable[[], None]]] = []
+        self.before_read: Callable[[], None] | None = None  # brings the device up to date first
 
     # -- direct access (controller side) ---------------------------------------------------------
     def set(self, table: str, address: int, words: Sequence) -> None:
@@ -130,6 +131,8 @@ class RegisterStore:
             return ExcCodes.ILLEGAL_FUNCTION
         if not self.defines(table, address, count):
             return ExcCodes.ILLEGAL_ADDRESS
+        if self.before_read is not None:
+            self.before_read()
         for t, a, b, code in list(self.failing_reads):
             if t == table and address < b and a < address + count:
                 return ExcCodes(code)
