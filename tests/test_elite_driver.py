@@ -159,24 +159,38 @@ def test_move_params_sent_to_controller(drv, ctrl):
     assert params["acc"] == params["dec"] == 50  # 3 of 6 rad/s^2
 
 
+def once_moving(ctrl, action, after_s: float) -> threading.Thread:
+    """Run ``action`` ``after_s`` after the controller accepted the next moveByJoint (not before it)."""
+    t0 = time.monotonic()
+
+    def run():
+        deadline = time.monotonic() + 10.0
+        while ctrl.first_event_after("move", t0) is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+        time.sleep(after_s)
+        action()
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
 def test_estop_mid_move_aborts(drv, ctrl, sim):
     target = np.array(Q0) + np.radians([90.0, 0, 0, 0, 0, 0])
-    timer = threading.Timer(0.1, ctrl.press_estop)
-    timer.start()
+    th = once_moving(ctrl, ctrl.press_estop, 0.02)  # the move lasts >= 110 ms of wall time
     with pytest.raises(MotionAbortedError, match="emergency stop"):
         drv.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
-    timer.join()
+    th.join()
     assert sim.snapshot().q[0] < target[0] - 0.1
     assert any(m == "stop" for m, _ in ctrl.requests)
 
 
 def test_collision_mid_move_aborts(drv, ctrl):
     target = np.array(Q0) + np.radians([90.0, 0, 0, 0, 0, 0])
-    timer = threading.Timer(0.1, ctrl.trigger_collision)
-    timer.start()
+    th = once_moving(ctrl, ctrl.trigger_collision, 0.02)
     with pytest.raises(MotionAbortedError, match="collision"):
         drv.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
-    timer.join()
+    th.join()
 
 
 def test_timeout_stops_robot(drv, ctrl, sim):
@@ -470,13 +484,12 @@ def move_with_fault(ctrl, d, fault: str, after_s: float = 0.3, **params):
         fault_t.append(time.monotonic())
         ctrl.inject_fault(fault, **params)
 
-    timer = threading.Timer(after_s, inject)
-    timer.start()
+    th = once_moving(ctrl, inject, after_s)
     try:
         with pytest.raises((MotionAbortedError, CommunicationError)) as ei:
             d.move_joints(target, speed_rad_s=math.radians(20), accel_rad_s2=2.0, timeout_s=20.0)
     finally:
-        timer.join()
+        th.join()
     assert fault_t, "the move ended before the fault was injected"
     return ei.value, fault_t[0], target
 
