@@ -54,7 +54,7 @@ def ctrl(sim):
 
 def options(ctrl, **extra) -> EliteECOptions:
     opts = {"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port, "monitor_port": ctrl.monitor_port,
-            "joint_max_speed_deg_s": JOINT_MAX_DEG_S, "max_joint_accel_rad_s2": max(SPEC.max_accel_rad_s2),
+            "joint_max_speed_deg_s": JOINT_MAX_DEG_S,
             "reply_timeout_s": 2.0}
     opts.update(extra)
     return EliteECDriver.parse_options(opts)

@@ -17,7 +17,7 @@ Unit mapping of ``move_joints``:
   joint maxima allow along this move (``model.profile.lead_joint_caps``). So speed % =
   speed_rad_s / cap · 100, clamped to [0.01, 100]. Without ``joint_max_speed_deg_s`` every
   joint's maximum is the robot YAML's ``max_joint_speed``.
-* ``acc``/``dec``: percentages too, of ``max_joint_accel_rad_s2``, rounded, clamped to [1, 100]
+* ``acc``/``dec``: percentages too, of the robot's max joint acceleration, rounded, clamped to [1, 100]
   (the controller treats 0 as "its default", which we never want: the plan chose it).
 * ``targetPos``: 8 values in degrees (joints 7 and 8 = 0); Elite's library notes that some
   firmware rejects 6.
@@ -211,7 +211,8 @@ class EliteECDriver(Driver):
         o = self.options
         vmax = (np.radians(np.asarray(o.joint_max_speed_deg_s, float)) if o.joint_max_speed_deg_s is not None
                 else np.full(self.limits.n_joints, self.limits.max_joint_speed_rad_s))
-        caps = lead_joint_caps(self._joint_pos_rad(), target, vmax, o.max_joint_accel_rad_s2)
+        # acc/dec = 100 % is the robot's max joint acceleration (robot.max_joint_accel_deg_s2): one setting
+        caps = lead_joint_caps(self._joint_pos_rad(), target, vmax, self.limits.max_joint_accel_rad_s2)
         speed_pct, acc_pct = percent_for_lead(caps, speed_rad_s, accel_rad_s2)
         speed_pct = min(100.0, max(0.01, speed_pct))
         acc_pct = int(min(100, max(1, round(acc_pct))))

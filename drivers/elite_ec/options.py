@@ -14,7 +14,6 @@ Parsed by ``configuration.options.parse_options`` (through ``Driver.parse_option
       reply_timeout_s: 2.0
       tool_num: 0                # tool whose payload read_payload/write_payload use
       joint_max_speed_deg_s: [150, 150, 190, 260, 260, 260]  # optional: each joint's 100 % speed
-      max_joint_accel_rad_s2: 6.0  # what moveByJoint acc/dec = 100 % means
       target_tolerance_deg: 0.1  # final position check after a move
 
 A port of 0 passes the parser: it means "any free port" to a simulated controller, which
@@ -44,6 +43,4 @@ class EliteECOptions(DriverOptions):
     tool_num: int = option(0, min=0, max=7, help="tool whose payload read_payload/write_payload use")
     joint_max_speed_deg_s: tuple[float, ...] | None = option(None, gt=0, length=6,
                                                              help="each joint's 100 % speed, deg/s")
-    max_joint_accel_rad_s2: float = option(6.0, min=0.01, max=1000.0,
-                                           help="what moveByJoint acc/dec = 100 % means, rad/s²")
     target_tolerance_deg: float = option(0.1, min=0.0001, max=10.0, help="final position check after a move")
