@@ -1,0 +1,269 @@
+"""A procedure chosen for a target accuracy: predict σ of each candidate before moving, pick the fastest.
+
+For a candidate procedure (sweep speed, travel speed, sweep range, repetitions) the plan is made
+as ``plan`` would make it; every sweep's constant-speed samples are placed where the segmenter will
+find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
+the controller's period), and the general solver's regressor is evaluated there for a nominal
+payload. With white effort noise σ_j per joint (declared, or measured in the stored baseline by
+``measured_effort_std``), present in the loaded and the empty run alike (variance doubled by the
+subtraction), the two legs of a bidirectional sweep averaged (halved) and ``repetitions`` runs of
+the procedure, the information matrix is Σ YᵀY/σ², and
+
+    Cov θ ≈ (Σ YᵀY/σ²)⁻¹ · inflation² + the systematic terms (drive gains, DH lengths),
+
+the same terms ``general.solve`` reports. ``inflation`` is the ratio of the reported
+(autocorrelation-robust) to the white-noise σ a run of this arm showed (1 without a baseline).
+σ of the mass and of the centre of mass (largest axis) follow by the delta method.
+
+``choose`` evaluates a grid of candidates, keeps those the safety gate accepts, and returns the
+one that meets the target in the least robot time, with the whole trade-off table. The CLI hook
+(``plan --target-std G,MM``) is the lead's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from payload_agent.configuration.config import Config
+from payload_agent.motion.planner import Plan, make_plan, move_duration_s
+
+SPEEDS_PERCENT = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0)
+TRAVEL_PERCENT = (20.0, 25.0)
+RANGES_DEG = ((0.0, 55.0), (0.0, 40.0))
+ACCELS_PERCENT = (20.0, 40.0)
+REPETITIONS = (1, 2, 3)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    speed_percent: float
+    travel_percent: float
+    sweep_from_deg: float
+    sweep_to_deg: float
+    repetitions: int = 1
+    accel_percent: float = 20.0
+
+    def describe(self) -> str:
+        reps = f" ×{self.repetitions}" if self.repetitions > 1 else ""
+        return (f"sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, accel {self.accel_percent:g} %, "
+                f"{self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
+
+
+@dataclass(frozen=True)
+class Prediction:
+    candidate: Candidate
+    robot_time_s: float  # loaded run, without the approach move
+    mass_std_g: float
+    cog_std_mm: float  # largest axis
+    samples: int  # constant-speed samples per run (all sweeps)
+    problems: tuple[str, ...] = ()  # the safety gate's, or why it cannot be predicted
+
+    @property
+    def usable(self) -> bool:
+        return not self.problems
+
+    def meets(self, mass_std_g: float, cog_std_mm: float) -> bool:
+        return self.usable and self.mass_std_g <= mass_std_g and self.cog_std_mm <= cog_std_mm
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """What the prediction assumes about the data."""
+
+    effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m
+    sample_period_s: float
+    inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
+    gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
+    length_std_m: float = 0.0  # DH-length standard uncertainty
+
+
+def with_candidate(config: Config, c: Candidate) -> Config:
+    pc = dataclasses.replace(config.procedure, speed_percent=c.speed_percent, travel_speed_percent=c.travel_percent,
+                             sweep_from_deg=c.sweep_from_deg, sweep_to_deg=c.sweep_to_deg,
+                             accel_percent=c.accel_percent)
+    return dataclasses.replace(config, procedure=pc)
+
+
+_PLANS: dict[tuple, Plan] = {}
+
+
+def plan_for(config: Config, c: Candidate) -> Plan:
+    """``make_plan`` for the candidate. The wrist solutions (the slow part) depend only on the sweep
+    range, so one plan per range is made and its sweep and travel speeds are set per candidate."""
+    from payload_agent.types import SweepKey
+
+    key = (id(config), config.source, c.sweep_from_deg, c.sweep_to_deg)
+    if key not in _PLANS:
+        if len(_PLANS) > 64:
+            _PLANS.clear()
+        _PLANS[key] = make_plan(with_candidate(config, c))
+    base = _PLANS[key]
+    vmax = config.robot.max_joint_speed_rad_s
+    accel = config.robot.max_joint_accel_rad_s2 * c.accel_percent / 100.0
+    moves = []
+    for m in base.moves:
+        if m.kind == "sweep":
+            sk = m.sweep
+            m = dataclasses.replace(m, speed_rad_s=vmax * c.speed_percent / 100.0,
+                                    sweep=SweepKey(sk.pose, sk.joint, sk.direction, c.speed_percent))
+        elif m.kind == "travel":
+            m = dataclasses.replace(m, speed_rad_s=vmax * c.travel_percent / 100.0)
+        moves.append(dataclasses.replace(m, accel_rad_s2=accel))
+    return dataclasses.replace(base, moves=tuple(moves))
+
+
+def robot_time_s(plan: Plan) -> float:
+    """Robot time of one run without the approach move (which depends on where the robot stands)."""
+    total, prev = 0.0, None
+    for m in plan.moves:
+        tgt = np.asarray(m.target_rad)
+        if prev is not None:
+            total += move_duration_s(prev, tgt, m.speed_rad_s, m.accel_rad_s2)
+        prev = tgt
+    return total
+
+
+def planned_sweeps(plan: Plan, period_s: float):
+    """Synthetic combined sweeps (``DeltaSweep``, Δτ = 0) at the samples the analysis will use."""
+    from payload_agent.analysis.delta import DeltaSweep
+    from payload_agent.analysis.segmenter import sweep_commands
+    from payload_agent.types import SweepKey
+
+    out = []
+    for key, cmd in sweep_commands(plan.moves).items():
+        if key.direction == "down":
+            continue
+        lo, hi = cmd.cruise_interval()
+        speed = abs(float(cmd.speed_rad_s))
+        n = max(int((hi - lo) / max(speed, 1e-9) / period_s), 2)
+        q = np.tile(np.asarray(cmd.start_rad, float), (n, 1))
+        q[:, cmd.joint] = np.linspace(lo, hi, n)
+        both = any(k.direction == "down" and (k.pose, k.joint) == (key.pose, key.joint) for k in sweep_commands(plan.moves))
+        direction = "both" if both else key.direction
+        out.append(DeltaSweep(SweepKey(key.pose, key.joint, direction, key.speed_percent), q, np.zeros((n, 6)), speed))
+    return out
+
+
+def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray,
+                       repetitions: int = 1) -> tuple[np.ndarray, int]:
+    """Predicted covariance of θ = [m, m·c] and the number of constant-speed samples of one run."""
+    from payload_agent.solvers import general, wls
+
+    kin = config.robot.kinematics
+    sweeps = planned_sweeps(plan, noise.sample_period_s)
+    groups = general.build_groups(sweeps, kin)
+    std = np.broadcast_to(np.asarray(noise.effort_std_nm, float), (6,))
+    by_name = {d.key.name: d for d in sweeps}
+    w_rows = []
+    for g in groups:
+        # loaded minus empty: both runs' noise (the empty run's, interpolated, a little less: taken as
+        # equal); the two legs of a bidirectional sweep averaged: half of it
+        var = 2.0 * std[g.joint] ** 2 * (0.5 if by_name[g.sweep].key.direction == "both" else 1.0) / repetitions
+        w_rows.append(np.full(len(g.y), 1.0 / max(var, 1e-30)))
+    w = np.concatenate(w_rows)
+    Y = np.vstack([g.Y for g in groups])
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+    cov = inv * noise.inflation ** 2
+    # the systematic terms do not shrink with more samples; they depend on where the samples lie
+    # (the sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
+    key = (id(config), plan.moves[1].target_rad if len(plan.moves) > 1 else None, tuple(theta), noise.gain_rel_std,
+           noise.length_std_m)
+    if key not in _SYSTEMATIC:
+        sys_cov = np.zeros((4, 4))
+        if noise.gain_rel_std is not None:
+            sys_cov = sys_cov + wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
+        if noise.length_std_m > 0:
+            sys_cov = sys_cov + general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m)
+        if len(_SYSTEMATIC) > 64:
+            _SYSTEMATIC.clear()
+        _SYSTEMATIC[key] = sys_cov
+    return cov + _SYSTEMATIC[key], sum(len(d.q) for d in sweeps)
+
+
+_SYSTEMATIC: dict[tuple, np.ndarray] = {}
+
+
+def nominal_theta(mass_kg: float, cog_mm: Sequence[float]) -> np.ndarray:
+    return np.array([mass_kg, *(mass_kg * np.asarray(cog_mm, float) / 1000.0)])
+
+
+def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, *, check_safety: bool = True
+            ) -> Prediction:
+    from payload_agent.errors import PayloadAgentError
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    cfg = with_candidate(config, c)
+    try:
+        plan = plan_for(config, c)
+        problems: tuple[str, ...] = ()
+        if check_safety:
+            from payload_agent.motion.safety import SafetyGate
+
+            problems = tuple(SafetyGate(cfg).check(plan, np.asarray(plan.moves[0].target_rad)).problems)
+        cov, n = predict_covariance(cfg, plan, noise, theta, c.repetitions)
+    except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
+        return Prediction(c, float("nan"), float("nan"), float("nan"), 0, (str(exc),))
+    _, cov_c = cog_with_covariance(theta, cov)
+    return Prediction(c, c.repetitions * robot_time_s(plan), 1000.0 * math.sqrt(max(cov[0, 0], 0.0)),
+                      1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), n, problems)
+
+
+def candidates(speeds: Iterable[float] = SPEEDS_PERCENT, travels: Iterable[float] = TRAVEL_PERCENT,
+               ranges: Iterable[tuple[float, float]] = RANGES_DEG, reps: Iterable[int] = REPETITIONS,
+               accels: Iterable[float] = ACCELS_PERCENT) -> list[Candidate]:
+    return [Candidate(s, t, lo, hi, r, a)
+            for s, t, (lo, hi), r, a in itertools.product(speeds, travels, ranges, reps, accels)]
+
+
+@dataclass(frozen=True)
+class Choice:
+    best: Prediction | None  # None: no candidate meets the target
+    table: list[Prediction]  # every candidate, fastest first
+
+    def describe(self, mass_std_g: float, cog_std_mm: float, limit: int = 12) -> str:
+        lines = [f"target σ: mass {mass_std_g:g} g, centre of mass {cog_std_mm:g} mm (1σ)",
+                 f"{'procedure':<40} {'robot s':>8} {'σ m g':>7} {'σ c mm':>7}  meets"]
+        for p in [p for p in self.table if p.usable][:limit]:
+            mark = "yes" if p.meets(mass_std_g, cog_std_mm) else ""
+            lines.append(f"{p.candidate.describe():<40} {p.robot_time_s:8.0f} {p.mass_std_g:7.2f} "
+                         f"{p.cog_std_mm:7.2f}  {mark}")
+        lines.append("chosen: " + (f"{self.best.candidate.describe()} ({self.best.robot_time_s:.0f} s)" if self.best
+                                   else "none meets the target; slower sweeps, more repetitions or a calibration"))
+        return "\n".join(lines)
+
+
+def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseModel, *,
+           nominal_mass_kg: float = 2.0, nominal_cog_mm: Sequence[float] = (0.0, 0.0, 100.0),
+           grid: Sequence[Candidate] | None = None) -> Choice:
+    """The fastest candidate whose predicted σ meets the target (mass and every CoM axis, 1σ)."""
+    theta = nominal_theta(nominal_mass_kg, nominal_cog_mm)
+    preds = [predict(config, c, noise, theta) for c in (grid or candidates())]
+    preds.sort(key=lambda p: (not p.usable, p.robot_time_s))
+    ok = [p for p in preds if p.meets(mass_std_g, cog_std_mm)]
+    return Choice(ok[0] if ok else None, preds)
+
+
+def measured_effort_std(sweeps) -> tuple[float, ...]:
+    """White effort noise per joint from recorded sweeps (e.g. the stored baseline): the second
+    differences of each joint's effort inside the constant-speed windows, std/√6, median over sweeps."""
+    from payload_agent.analysis.delta import window_of
+    from payload_agent.errors import DataError
+
+    per_joint: list[list[float]] = [[] for _ in range(6)]
+    for s in sweeps.values():
+        try:
+            win = window_of(s)
+        except DataError:
+            continue
+        e = np.asarray(s.effort_nm, float)[win.slice]
+        if len(e) < 10:
+            continue
+        for j in range(6):
+            per_joint[j].append(float(np.std(np.diff(e[:, j], 2)) / math.sqrt(6.0)))
+    return tuple(float(np.median(v)) if v else float("nan") for v in per_joint)
