@@ -95,6 +95,14 @@ class SupervisionTrip(CommunicationError):
         super().__init__(message)
 
 
+class MotionStopped(MotionAbortedError):
+    """The controller or a drive stopped the motion itself (a fault it reported); the agent stopped the rest."""
+
+    def __init__(self, message: str, stop_report=None):
+        self.stop_report = stop_report
+        super().__init__(message)
+
+
 class MotionNotFinished(MotionAbortedError):
     """The controller never reported a move finished although the arm stood at its target; it was stopped."""
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import tempfile
 import threading
@@ -29,7 +30,6 @@ import yaml
 
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import PayloadAgentError
-from payload_agent.motion.planner import make_plan
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.runner import RunOptions, run_identification
 
@@ -79,7 +79,6 @@ def load_sim_config(driver: str, storage: Path):
 def run_cell(driver: str, fault: str, storage: Path) -> Cell:
     cell = Cell(driver, fault)
     config = load_sim_config(driver, storage)
-    first_sweep = next(i for i, m in enumerate(make_plan(config).moves) if m.sweep is not None)
     seen: dict = {}
 
     def inject_mid_sweep(sim_cell) -> None:
@@ -91,7 +90,7 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
         def watch() -> None:
             deadline = time.monotonic() + 120
             while time.monotonic() < deadline:
-                if sum(e.kind == "move" for e in ctrl.events) > first_sweep and ctrl.robot.snapshot().moving:
+                if _sweep_recording(config.storage.runs_dir) and ctrl.robot.snapshot().moving:
                     time.sleep(0.1)
                     seen["fault_t"] = time.monotonic()
                     ctrl.inject_fault(fault)
@@ -139,6 +138,18 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
     cell.problems += _check_run_folder(storage / "runs")
     cell.passed = not cell.problems
     return cell
+
+
+def _sweep_recording(runs: Path) -> bool:
+    """Whether the run folder's manifest shows a sweep being recorded (samples going to its file now)."""
+    for manifest in runs.glob("*/manifest.json") if runs.exists() else []:
+        try:
+            phases = json.loads(manifest.read_text()).get("phases", {})
+        except (OSError, ValueError):
+            continue
+        if any(s.get("status") == "recording" for ph in phases.values() for s in ph.get("sweeps", [])):
+            return True
+    return False
 
 
 def _check_run_folder(runs: Path) -> list[str]:

@@ -35,7 +35,7 @@ import numpy as np
 
 from payload_agent.configuration.options import option, parse_options
 from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, MotionNotFinished,
-                                  PayloadAgentError, SupervisionTrip, UnsupportedCapability)
+                                  MotionStopped, PayloadAgentError, SupervisionTrip, UnsupportedCapability)
 from payload_agent.types import (ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample, StopReport,
                                  StreamStats)
 
@@ -325,7 +325,7 @@ class Driver(abc.ABC):
         self._armed = True
         try:
             self._move_joints(target, float(speed_rad_s), float(accel_rad_s2), float(timeout_s))
-        except (SupervisionTrip, MotionNotFinished):
+        except (SupervisionTrip, MotionNotFinished, MotionStopped):
             raise
         except CommunicationError as exc:  # the command connection failed mid-move: the arm may still go
             self._trip(f"the command connection failed during the move: {exc}")

@@ -44,7 +44,8 @@ from payload_agent.drivers.canopen.monitor import DriveMonitor
 from payload_agent.drivers.canopen.options import CANopenOptions, check_options
 from payload_agent.drivers.canopen.pdo import (RPDO2_COB, RPDO_COMMAND, TPDO1, Frame, TpdoCollector,
                                                configure_pdos)
-from payload_agent.errors import CommunicationError, ConfigError, RobotNotReadyError
+from payload_agent.errors import (CommunicationError, ConfigError, MotionStopped, RobotNotReadyError,
+                                  SupervisionTrip)
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 log = logging.getLogger(__name__)
@@ -336,8 +337,8 @@ class CANopenDriver(Driver):
     def poll_faults(self) -> None:
         """Check heartbeats and TPDO silence; trip the supervision (stop every drive) on any fault during a move."""
         self.monitor.check_silence([self.tpdo.queued(j) for j in range(self.n)], self.nominal_period_s)
-        if self.monitor.fault is not None:
-            self._trip(self.monitor.fault)
+        if self.monitor.fault is not None:  # a drive that stopped itself is a motion abort (exit 4), a silent bus 6
+            self._trip(self.monitor.fault, error=MotionStopped if self.monitor.drive_fault else SupervisionTrip)
 
     # -- commands --------------------------------------------------------------------------------
     def _send_command(self, j: int, controlword: int) -> None:

@@ -44,6 +44,7 @@ class DriveMonitor:
         self.expect_enabled = [False] * n  # the driver put the drive in OPERATION ENABLED
         self.emcy: list[tuple[int, int, int]] = []  # (joint, code, error register), every EMCY received
         self.fault: str | None = None
+        self.drive_fault = False
         self._lock = threading.Lock()
 
     # -- from the receive thread -------------------------------------------------------------
@@ -56,7 +57,8 @@ class DriveMonitor:
                 code = self.last_emcy_code(j)
                 self.set_fault(f"{self.labels[j]} left OPERATION ENABLED: it is now {state} (statusword "
                                f"0x{statusword:04X}), error code "
-                               + (describe_code(code) if code is not None else "none reported (no EMCY)"))
+                               + (describe_code(code) if code is not None else "none reported (no EMCY)"),
+                               drive_fault=True)
 
     def on_heartbeat(self, j: int, nmt_state: int) -> None:
         self.t_heartbeat[j] = time.monotonic()
@@ -73,12 +75,15 @@ class DriveMonitor:
         if code & 0xFF00 == 0:  # 0x00xx: error reset / no error
             return
         self.set_fault(f"EMCY from {self.labels[j]}: error code {describe_code(code)}, error register "
-                       f"0x{register:02X}")
+                       f"0x{register:02X}", drive_fault=True)
 
-    def set_fault(self, text: str) -> None:
+    def set_fault(self, text: str, drive_fault: bool = False) -> None:
+        """Keep the first fault; ``drive_fault``: the drive itself stopped (EMCY, left OPERATION ENABLED),
+        as opposed to the bus going quiet (heartbeat, PDO silence)."""
         with self._lock:
             if self.fault is None:
                 self.fault = text
+                self.drive_fault = drive_fault
 
     # -- from the driver's threads -----------------------------------------------------------
     def last_emcy_code(self, j: int) -> int | None:
