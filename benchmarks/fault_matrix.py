@@ -42,8 +42,9 @@ EXPECTED_EXIT = {"drop_connections": 6, "stall_stream": 6, "garbage": 6, "nan_va
                  "no_reply": (4, 6), "never_finish": 4}
 MESSAGE = {"drop_connections": ("connection", "closed", "lost", "reach"), "stall_stream": ("stall", "no sample"),
            "garbage": ("stream", "parse", "garbage", "malformed", "frame"), "nan_values": ("finite", "nan"),
-           "protective_stop": ("protective", "collision", "stop"), "emergency_stop": ("emergency", "e-stop"),
-           "leave_remote": ("remote", "teach", "local", "mode"), "slow_reply": ("reply", "time", "respond"),
+           "protective_stop": ("protective", "collision", "stop"),
+           "emergency_stop": ("emergency", "e-stop", "emcy"),  # CiA 402 drives see safe torque off as a fault
+           "leave_remote": ("remote", "teach", "local", "mode", "operation enabled"), "slow_reply": ("reply", "time", "respond"),
            "no_reply": ("reply", "time", "respond"), "never_finish": ("finish", "within", "time")}
 STOP_DEADLINE_S = 0.5
 # a motion that never reports finished shows only after the arm has stood at its target this long
