@@ -192,8 +192,8 @@ class EliteECDriver(Driver):
 
     def _int(self, method: str, params: Mapping[str, Any] | None = None) -> int:
         v = self.call(method, params)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise CommunicationError(f"{method} returned {v!r}, expected an integer")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
+            raise CommunicationError(f"{method} returned {v!r}, expected an integer")  # NaN and Infinity too
         return int(v)
 
     def _require_remote(self, what: str) -> None:
@@ -300,7 +300,8 @@ class EliteECDriver(Driver):
         """The flange pose the controller reports (base frame; tool offset not included)."""
         frame = self._fresh_frame()
         if frame is not None:
-            pose = frame.flange_pose
+            pose = _numbers(list(frame.flange_pose), "the monitor frame's machineFlangePose",
+                            "x, y, z (mm), rx, ry, rz (rad) as finite numbers")
         else:
             try:
                 pose = self.call("get_base_flange_pose", {"unit_type": 1})
@@ -344,10 +345,12 @@ class EliteECDriver(Driver):
         v = self.call("get_tool_payload", {"tool_num": n})
         try:
             m = float(v["m"])
+            if not isinstance(v["tool_cog"], list):
+                raise TypeError("tool_cog must be a list")
             cog = [float(x) for x in v["tool_cog"]]
-            if len(cog) != 3:
-                raise ValueError("tool_cog must have 3 values")
-        except (TypeError, KeyError, ValueError) as e:
+            if len(cog) != 3 or not all(math.isfinite(x) for x in [m, *cog]):
+                raise ValueError("expected a finite mass and 3 finite tool_cog values")
+        except (TypeError, KeyError, ValueError, OverflowError) as e:
             raise CommunicationError(f"get_tool_payload returned {v!r}, expected {{'m': kg, 'tool_cog': [mm x3]}}") from e
         return PayloadSetting(mass_kg=m, cog_m=(cog[0] / 1000.0, cog[1] / 1000.0, cog[2] / 1000.0), tool_num=n)
 
@@ -364,10 +367,18 @@ class EliteECDriver(Driver):
 
 
 def _numbers(v: Any, method: str, expected: str, n: int = 6) -> list[float]:
-    if (not isinstance(v, list) or len(v) < n
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v[:n])):
+    """The first n values of a numeric list result; CommunicationError for anything else, NaN and
+    infinities included (JSON-RPC replies may carry NaN, Infinity and integers too big for a float)."""
+    values = None
+    if isinstance(v, list) and len(v) >= n and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                   for x in v[:n]):
+        try:
+            values = [float(x) for x in v[:n]]
+        except OverflowError:
+            values = None
+    if values is None or not all(math.isfinite(x) for x in values):
         raise CommunicationError(f"{method} returned {v!r:.200}, expected {expected}")
-    return [float(x) for x in v[:n]]
+    return values
 
 
 def pose_to_flange(pose: Any) -> FlangePose:

@@ -148,14 +148,18 @@ class RpcClient:
                 reply = json.loads(raw.decode("utf-8"))
                 if not isinstance(reply, dict):
                     raise ValueError("not a JSON object")
-            except (UnicodeDecodeError, ValueError) as e:
+            except (UnicodeDecodeError, ValueError, RecursionError) as e:  # RecursionError: absurdly deep nesting
                 raise CommunicationError(
                     f"unparseable reply to {method} from {self.endpoint}: {raw[:200]!r} ({e})") from e
             if reply.get("id") != req_id and reply.get("id") is not None:
                 continue  # a late reply to an earlier request that timed out: skip it
             if "error" in reply:
                 err = reply["error"] if isinstance(reply["error"], dict) else {}
-                raise EliteRPCError(method, int(err.get("code", 0) or 0), str(err.get("message", reply["error"])))
+                try:
+                    code = int(err.get("code", 0) or 0)
+                except (TypeError, ValueError, OverflowError):  # not a number: JSON-RPC says an integer
+                    code = 0
+                raise EliteRPCError(method, code, str(err.get("message", reply["error"])))
             if "result" not in reply:
                 raise CommunicationError(
                     f"reply to {method} from {self.endpoint} has neither result nor error: {raw[:200]!r}")
@@ -164,7 +168,7 @@ class RpcClient:
                 return result  # tolerate a controller that does not double-encode
             try:
                 return json.loads(result)
-            except ValueError as e:
+            except (ValueError, RecursionError) as e:
                 if method in _STRING_RESULT_METHODS:
                     return result
                 raise CommunicationError(
