@@ -77,6 +77,7 @@ def test_unknown_signal_unit_and_keys():
     _error(r"driver\.host: Modbus TCP needs", host=None)
     _error(r"driver\.serial_port: Modbus RTU needs", transport="rtu")
     _error(r"driver\.port: ", port="502")
+    _error(r"driver\.port: must be between 0 and 65535", port=70000)
 
 
 def test_incomplete_groups_and_bad_types_for_counters():

@@ -23,6 +23,7 @@ several clients); over RTU they share the one serial line.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import time
 
@@ -79,6 +80,8 @@ class ModbusDriver(Driver):
         self._last_raw: tuple | None = None
         self._t_wrap = 0.0
         self._round_trips: collections.deque[float] = collections.deque(maxlen=64)
+        self._last_reply_t = 0.0
+        self._in_move = False
         self._t_last: float | None = None
         self._tol_rad = math.radians(options.target_tolerance_deg)
         self._max_angle = math.radians(options.max_abs_angle_deg)
@@ -90,8 +93,9 @@ class ModbusDriver(Driver):
     def _open(self) -> None:
         self._cmd = ModbusBus(self.endpoint, "command connection")
         self._cmd.open()
-        if self.endpoint.transport == "tcp":
-            self._stream = ModbusBus(self.endpoint, "sample connection")
+        if self.endpoint.transport == "tcp":  # sample reads time out well within the watchdog's gap limit
+            stream_timeout = min(self.endpoint.timeout_s, max(0.01, 0.4 * self.gap_limit_s))
+            self._stream = ModbusBus(dataclasses.replace(self.endpoint, timeout_s=stream_timeout), "sample connection")
             try:
                 self._stream.open()
             except CommunicationError:
@@ -126,9 +130,13 @@ class ModbusDriver(Driver):
         t_send = time.monotonic()
         try:
             words = [self._stream.read(b) for b in self._sample_blocks]
-        except ModbusTimeout:
-            return None  # a late reply is a gap; the watchdog judges it
-        t_recv = time.monotonic()
+        except ModbusTimeout as exc:  # a late reply is a gap; during a move, a long silence is named
+            silent = time.monotonic() - self._last_reply_t
+            if self._in_move and silent > 0.8 * self.gap_limit_s:
+                raise CommunicationError(f"the controller stopped answering: {exc} (no reply for "
+                                         f"{1000 * silent:.0f} ms)") from None
+            return None
+        t_recv = self._last_reply_t = time.monotonic()
         raw = tuple(tuple(w) for w in words)
         if self.options.repeat_is_stale and raw == self._last_raw:
             return None
@@ -198,6 +206,13 @@ class ModbusDriver(Driver):
             (m["cmd_accel"], [accel_rad_s2 / si_factor(m["cmd_accel"])])]
         if "cmd_kind" in m:
             fields.append((m["cmd_kind"], [hs.KIND_MOVE]))
+        self._in_move = True
+        try:
+            self._move(target, fields, timeout_s)
+        finally:
+            self._in_move = False
+
+    def _move(self, target: np.ndarray, fields: list, timeout_s: float) -> None:
         answer = self.handshake.read_answer(self._cmd)
         if answer.status == hs.STATUS_BUSY:
             raise MotionAbortedError(f"the robot program is still busy with command {answer.ack_seq}; nothing was sent")

@@ -34,7 +34,7 @@ from payload_agent.errors import ConfigError
 class ModbusOptions(DriverOptions):
     transport: str = option("tcp", choices=("tcp", "rtu"), help="tcp or rtu")
     host: str | None = option(None, help="the controller's IP address (tcp)")
-    port: int = option(502, min=1, max=65535, help="Modbus TCP port")
+    port: int = option(502, min=0, max=65535, help="Modbus TCP port (0: a simulated server picks a free one)")
     serial_port: str | None = option(None, help="serial device (rtu), e.g. /dev/ttyUSB0")
     baudrate: int = option(115200, min=300, max=4_000_000)
     parity: str = option("N", choices=("N", "E", "O"))

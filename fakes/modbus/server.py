@@ -169,7 +169,14 @@ class ModbusServerThread:
     def close(self) -> None:
         loop, server = self._loop, self._server
         if loop is not None and server is not None and loop.is_running():
-            fut = asyncio.run_coroutine_threadsafe(server.shutdown(), loop)
+            async def shutdown() -> None:
+                await server.shutdown()
+                pending = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+                for task in pending:  # requests still waiting (slow_reply): dropped with the server
+                    task.cancel()
+                await asyncio.gather(*pending, return_exceptions=True)
+
+            fut = asyncio.run_coroutine_threadsafe(shutdown(), loop)
             try:
                 fut.result(timeout=2.0)
             except Exception:

@@ -123,9 +123,13 @@ class RegisterStore:
             raise NoSuchIdException(f"unit {device_id} is not this device ({self.unit_id})")
 
     async def async_getValues(self, device_id: int, func_code: int, address: int, count: int = 1):
-        self._check_unit(device_id)
-        if self.reply_delay_s:
+        result = self._get_values(device_id, func_code, address, count)
+        if self.reply_delay_s:  # a slow device: the values are taken now, the reply comes late
             await asyncio.sleep(self.reply_delay_s)
+        return result
+
+    def _get_values(self, device_id: int, func_code: int, address: int, count: int):
+        self._check_unit(device_id)
         table = FC_TABLE.get(func_code)
         if table is None:
             return ExcCodes.ILLEGAL_FUNCTION
@@ -142,9 +146,13 @@ class RegisterStore:
         return self.get(table, address, count)
 
     async def async_setValues(self, device_id: int, func_code: int, address: int, values):
-        self._check_unit(device_id)
-        if self.reply_delay_s:
+        result = self._set_values(device_id, func_code, address, values)
+        if self.reply_delay_s:  # the write takes effect now, its reply comes late
             await asyncio.sleep(self.reply_delay_s)
+        return result
+
+    def _set_values(self, device_id: int, func_code: int, address: int, values):
+        self._check_unit(device_id)
         table = FC_TABLE.get(func_code)
         if table not in ("coil", "holding"):
             return ExcCodes.ILLEGAL_FUNCTION
