@@ -53,9 +53,9 @@ class URCapabilities:
             values = tuple(float(v) for v in self._receive().getJointTemperatures())
         except RuntimeError as exc:  # the field is missing from the recipe / no package yet
             raise CommunicationError(f"UR controller {self.host}: cannot read joint_temperatures: {exc}") from exc
-        if len(values) != 6:
-            raise CommunicationError(f"UR controller {self.host}: joint_temperatures has {len(values)} values, "
-                                     "expected 6")
+        if len(values) != 6 or not all(math.isfinite(v) for v in values):
+            raise CommunicationError(f"UR controller {self.host}: joint_temperatures is {list(values)}, "
+                                     "expected 6 finite values")
         return values
 
     # -- payload ---------------------------------------------------------------------------------
@@ -64,8 +64,11 @@ class URCapabilities:
             raise UnsupportedCapability(f"UR controller {self.host} (PolyScope {'.'.join(map(str, self._version))}) "
                                         "has no RTDE payload fields (they need 5.5.1 / 3.11 or newer)")
         r = self._receive()
-        cog = r.getPayloadCog()
-        return PayloadSetting(mass_kg=float(r.getPayload()), cog_m=(float(cog[0]), float(cog[1]), float(cog[2])))
+        mass, cog = float(r.getPayload()), [float(c) for c in r.getPayloadCog()]
+        if len(cog) != 3 or not all(math.isfinite(v) for v in [mass, *cog]):  # a NaN would pass any readback check
+            raise CommunicationError(f"UR controller {self.host}: the RTDE payload fields read {mass} kg at {cog} m, "
+                                     "not a finite mass and centre of gravity")
+        return PayloadSetting(mass_kg=mass, cog_m=(cog[0], cog[1], cog[2]))
 
     def write_payload(self, payload: PayloadSetting) -> None:
         mass = float(payload.mass_kg)

@@ -9,9 +9,12 @@ its RTDE connections are gone (reply "Stopped": UR's dashboard server documentat
 
 from __future__ import annotations
 
+import re
 import socket
+from dataclasses import dataclass
 
 from payload_agent.errors import CommunicationError
+from payload_agent.types import ControllerInfo
 
 DASHBOARD_PORT = 29999
 
@@ -42,3 +45,27 @@ def dashboard_stop(host: str, timeout_s: float) -> bool:
         return dashboard_query(host, "stop", timeout_s=timeout_s)[0].startswith("Stopped")
     except CommunicationError:
         return False
+
+
+@dataclass(frozen=True)
+class Identity:
+    info: ControllerInfo
+    version: tuple[int, ...]  # PolyScope major, minor, bugfix, build
+    remote: bool | None  # Remote Control (None: PolyScope before 5.6 cannot say)
+
+
+def dashboard_identify(host: str, timeout_s: float) -> Identity:
+    """Model, PolyScope version, serial number and Remote Control, as ur-rtde's own constructor asks them."""
+    version_line, model = dashboard_query(host, "PolyscopeVersion", "get robot model", timeout_s=timeout_s)
+    m = re.search(r"(\d+)\.(\d+)\.(\d+)\.(\d+)", version_line)
+    if not m:
+        raise CommunicationError(f"unexpected PolyscopeVersion reply from {host}: {version_line!r}")
+    version = tuple(int(x) for x in m.groups())
+    serial, remote = "", None
+    if version[0] == 5 and version[1] >= 6:
+        serial, answer = dashboard_query(host, "get serial number", "is in remote control", timeout_s=timeout_s)
+        remote = "true" in answer.lower()
+        serial = serial if serial.isdigit() else ""
+    suffix = "e" if version[0] >= 5 and not model.endswith("e") else ""
+    info = ControllerInfo(vendor="Universal Robots", model=f"{model}{suffix}", firmware=m.group(0), serial=serial)
+    return Identity(info, version, remote)

@@ -19,7 +19,10 @@ Design notes:
   beyond 100 A, time running backwards) are a broken stream: corrupt RTDE data parses.
 * ``effort`` is ``actual_current`` in A (motor current; torque = gain × current).
 * Every ur-rtde command runs bounded (``COMMAND_TIMEOUT_S``; a stop ``STOP_REPLY_S``): a
-  control script that does not answer is a failed command channel, never a hung agent.
+  control script that does not answer is a failed command channel, never a hung agent. During
+  a move the script is asked ``isSteady`` every ``HEARTBEAT_S``: each answer is a ``command_ok()``
+  for the base's reply watchdog, so a script that stops answering (or answers late) mid-move
+  stops the arm within a fraction of a second.
 * The control script is uploaded by the first command (a move, a payload write, the TCP read
   of the kinematic cross-check), not by ``connect()``: uploading it replaces the program the
   robot runs, and a connection that only reads (``watch``) must not do that. It is uploaded
@@ -35,7 +38,6 @@ Design notes:
 from __future__ import annotations
 
 import math
-import re
 import socket
 import threading
 import time
@@ -48,9 +50,10 @@ from scipy.spatial.transform import Rotation
 from payload_agent.drivers.base import Driver, MotionLimits, Supervision
 from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S, ControlChannel
-from payload_agent.drivers.ur_rtde.dashboard import dashboard_query, dashboard_stop
+from payload_agent.drivers.ur_rtde.dashboard import dashboard_identify, dashboard_query, dashboard_stop
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
-from payload_agent.drivers.ur_rtde.states import RUNTIME_PLAYING, controller_state, runtime_name, safety_stop
+from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, controller_state, corrupt_status, runtime_name,
+                                                  safety_stop)
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError
 from payload_agent.types import ControllerInfo, ControllerState, FlangePose, Sample
 
@@ -61,6 +64,7 @@ RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_po
           "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
 POLL_TIMEOUT_S = 0.5  # reading the async progress word during a move (a local read in the worker)
+HEARTBEAT_S = 0.05  # during a move the control script is asked (isSteady) this often: does it still answer?
 STOP_REPLY_S = 0.25  # stopJ over the command channel; then the dashboard is tried
 DASHBOARD_STOP_TIMEOUT_S = 0.5
 MAX_ANGLE_RAD = 4 * math.pi  # UR joints turn ±2 turns at most
@@ -91,6 +95,7 @@ class URRTDEDriver(URCapabilities, Driver):
         self._abort = threading.Event()
         self._last_ts: float | None = None
         self._last_conn_check = 0.0
+        self._heartbeat_t = 0.0
         self.samples_delivered = 0
         self.samples_missed = 0
 
@@ -125,21 +130,8 @@ class URRTDEDriver(URCapabilities, Driver):
         self._last_ts = None
 
     def _identify_dashboard(self) -> None:
-        timeout = self.options.connect_timeout_s
-        version_line, model = dashboard_query(self.host, "PolyscopeVersion", "get robot model", timeout_s=timeout)
-        m = re.search(r"(\d+)\.(\d+)\.(\d+)\.(\d+)", version_line)
-        if not m:
-            raise CommunicationError(f"unexpected PolyscopeVersion reply from {self.host}: {version_line!r}")
-        self._version = tuple(int(x) for x in m.groups())
-        serial = ""
-        if self._version[0] == 5 and self._version[1] >= 6:
-            serial, remote = dashboard_query(self.host, "get serial number", "is in remote control", timeout_s=timeout)
-            self._remote = "true" in remote.lower()
-            if not serial.isdigit():
-                serial = ""
-        suffix = "e" if self._version[0] >= 5 and not model.endswith("e") else ""
-        self._info = ControllerInfo(vendor="Universal Robots", model=f"{model}{suffix}", firmware=m.group(0),
-                                    serial=serial)
+        ident = dashboard_identify(self.host, self.options.connect_timeout_s)
+        self._info, self._version, self._remote = ident.info, ident.version, ident.remote
 
     def _close(self) -> None:
         self._abort.set()
@@ -224,7 +216,8 @@ class URRTDEDriver(URCapabilities, Driver):
         t_recv = time.monotonic()
         self._check_plausible(ts, q, cur)
         if self._last_ts is not None:
-            gap = int(round((ts - self._last_ts) * self.frequency_hz)) - 1
+            steps = (ts - self._last_ts) * self.frequency_hz  # inf if the timestamps are absurdly far apart
+            gap = int(round(steps)) - 1 if math.isfinite(steps) else 0
             if gap > 0:
                 self.samples_missed += gap
         self._last_ts = ts
@@ -234,7 +227,9 @@ class URRTDEDriver(URCapabilities, Driver):
     def _check_plausible(self, ts: float, q: Sequence[float], cur: Sequence[float]) -> None:
         """Corrupt RTDE packages parse into numbers; numbers no UR arm reports end the stream."""
         bad = None
-        if self._last_ts is not None and math.isfinite(ts) and ts < self._last_ts:
+        if not math.isfinite(ts):
+            bad = f"the controller timestamp is {ts}"
+        elif self._last_ts is not None and ts < self._last_ts:
             bad = f"the controller timestamp went back from {self._last_ts:.6g} s to {ts:.6g} s"
         elif any(math.isfinite(v) and abs(v) > MAX_ANGLE_RAD for v in q):
             bad = f"joint angles {[round(v, 3) for v in q]} rad are beyond any UR joint's range"
@@ -267,7 +262,10 @@ class URRTDEDriver(URCapabilities, Driver):
         with ctl.lock:
             t_start = time.monotonic()
             op0 = ctl.request("progress", timeout_s=COMMAND_TIMEOUT_S)[0]
+            self.command_ok()  # from here on the reply watchdog wants the script's answers (moveJ, heartbeats)
             ok = ctl.request("moveJ", target.tolist(), speed_rad_s, accel_rad_s2, True, timeout_s=COMMAND_TIMEOUT_S)
+            self.command_ok()
+            self._heartbeat_t = time.monotonic()
         if not ok:
             raise MotionAbortedError(f"UR controller {self.host}: the controller refused the move "
                                      f"({self._why_not_running()})")
@@ -301,14 +299,22 @@ class URRTDEDriver(URCapabilities, Driver):
         self.check_supervision()
         if self._abort.is_set():
             self._abort_move(lambda: "move stopped on request")
-        fault = safety_stop(r.getSafetyStatusBits(), r.getSafetyMode())
+        bits, safety_mode, runtime = r.getSafetyStatusBits(), r.getSafetyMode(), r.getRuntimeState()
+        corrupt = corrupt_status(r.getRobotMode(), safety_mode, bits, runtime)
+        if corrupt:  # garbage that parsed: not a safety stop, a broken stream
+            raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "
+                                     "sends: the data is corrupt")
+        fault = safety_stop(bits, safety_mode)
         if fault:
             self._abort_move(lambda: f"UR controller {self.host} stopped the move: {fault}")
         op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
         if not r.isConnected() or not self._control.connected:
             raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
-        self.command_ok()
-        if r.getRuntimeState() != RUNTIME_PLAYING:
+        if time.monotonic() - self._heartbeat_t > HEARTBEAT_S:  # a command the script must answer, not a read
+            self._control.request("isSteady", timeout_s=POLL_TIMEOUT_S, what="isSteady (heartbeat)")
+            self._heartbeat_t = time.monotonic()
+            self.command_ok()
+        if runtime != RUNTIME_PLAYING:
             self._abort_move(lambda: f"UR controller {self.host}: the control script stopped during the move "
                                      f"({self._why_not_running()})")
         return op_id, running
@@ -375,10 +381,12 @@ class URRTDEDriver(URCapabilities, Driver):
             if v is None or len(v) != 6 or not all(math.isfinite(x) for x in v):
                 raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not 6 finite numbers")
         flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
+        if not np.all(np.isfinite(flange)):  # finite but absurd numbers (1e200 m) overflow the product
+            raise CommunicationError(f"UR controller {self.host}: actual_TCP_pose {pose!r} with getTCPOffset "
+                                     f"{offset!r} is not a pose any UR arm reports")
         return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
                           rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
 
-    # -- helpers ---------------------------------------------------------------------------------
     def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
         while not predicate():

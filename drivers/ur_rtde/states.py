@@ -23,6 +23,22 @@ ESTOP_BITS = (1 << BIT_ESTOP) | (1 << BIT_ROBOT_ESTOP) | (1 << BIT_SYS_ESTOP)
 # actual_digital_input_bits (UR RTDE guide): bits 0-7 standard DI0-7, 8-15 configurable CI0-7, 16-17 tool TI0-1
 DIGITAL_INPUT_NAMES = [f"DI{i}" for i in range(8)] + [f"CI{i}" for i in range(8)] + ["TI0", "TI1"]
 
+KNOWN_SAFETY_BITS = (1 << 11) - 1  # bits 0-10 (ur_rtde enum SafetyStatus)
+
+
+def corrupt_status(robot_mode: int, safety_mode: int, bits: int, runtime: int) -> str:
+    """What in a package's status fields no UR controller sends (corrupt RTDE data), or ""."""
+    if robot_mode not in ROBOT_MODE_NAMES:
+        return f"robot_mode {robot_mode}"
+    if safety_mode not in SAFETY_MODE_NAMES:
+        return f"safety_mode {safety_mode}"
+    if bits & ~KNOWN_SAFETY_BITS:
+        return f"safety_status_bits {bits:#x}"
+    if runtime not in RUNTIME_NAMES:
+        return f"runtime_state {runtime}"
+    return ""
+
+
 _POWER_HINT = "power the arm on and release the brakes (teach pendant, or the dashboard's 'power on' and " \
               "'brake release')"
 

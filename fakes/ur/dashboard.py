@@ -65,9 +65,7 @@ def dashboard_reply(ctrl: "URControllerCore", cmd: str) -> tuple[str, bool]:
         return simple[cmd], False
     if cmd == "quit":
         return "Disconnected", True
-    if cmd == "stop":
-        if not ctrl.remote_control:
-            return "Failed to execute: stop", False
+    if cmd == "stop":  # accepted in Local mode too (UNVERIFIED): stopping never needs Remote Control
         ctrl.record_event("stop", "dashboard stop")
         ctrl.stop_program("dashboard stop", wait=True)
         return "Stopped", False

@@ -207,6 +207,7 @@ class FakeURController(SimulatedController):
         self._conn = None
         self._req_lock = threading.Lock()
         self._robot: Any = sim if in_process and sim is not None else _RemoteRobot(self)
+        self._final_events: list[ControllerEvent] = []
 
     # -- the simulated-controller contract ---------------------------------------------------------
     @classmethod
@@ -260,7 +261,9 @@ class FakeURController(SimulatedController):
 
     @property
     def events(self) -> list[ControllerEvent]:
-        """Every move / stop / payload command the controller accepted (recorded where it runs)."""
+        """Every move / stop / payload command the controller accepted (recorded where it runs; kept after close)."""
+        if self._core is None and self._proc is None:
+            return list(self._final_events)
         return list(self._request(("get", "ctrl", "events")))
 
     # -- lifecycle ----------------------------------------------------------------------------------
@@ -300,6 +303,11 @@ class FakeURController(SimulatedController):
         return self
 
     def close(self) -> None:
+        try:
+            if self._core is not None or self._proc is not None:
+                self._final_events = self.events
+        except Exception:  # the child is gone: its log with it
+            pass
         if self._core is not None:
             self._core.close()
             self._core = None

@@ -171,6 +171,8 @@ class RTDESession:
         freq_ok = math.isfinite(freq) and 0 < freq <= c.max_frequency_hz
         valid = bool(names) and "NOT_FOUND" not in types and freq_ok
         rid = len(self.outputs) + 1 if valid else 0
+        if rid > 255:  # the recipe id is one byte: no more recipes on this connection
+            valid, rid = False, 0
         if valid:
             rec = OutputRecipe(rid, names, types, rp.recipe_struct(types), 1.0 / freq, True)
             with self.cv:
