@@ -331,7 +331,9 @@ class Driver(abc.ABC):
             self._trip(f"the command connection failed during the move: {exc}")
             raise self._trip_error() from exc
         except BaseException:
-            if self._tripped.is_set():
+            if self._trip_lock.acquire(timeout=self.supervision.stop_ack_timeout_s + 1.0):
+                self._trip_lock.release()  # a trip under way (the watchdog stopping the arm) finishes first
+            if self._tripped.is_set():  # the driver's error is a consequence of the trip's stop
                 raise self._trip_error() from None
             raise
         finally:
