@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import socket
 import struct
 import threading
@@ -38,7 +39,9 @@ from payload_agent.errors import CommunicationError
 from payload_agent.fakes.elite_ec_monitor import FRAME_SIZE, MONITOR_LAYOUT, pack_frame
 from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
 
-FUZZ = settings(max_examples=120, deadline=None, database=None,
+# DECODER_FUZZ_SCALE=20 searches 20 times harder (a deep run by hand; the suite keeps the default)
+SCALE = float(os.environ.get("DECODER_FUZZ_SCALE", "1"))
+FUZZ = settings(max_examples=int(120 * SCALE), deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 HANG_S = 10.0  # far beyond any timeout below: only a real hang gets here
 REPLY_TIMEOUT_S = 0.5
@@ -337,7 +340,8 @@ def test_driver_and_fake_agree_on_the_monitor_layout():
 
 SPECIAL = [math.nan, math.inf, -math.inf, 10 ** 400, -(10 ** 400), 2 ** 63, 1.5, -1, True, "", "7", None, [], {},
            [math.nan] * 8, [math.inf] * 8, [10 ** 400] * 8, [1e308] * 8, {"m": math.inf, "tool_cog": [0, 0, 0]},
-           {"m": 10 ** 400, "tool_cog": [0, 0, 0]}, {"m": 1.0, "tool_cog": "abc"}, {"m": 1.0, "tool_cog": [math.nan] * 3}]
+           {"m": 10 ** 400, "tool_cog": [0, 0, 0]}, {"m": 1.0, "tool_cog": "abc"},
+           {"m": 1.0, "tool_cog": [math.nan] * 3}]
 
 
 @pytest.mark.parametrize("value", SPECIAL, ids=[repr(v)[:24] for v in SPECIAL])
