@@ -345,8 +345,11 @@ def run_case(args: tuple) -> list[dict]:
         except PayloadAgentError as exc:
             rows.append(dict(base, method=method, error=str(exc)))
             continue
-        rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)),
-                         **_gate(gate_deltas, kin, est, **gate_kw)))
+        row = dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)),
+                   **_gate(gate_deltas, kin, est, **gate_kw))
+        if "gain_rel_std" in gate_kw:
+            row["gain_rel_std"] = [float(v) for v in gate_kw["gain_rel_std"]]
+        rows.append(row)
     return rows
 
 

@@ -9,7 +9,9 @@ What the agent would do once the lead hooks the new modules into the pipeline:
    friction change between the runs: temperature, drift), sized from the friction level the baseline
    shows (``offsets.friction_offset_covariance``). PA_BENCH_OFFSETS=1 fits those offsets instead
    (``offsets.solve``): less bias from asymmetry, more from slow gear ripple (docs/benchmarks.md);
-4. add the tool-cable check (``evaluation.cable_check``) to the quality gate.
+4. widen σ by constant wrist torques the data show (a weak tool cable, load-dependent gear ripple on a
+   wrist joint standing still), sized from the data (``offsets.wrist_offset_covariance``);
+5. add the tool-cable check (``evaluation.cable_check``) to the quality gate.
 
 The declared values are what a correctly configured agent knows about the simulated arm
 (``benchmarks.hard.Declared``).
@@ -52,6 +54,10 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
 
     est = compliance.solve_with_systematics(loaded, empty, decl, estimate_of)
     gate_deltas = deltas_of(compliance.compensate(loaded, c), empty_c)
+    wrist_cov, wrist_nm = offsets.wrist_offset_covariance(gate_deltas, kin, gain_rel_std)
+    if wrist_nm > 0:
+        est = compliance.with_covariance(est, np.asarray(est.covariance) + wrist_cov,
+                                         note=f"constant wrist torques of {1000 * wrist_nm:.0f} mN·m rms in σ")
     rel = 0.0 if declared is None else declared.friction_even_rel_std
     if rel > 0:
         extra = offsets.friction_offset_covariance(gate_deltas, kin, offsets.odd_friction_nm(empty_c), rel,

@@ -4,7 +4,8 @@
 - a misspelt effect key is refused naming its path;
 - with the declared stiffness, compensating joint elasticity recovers the rigid arm's estimate;
 - the declared zero-offset and stiffness uncertainties widen σ;
-- the tool-cable check fails on a strong cable and names it, and passes without one.
+- the tool-cable check fails on a strong cable and names it, and passes without one; the wrist
+  offsets it tests are sized from the data for σ.
 """
 
 import numpy as np
@@ -22,7 +23,7 @@ from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
-from payload_agent.solvers import compliance, general
+from payload_agent.solvers import compliance, general, offsets
 
 from conftest import tweak
 
@@ -125,3 +126,7 @@ def test_tool_cable_check_fails_on_a_strong_cable_and_names_it(runs):
     clean, _ = add_combined(subtract_all(*runs["rigid"]))
     good = cable_check.check(clean, kin)
     assert good["passed"], good
+    # the same wrist offsets, as a σ term sized from the data: large with the cable, ~nothing without
+    _, with_cable = offsets.wrist_offset_covariance(combined, kin)
+    _, without = offsets.wrist_offset_covariance(clean, kin)
+    assert with_cable > 0.1 and without < 0.01

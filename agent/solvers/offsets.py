@@ -208,3 +208,39 @@ def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinemati
         sigma = rel_std * friction_nm[j]
         cov += sigma ** 2 * np.outer(v, v)
     return cov
+
+
+def wrist_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, float]:
+    """Covariance of θ from constant wrist torques the model lacks, sized from the data; and that size (N·m).
+
+    A small tool cable, or gear ripple that grows with load on a wrist joint standing still, puts a
+    constant torque on joints 4–6 during a sweep. The fit with one offset per (pose, wrist joint)
+    estimates them, b̂ with covariance C; their spread beyond noise, σ_w² = max(0, (Σ b̂² − tr C)/k)
+    (method of moments), is how big such torques are on this arm with this tool. Treated as random,
+    each moves θ̂ by s_k·b_k (s_k = (YᵀWY)⁻¹·YᵀW·1_k over the rows sharing offset k), so
+    Σ = σ_w²·Σ_k s_k s_kᵀ. Zero when the data show no such torque; large ones fail ``cable_check``.
+    """
+    gain = None if gain_rel_std is None else list(gain_rel_std)
+    sweeps, groups = plain_groups(deltas, kin)
+    base_names = augment(sweeps, groups, moving_joint)[1]
+    both = fit_offsets(deltas, kin, moving_joint, wrist_joint, gain_rel_std=gain)
+    idx = [i for i, n in enumerate(both.labels) if n not in set(base_names)]
+    if not idx:
+        return np.zeros((4, 4)), 0.0
+    b = both.offsets_nm[idx]
+    c = both.offsets_cov[np.ix_(idx, idx)]
+    var_w = max(0.0, float(b @ b - np.trace(c)) / len(idx))
+    if var_w == 0.0:
+        return np.zeros((4, 4)), 0.0
+    res = fit(groups, gain)
+    w, inv = res.weights, res.normal_inverse
+    by_name = {d.key.name: d for d in sweeps}
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    s: dict[str, np.ndarray] = {}
+    for i, g in enumerate(groups):
+        name = wrist_joint(g, by_name[g.sweep])
+        if name is not None:
+            s[name] = s.get(name, 0.0) + inv @ (g.Y.T @ w[starts[i]:starts[i + 1]])
+    cov = sum((var_w * np.outer(v, v) for v in s.values()), np.zeros((4, 4)))
+    return cov, float(np.sqrt(var_w))

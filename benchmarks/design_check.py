@@ -1,0 +1,71 @@
+"""Does motion/design's predicted σ match what runs report, and the errors they reach? (issue 14, item 4)
+
+Not a test: it prints a table. For each sweep speed, every seeded payload is run through the accuracy
+benchmark's cases (realistic scenario, ``general-bi-cal``) and its σ is predicted beforehand by
+``motion.design.predict`` from the plan, the regressor, the benchmark's effort noise (0.3 N·m at 8 ms)
+and the same systematic terms the run declares (DH lengths; the calibration's gain uncertainty of that
+case). Columns: mean predicted σ, mean reported σ, their ratio, and the RMS of the actual errors.
+
+    .venv/bin/python -m benchmarks.design_check [--payloads N] [--speeds 3,5,10,20] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks import cases  # noqa: E402
+
+
+def one(args) -> dict:
+    speed, index, mass, cog = args
+    from payload_agent.motion import design
+
+    proc = cases.Procedure(f"{speed:g}", speed, 25.0, 40.0, 0.0, 55.0)
+    rows = cases.run_case(("realistic", proc, ("general-bi-cal",), index, mass, cog))
+    row = rows[0]
+    if "error" in row:
+        return {"speed": speed, "error": row["error"]}
+    _, _, config = cases.plans(proc)
+    noise = design.NoiseModel((cases.NOISE_NM,) * 6, cases.TICK_S, gain_rel_std=tuple(row["gain_rel_std"]),
+                              length_std_m=row["length_std_mm"] / 1000.0)
+    cand = design.Candidate(speed, 25.0, 0.0, 55.0, 1, 40.0)
+    pred = design.predict(config, cand, noise, design.nominal_theta(mass, cog), check_safety=False)
+    return {"speed": speed, "pred_m": pred.mass_std_g, "pred_c": pred.cog_std_mm, "rep_m": row["mass_std_g"],
+            "rep_c": max(row["cog_std_mm"]), "err_m": row["mass_err_g"], "err_c": row["cog_err_mm"],
+            "time_s": pred.robot_time_s}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--payloads", type=int, default=10)
+    p.add_argument("--speeds", default="3,5,10,20")
+    p.add_argument("--jobs", type=int, default=0)
+    args = p.parse_args(argv)
+    speeds = [float(v) for v in args.speeds.split(",")]
+    todo = [(s, i, m, c) for s in speeds for i, (m, c) in enumerate(cases.payloads(args.payloads))]
+    with ProcessPoolExecutor(max_workers=args.jobs or None) as pool:
+        out = list(pool.map(one, todo, chunksize=1))
+    print("| speed % | robot s | pred σm g | reported σm g | ratio m | rms Δm g | pred σc mm (max axis) | "
+          "reported σc mm | ratio c | rms Δc/√3 mm | failed |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for s in speeds:
+        rs = [r for r in out if r["speed"] == s and "error" not in r]
+        if not rs:
+            continue
+        f = lambda k: np.array([r[k] for r in rs])  # noqa: E731
+        print(f"| {s:g} | {f('time_s').mean():.0f} | {f('pred_m').mean():.2f} | {f('rep_m').mean():.2f} | "
+              f"{f('pred_m').mean() / f('rep_m').mean():.2f} | {np.sqrt(np.mean(f('err_m') ** 2)):.2f} | "
+              f"{f('pred_c').mean():.2f} | {f('rep_c').mean():.2f} | {f('pred_c').mean() / f('rep_c').mean():.2f} | "
+              f"{np.sqrt(np.mean(f('err_c') ** 2) / 3):.2f} | {len([r for r in out if r['speed'] == s]) - len(rs)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
