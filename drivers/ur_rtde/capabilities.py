@@ -1,19 +1,23 @@
-"""The UR driver's optional capabilities: digital inputs, joint temperatures, the payload setting.
+"""The UR driver's flange pose for the kinematic cross-check and its optional capabilities
+(digital inputs, joint temperatures, the payload setting).
 
-All read from the RTDE receive interface's latest package (no control script, no Remote Control
-needed), except the payload write, which is a command to ur-rtde's control script. A mixin of
-``URRTDEDriver`` (``driver``), which provides the connections it uses.
+The readings come from the RTDE receive interface's latest package (no control script, no Remote
+Control needed); the TCP offset and the payload write are commands to ur-rtde's control script.
+A mixin of ``URRTDEDriver`` (``driver``), which provides the connections it uses.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
 
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S
 from payload_agent.drivers.ur_rtde.states import DIGITAL_INPUT_NAMES
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, UnsupportedCapability
-from payload_agent.types import ControllerState, PayloadSetting
+from payload_agent.types import ControllerState, FlangePose, PayloadSetting
 
 
 class URCapabilities:
@@ -29,6 +33,27 @@ class URCapabilities:
     _ensure_control: Callable[[], None]
     _why_not_running: Callable[[], str]
     _wait: Callable[[Callable[[], bool], float, str], None]
+
+    # -- kinematic cross-check -------------------------------------------------------------------
+    def flange_pose(self) -> FlangePose:
+        """actual_TCP_pose with the TCP offset the controller reports (getTCPOffset) taken out.
+
+        Builds the control interface (uploads ur-rtde's script) if no command has yet: the
+        cross-check runs right before the first move, which needs it anyway.
+        """
+        self._ensure_control()
+        with self._control.lock:
+            offset = self._control.request("getTCPOffset", timeout_s=COMMAND_TIMEOUT_S)
+        pose = self._receive().getActualTCPPose()
+        for what, v in (("getTCPOffset", offset), ("actual_TCP_pose", pose)):
+            if v is None or len(v) != 6 or not all(math.isfinite(x) for x in v):
+                raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not 6 finite numbers")
+        flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
+        if not np.all(np.isfinite(flange)):  # finite but absurd numbers (1e200 m) overflow the product
+            raise CommunicationError(f"UR controller {self.host}: actual_TCP_pose {pose!r} with getTCPOffset "
+                                     f"{offset!r} is not a pose any UR arm reports")
+        return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
+                          rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
 
     # -- digital inputs, temperatures --------------------------------------------------------------
     def read_digital_input(self, index: int) -> bool:
@@ -93,3 +118,11 @@ class URCapabilities:
                 return abs(got.mass_kg - mass) < 1e-6 and all(abs(a - b) < 1e-6 for a, b in zip(got.cog_m, cog))
 
             self._wait(matches, 2.0, "the controller to report the new payload")
+
+
+def _pose_matrix(pose: Sequence[float]) -> np.ndarray:
+    """UR pose [x, y, z, rx, ry, rz] (m, rotation vector) -> 4x4 homogeneous transform."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(np.asarray(pose[3:6], float)).as_matrix()
+    T[:3, 3] = np.asarray(pose[:3], float)
+    return T

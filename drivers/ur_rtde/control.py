@@ -136,15 +136,19 @@ class ControlChannel:
         return True
 
     def stop(self, decel_rad_s2: float, timeout_s: float) -> bool:
-        """stopJ, asynchronous: True once the script took it (ur-rtde's stopJ returns when the script has
-        signalled "done" for the command; it returns nothing itself)."""
+        """stopJ, asynchronous: True once the script took it.
+
+        ur-rtde's stopJ returns nothing: it returns when the script has signalled "done", or at once
+        without sending when the script is not running (a safety stop ended it). So the stop counts
+        as acknowledged only if the script still runs after the call.
+        """
         if not self.ready():
             return False
         try:
             self.request("stopJ", decel_rad_s2, True, timeout_s=timeout_s, lock_timeout_s=timeout_s)
         except CommunicationError:
             return False
-        return self.connected
+        return self.connected and self.program_running
 
     def _start_worker(self) -> None:
         parent, child = socket.socketpair()

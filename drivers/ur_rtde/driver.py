@@ -45,7 +45,6 @@ from typing import Any, Callable, NoReturn, Sequence
 
 import numpy as np
 import rtde_receive
-from scipy.spatial.transform import Rotation
 
 from payload_agent.drivers.base import Driver, MotionLimits, Supervision
 from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
@@ -55,7 +54,7 @@ from payload_agent.drivers.ur_rtde.options import URRTDEOptions
 from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, controller_state, corrupt_status, runtime_name,
                                                   safety_stop)
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError
-from payload_agent.types import ControllerInfo, ControllerState, FlangePose, Sample
+from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 RTDE_PORT = 30004
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the payload
@@ -305,8 +304,8 @@ class URRTDEDriver(URCapabilities, Driver):
             raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "
                                      "sends: the data is corrupt")
         fault = safety_stop(bits, safety_mode)
-        if fault:
-            self._abort_move(lambda: f"UR controller {self.host} stopped the move: {fault}")
+        if fault:  # the safety system ended the script too: the dashboard's stop is the one that can still go
+            self._abort_move(lambda: f"UR controller {self.host} stopped the move: {fault}", script_dead=True)
         op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
         if not r.isConnected() or not self._control.connected:
             raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
@@ -316,17 +315,21 @@ class URRTDEDriver(URCapabilities, Driver):
             self.command_ok()
         if runtime != RUNTIME_PLAYING:
             self._abort_move(lambda: f"UR controller {self.host}: the control script stopped during the move "
-                                     f"({self._why_not_running()})")
+                                     f"({self._why_not_running()})", script_dead=True)
         return op_id, running
 
-    def _abort_move(self, message: Callable[[], str]) -> NoReturn:
+    def _abort_move(self, message: Callable[[], str], script_dead: bool = False) -> NoReturn:
         """Stop the arm and end the move with MotionAbortedError(message()).
 
         The controller has just answered; the stop and the explanation (a dashboard round trip)
         may take a while, which the reply watchdog must not take for a silent controller.
+        ``script_dead``: ur-rtde's script no longer runs, so stopJ cannot go; stop from the dashboard.
         """
         self.command_ok()
-        self._stop_now()
+        if script_dead:
+            self._stop_fresh()
+        else:
+            self._stop_now()
         self.command_ok()
         text = message()
         self.command_ok()
@@ -366,27 +369,6 @@ class URRTDEDriver(URCapabilities, Driver):
         self._abort.set()
         super().stop()
 
-    # -- kinematic cross-check -------------------------------------------------------------------
-    def flange_pose(self) -> FlangePose:
-        """actual_TCP_pose with the TCP offset the controller reports (getTCPOffset) taken out.
-
-        Builds the control interface (uploads ur-rtde's script) if no command has yet: the
-        cross-check runs right before the first move, which needs it anyway.
-        """
-        self._ensure_control()
-        with self._control.lock:
-            offset = self._control.request("getTCPOffset", timeout_s=COMMAND_TIMEOUT_S)
-        pose = self._receive().getActualTCPPose()
-        for what, v in (("getTCPOffset", offset), ("actual_TCP_pose", pose)):
-            if v is None or len(v) != 6 or not all(math.isfinite(x) for x in v):
-                raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not 6 finite numbers")
-        flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
-        if not np.all(np.isfinite(flange)):  # finite but absurd numbers (1e200 m) overflow the product
-            raise CommunicationError(f"UR controller {self.host}: actual_TCP_pose {pose!r} with getTCPOffset "
-                                     f"{offset!r} is not a pose any UR arm reports")
-        return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
-                          rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
-
     def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
         while not predicate():
@@ -394,10 +376,3 @@ class URRTDEDriver(URCapabilities, Driver):
                 raise CommunicationError(f"UR controller {self.host}: timed out waiting for {what}")
             time.sleep(0.005)
 
-
-def _pose_matrix(pose: Sequence[float]) -> np.ndarray:
-    """UR pose [x, y, z, rx, ry, rz] (m, rotation vector) -> 4x4 homogeneous transform."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.asarray(pose[3:6], float)).as_matrix()
-    T[:3, 3] = np.asarray(pose[:3], float)
-    return T
