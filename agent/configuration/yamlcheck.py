@@ -73,6 +73,8 @@ def load_yaml(text: str, source: str | None = None) -> Any:
             return loader.construct_document(node)
         except yaml.YAMLError as exc:
             raise _yaml_error(exc, source) from None
+        except ValueError as exc:  # PyYAML's int() of a number with more than 4300 digits
+            raise ConfigError("<file>", f"a value cannot be read: {exc}", source) from None
     finally:
         loader.dispose()
 
@@ -211,7 +213,11 @@ def check_number(value: Any, key: str, *, min: float | None = None, max: float |
                  gt: float | None = None, source: str | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(key, f"expected a number, got {_kind(value)} {value!r}", source)
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # a YAML integer of hundreds of digits
+        raise ConfigError(key, f"expected a finite number, got an integer of about "
+                               f"{int(value.bit_length() * 0.30103) + 1} digits", source) from None
     if not math.isfinite(value):
         raise ConfigError(key, f"expected a finite number, got {value}", source)
     if min is not None and value < min:
