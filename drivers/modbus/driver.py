@@ -157,6 +157,8 @@ class ModbusDriver(Driver):
             if not math.isfinite(v):
                 raise CommunicationError(self._garbage_text("joint_efforts", j, v, self.effort_unit))
         t_ctrl = self._controller_time(values["timestamp"][0]) if "timestamp" in values else None
+        if t_ctrl is not None and not math.isfinite(t_ctrl):
+            raise CommunicationError(self._garbage_text("timestamp", 0, t_ctrl, "s"))
         return Sample(t_ctrl, t_recv, tuple(float(v) for v in q), tuple(float(v) for v in effort))
 
     def _reply_too_slow(self, round_trip_s: float) -> bool:
@@ -375,8 +377,15 @@ class ModbusDriver(Driver):
         names = ("tcp_position", "tcp_rotation", "tcp_offset_position", "tcp_offset_rotation")
         v = self._read(*names)
         si = {n: np.asarray(v[n]) * si_factor(self.map[n]) for n in v}
+        for n, arr in si.items():  # float32 registers can hold NaN and infinities
+            if not np.all(np.isfinite(arr)):
+                j = int(np.argmin(np.isfinite(arr)))
+                raise CommunicationError(self._garbage_text(n, j, float(arr[j]), "m" if "position" in n else "rad"))
         p, R = flange_from_tcp(si["tcp_position"], si["tcp_rotation"], si.get("tcp_offset_position"),
                                si.get("tcp_offset_rotation"))
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+            raise CommunicationError(f"{self.endpoint.describe()} sent a TCP pose too large to be real: "
+                                     f"{ {n: a.tolist() for n, a in si.items()} }")
         return FlangePose(tuple(float(x) for x in p), tuple(tuple(float(x) for x in row) for row in R))
 
     def read_payload(self) -> PayloadSetting:
@@ -385,8 +394,11 @@ class ModbusDriver(Driver):
                                         "be read back")
         v = self._read("payload_readback_mass", "payload_readback_cog")
         cog = np.asarray(v["payload_readback_cog"]) * si_factor(self.map["payload_readback_cog"])
-        return PayloadSetting(v["payload_readback_mass"][0] * si_factor(self.map["payload_readback_mass"]),
-                              tuple(float(c) for c in cog))
+        mass = v["payload_readback_mass"][0] * si_factor(self.map["payload_readback_mass"])
+        if not (math.isfinite(mass) and np.all(np.isfinite(cog))):  # a NaN would pass any readback comparison
+            raise CommunicationError(f"{self.endpoint.describe()} reads back a payload of {mass} kg at "
+                                     f"{cog.tolist()} m (payload_readback_mass/_cog): not finite numbers")
+        return PayloadSetting(mass, tuple(float(c) for c in cog))
 
     def write_payload(self, payload: PayloadSetting) -> None:
         m = self.map
