@@ -437,6 +437,7 @@ class Driver(abc.ABC):
 
     def stop(self) -> None:
         """Halt motion now. Best effort: never raises."""
+        self._last_command_ok = None  # the driver is handling the abort itself: no reply watchdog on its stop
         try:
             if self._connected and self._command_alive() and self._stop_command():
                 return
