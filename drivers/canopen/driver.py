@@ -148,6 +148,7 @@ class CANopenDriver(Driver):
                 node.sdo.RESPONSE_TIMEOUT = opts.sdo_timeout_s
                 node.nmt.add_heartbeat_callback(functools.partial(self.monitor.on_heartbeat, j))
                 node.emcy.add_callback(functools.partial(self._on_emcy, j))
+                self.monitor.check_frame_lengths(self.network, j, node)  # a short EMCY/heartbeat is a fault
                 self.nodes.append(node)
             for node in self.nodes:
                 node.nmt.state = "PRE-OPERATIONAL"

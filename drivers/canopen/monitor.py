@@ -15,6 +15,7 @@ drive. A fault is:
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 
@@ -76,6 +77,27 @@ class DriveMonitor:
             return
         self.set_fault(f"EMCY from {self.labels[j]}: error code {describe_code(code)}, error register "
                        f"0x{register:02X}", drive_fault=True)
+
+    def check_frame_lengths(self, network, j: int, node) -> None:
+        """Length-check drive ``j``'s EMCY and heartbeat frames before canopen decodes them.
+
+        canopen's decoders raise on a frame too short for its message (CiA 301: an EMCY has 8 data
+        bytes, a heartbeat 1); its receive thread logs that and drops the frame, so the driver would
+        never learn what the drive sent. Such a frame is a fault naming the drive instead.
+        """
+        for cob, what, decode, size_ok in ((0x80 + node.id, "EMCY", node.emcy.on_emcy, lambda n: n == 8),
+                                           (0x700 + node.id, "heartbeat", node.nmt.on_heartbeat, lambda n: n >= 1)):
+            network.unsubscribe(cob, decode)
+            network.subscribe(cob, functools.partial(self._checked_frame, j, what, size_ok, decode))
+
+    def _checked_frame(self, j: int, what: str, size_ok, decode, can_id: int, data: bytearray,
+                       timestamp: float) -> None:
+        if size_ok(len(data)):
+            decode(can_id, data, timestamp)
+            return
+        self.set_fault(f"{self.labels[j]} sent a malformed {what}: {len(data)} data bytes "
+                       f"({bytes(data).hex() or 'none'}) where CiA 301 has {8 if what == 'EMCY' else 1}",
+                       drive_fault=what == "EMCY")
 
     def set_fault(self, text: str, drive_fault: bool = False) -> None:
         """Keep the first fault; ``drive_fault``: the drive itself stopped (EMCY, left OPERATION ENABLED),
