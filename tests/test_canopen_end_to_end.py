@@ -8,7 +8,7 @@ import yaml
 
 from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
-from payload_agent.errors import SafetyError, SupervisionTrip
+from payload_agent.errors import MotionStopped, SafetyError
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.runner import RunOptions, run_identification
 
@@ -62,8 +62,9 @@ def test_drive_fault_mid_run_stops_every_drive_and_keeps_the_data(tmp_path):
             ctrl.inject_fault("protective_stop", joint=3)
         threading.Thread(target=fault_in_first_sweep, daemon=True).start()
 
-    with pytest.raises(SupervisionTrip) as err:
+    with pytest.raises(MotionStopped) as err:  # the drive stopped itself: a motion abort (exit 4)
         run_identification(config, quiet(on_cell=on_cell))
+    assert err.value.exit_code == 4
     assert "EMCY from joint 3 (node 3): error code 0x8611 (following error)" in str(err.value)
     ctrl = seen["ctrl"]
     stopped = {e.detail.split(":")[0] for e in ctrl.events if e.kind == "stop" and e.t >= seen["t"]}
