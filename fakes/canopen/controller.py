@@ -13,10 +13,18 @@ holes in the samples; without SYNC the simulated arm stands still (a real drive 
 profile on its own clock). The simulated wire's clock is the simulated clock: every frame the
 drives send carries it as its timestamp (``msg.timestamp``, what a hardware-timestamping
 interface gives); the TPDOs carry the tick's reported time (with the physics core's timestamp
-jitter) plus each frame's place on the wire.
+jitter) plus each frame's place on the wire. The drives' consumer heartbeat monitoring (0x1016) runs
+on the same clock: at every SYNC on the wire each drive compares the master's newest heartbeat it
+heard with that SYNC, both by the time the master sent them, so a pause of the shared process
+(which delays both alike) never looks like a lost master; without SYNC the arm stands still and
+the drives' heartbeat monitoring too.
 
-Faults (``inject_fault``; ``joint=`` 1..6 limits one to a drive): ``drop_connections`` (drives
-off the bus: no heartbeat, SDO, PDO; ``heartbeat_only=True``: only the heartbeat stops),
+Faults (``inject_fault``; ``joint=`` 1..6 limits one to a drive): ``drop_connections`` (the CAN
+link between the agent and the drives is cut: the drives hear nothing from the master, no SYNC,
+RPDO, SDO, NMT command or heartbeat, and the master hears nothing from them, no TPDO, SDO reply,
+EMCY or heartbeat; each drive that consumes the master's heartbeat stops itself after its consumer
+time, as 0x6007 says; the physics keeps its SYNC clock; ``heartbeat_only=True``: only the drive's
+heartbeat stops),
 ``stall_stream`` (TPDOs stop), ``garbage`` (TPDOs of 5 bytes instead of the mapped 8),
 ``protective_stop`` (drive fault 0x8611 following error, EMCY; joint 2 by default),
 ``emergency_stop`` (every drive faults with 0x3220 DC link under-voltage: the e-stop cuts the
@@ -147,6 +155,8 @@ class SimulatedCANopenArm(SimulatedController):
             self.network[d.node_id] = d.node
             self.network.unsubscribe(d.node.sdo.rx_cobid, d.node.sdo.on_request)  # served through _on_sdo
             self.network.subscribe(d.node.sdo.rx_cobid, functools.partial(self._on_sdo, d))
+            self.network.unsubscribe(0, d.node.nmt.on_command)  # a drive off the bus hears no NMT command
+            self.network.subscribe(0, functools.partial(self._on_nmt, d))
             self.pdo_config_changed(d)
         self.network.subscribe(0x80, self._on_sync)
         self._robot.start()
@@ -211,6 +221,20 @@ class SimulatedCANopenArm(SimulatedController):
         else:
             self._serve_sdo(d, bytes(data))
 
+    def _on_nmt(self, d: SimDrive, can_id: int, data: bytearray, timestamp: float) -> None:
+        if not d.silent:
+            d.node.nmt.on_command(can_id, data, timestamp)
+
+    def consumer_changed(self, d: SimDrive) -> None:
+        """A drive was told to consume a node's heartbeat (0x1016): listen to that heartbeat's COB-ID."""
+        if self.network is not None and d.consumer is not None:
+            self.network.subscribe(0x700 + d.consumer[0], self._on_heartbeat)
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            for d in self.drives:
+                d.on_heartbeat_of(can_id - 0x700, timestamp)
+
     def _serve_sdo(self, d: SimDrive, data: bytes) -> None:
         with self._lock:
             if self.network is not None:
@@ -244,6 +268,7 @@ class SimulatedCANopenArm(SimulatedController):
                 self._start(pending)
             frames = []
             for d in self.drives:
+                d.check_consumer(timestamp)  # the drive's clock: the SYNC's time on the wire (see the docstring)
                 d.update()
                 frames += d.tpdo_frames(self.sync_count)
             latched, self._latched = self._latched, None

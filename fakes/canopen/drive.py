@@ -13,7 +13,12 @@ does with its object dictionary (docs/sources.md, "CANopen CiA 402"):
   is invalid, its count is 0 and the node is not OPERATIONAL; only mappable objects of the right
   direction fit, 64 bits at most; TPDOs go out on SYNC (types 1-240), synchronous RPDOs act at
   the next SYNC, asynchronous ones (254/255) at once; PDOs only in NMT OPERATIONAL;
-- EMCY on a fault, and EMCY 0x0000 when a fault reset clears it.
+- EMCY on a fault, and EMCY 0x0000 when a fault reset clears it;
+- the consumer heartbeat (CiA 301 0x1016, one entry: node id << 16 | time in ms): monitoring starts
+  with the first heartbeat of that node and, once that is older than the consumer time, the drive
+  sends EMCY 0x8130 and reacts as its abort connection option code (CiA 402 0x6007) says: 0 nothing,
+  1 fault (fault reaction: the quick stop ramp), 2 disable voltage (the brake), 3 quick stop. It
+  then waits for the next heartbeat to monitor again (EMCY 0x0000 when it comes back).
 """
 
 from __future__ import annotations
@@ -37,6 +42,8 @@ STATE_BITS = {NRTSO: 0x0000, SOD: 0x0050, RTSO: 0x0031, SO: 0x0033, OE: 0x0037, 
 REMOTE, TARGET_REACHED, SETPOINT_ACK = 0x0200, 0x0400, 0x1000
 ABORT_RANGE, ABORT_NOT_MAPPABLE, ABORT_PDO_LENGTH, ABORT_STATE = 0x06090030, 0x06040041, 0x06040042, 0x08000022
 ERROR_REGISTER_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08}  # current, voltage, temperature
+HEARTBEAT_ERROR = 0x8130  # CiA 301 emergency code: life guard or heartbeat error
+ON_ABORT = {0: "no action", 1: "fault", 2: "disable voltage", 3: "quick stop"}  # 0x6007
 DYNAMIC = {0x6041, 0x6064, 0x6077, 0x6078, 0x6061, 0x603F, 0x1001}
 
 
@@ -82,6 +89,11 @@ class SimDrive:
         self._rpdos: dict[int, tuple[int, list]] = {}
         # fault switches (the controller sets them)
         self.silent = False  # off the bus: answers nothing, hears nothing
+        # consumer heartbeat (0x1016): (producer node id, consumer time s); "unconfigured", "unknown" (no heartbeat
+        # yet), "active", "timeout"; the bus time of the producer's newest heartbeat
+        self.consumer: tuple[int, float] | None = None
+        self.consumer_state = "unconfigured"
+        self.producer_t: float | None = None
         self.stalled = self.garbage = self.never_finish = False
 
     # -- object dictionary hooks ----------------------------------------------------------------
@@ -98,14 +110,22 @@ class SimDrive:
         value = od.decode_raw(data)
         if 0x1400 <= index <= 0x1BFF:
             self._check_pdo_write(index, subindex, value)
+            self.node.data_store.setdefault(index, {})[subindex] = bytes(data)  # (the node stores it after us)
             self._tpdos = None
-            self.arm.pdo_config_changed(self)
+            self.arm.pdo_config_changed(self)  # with the value just written: the last write validates a PDO
         elif index == 0x6060:
             if value not in (0, 1):
                 raise SdoAbortedError(ABORT_RANGE)  # 0x6502: profile position only
             self.mode = value
         elif index == 0x6040:
             self.on_controlword(value)
+        elif index == 0x1016 and subindex == 1:
+            node, ms = value >> 16 & 0xFF, value & 0xFFFF
+            self.consumer = (node, ms / 1000.0) if 0 < node < 128 and ms else None
+            self.consumer_state, self.producer_t = ("unknown" if self.consumer else "unconfigured"), None
+            self.arm.consumer_changed(self)
+        elif index == 0x6007 and value not in ON_ABORT:
+            raise SdoAbortedError(ABORT_RANGE)
 
     def _check_pdo_write(self, index: int, sub: int, value: int) -> None:
         base = index & 0xFE00  # 0x1400 RPDO com, 0x1600 RPDO map, 0x1800 TPDO com, 0x1A00 TPDO map
@@ -226,6 +246,40 @@ class SimDrive:
         self.state, self.error_code, self.fault_persists = FAULT, code, persists
         self.ack = False
         self.send_emcy(code)
+
+    # -- heartbeat consumer -------------------------------------------------------------------------
+    def on_heartbeat_of(self, node: int, t: float) -> None:
+        """A heartbeat of ``node`` went over the bus at bus time ``t`` (a drive off the bus does not hear it)."""
+        if self.silent or self.consumer is None or node != self.consumer[0]:
+            return
+        if self.consumer_state == "timeout" and self.state != FAULT:
+            self.send_emcy(0x0000)  # the producer is back: error reset
+        self.consumer_state, self.producer_t = "active", t
+
+    def check_consumer(self, now: float) -> None:
+        """Consumer heartbeat monitoring at the drive's time ``now``; on a timeout, 0x6007's reaction."""
+        if self.consumer_state != "active" or now - self.producer_t <= self.consumer[1]:
+            return
+        self.consumer_state = "timeout"
+        option = struct.unpack("<h", self.node.get_data(0x6007, 0))[0]
+        what = (f"node {self.node_id}: heartbeat of node {self.consumer[0]} lost ({1000 * (now - self.producer_t):.0f}"
+                f" ms without it, consumer time {1000 * self.consumer[1]:.0f} ms): {ON_ABORT.get(option)} "
+                f"(0x6007 = {option})")
+        st = self.state
+        if st in (OE, QSA) and option in (1, 2, 3):
+            self.arm.record_event("stop", what)
+        else:
+            self.arm.record_event("heartbeat lost", what)
+        if option == 1:
+            self.fault(HEARTBEAT_ERROR)  # fault reaction, FAULT, EMCY
+            return
+        self.send_emcy(HEARTBEAT_ERROR)
+        if option == 3 and st == OE:  # transition 11
+            self.state, self.ack = QSA, False
+            self.stop_end_t = self.arm.stop_joint(self, quick=True)
+        elif option == 3 and st in (RTSO, SO) or option == 2 and st in (RTSO, SO, OE, QSA):  # 7, 9, 10, 12
+            self._power_off(st)
+            self.state = SOD
 
     def send_emcy(self, code: int) -> None:
         if not self.silent and self.node.nmt.state != "INITIALISING":

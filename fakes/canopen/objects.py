@@ -23,6 +23,7 @@ _ENTRIES = [
     (0x100A, "Manufacturer software version", VISIBLE_STRING, "const", "", "1.4.2-sim"),
     (0x1017, "Producer heartbeat time", UNSIGNED16, "rw", "", 0),
     (0x603F, "Error code", UNSIGNED16, "ro", "t", 0),
+    (0x6007, "Abort connection option code", INTEGER16, "rw", "", 1),  # 1: fault signal (vendor default varies)
     (0x6040, "Controlword", UNSIGNED16, "rw", "r", 0),
     (0x6041, "Statusword", UNSIGNED16, "ro", "t", 0),
     (0x605A, "Quick stop option code", INTEGER16, "rw", "", 2),
@@ -65,6 +66,9 @@ def drive_dictionary(node_id: int, identity: tuple[int, int, int, int]) -> Objec
     od.node_id = node_id
     for index, name, data_type, access, mappable, default in _ENTRIES:
         od.add_object(_var(name, index, 0, data_type, access, mappable, default))
+    od.add_object(_record("Consumer heartbeat time", 0x1016,  # one entry: node id << 16 | time in ms
+                          [_var("Highest sub-index", 0x1016, 0, UNSIGNED8, "const", "", 1),
+                           _var("Consumer heartbeat time", 0x1016, 1, UNSIGNED32, "rw", "", 0)]))
     od.add_object(_record("Identity object", 0x1018, [_var("Highest sub-index", 0x1018, 0, UNSIGNED8, "const", "", 4)]
                           + [_var(n, 0x1018, s, UNSIGNED32, "ro", "", v)
                              for s, (n, v) in enumerate(zip(("Vendor-ID", "Product code", "Revision number",
