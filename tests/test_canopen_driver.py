@@ -76,9 +76,15 @@ def move_with_fault(drv, fake, fault, delay_s=0.15, **params):
 
 
 def stops_after(fake, t):
-    """Node ids that received a quick stop at or after monotonic time ``t``."""
+    """Node ids that received a quick stop command at or after monotonic time ``t``."""
     return {int(e.detail.split(":")[0].split()[1]) for e in fake.events if e.kind == "stop" and e.t >= t
-            and "quick stop" in e.detail}
+            and "quick stop in" in e.detail}
+
+
+def self_stops_after(fake, t):
+    """Node ids that stopped themselves on losing the agent's heartbeat (node 127) at or after ``t``."""
+    return {int(e.detail.split(":")[0].split()[1]) for e in fake.events if e.kind == "stop" and e.t >= t
+            and "heartbeat of node 127 lost" in e.detail and "quick stop (0x6007 = 3)" in e.detail}
 
 
 def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
@@ -93,6 +99,13 @@ def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
         assert [e[0] for e in entries] == [0x6041, 0x6064, 0x6077]
         assert not any(valid for _, valid, _, _ in d.tpdos()[1:])
         assert d.node.sdo[0x1017].raw == 50
+        # the drive consumes the agent's heartbeat (node 127, 150 ms) and quick-stops when it is lost
+        assert d.node.sdo[0x1016][1].raw == 127 << 16 | 150 and d.node.sdo[0x6007].raw == 3
+        assert d.consumer_state == "active"
+        # the move's profile values travel in synchronous RPDOs with its set-points, not over SDO
+        rpdos = d.rpdos()
+        assert rpdos[0x400 + d.node_id] == (1, [(0x6081, 0, 32), (0x6083, 0, 32)])
+        assert rpdos[0x500 + d.node_id] == (1, [(0x6084, 0, 32)])
     samples = []
     drv.start_stream(samples.append)
     syncs0 = fake.sync_count - fake.skipped_syncs
@@ -200,14 +213,76 @@ def test_heartbeat_loss_aborts_the_move(rig):
     assert drv.last_stop_report.acknowledged
 
 
-def test_a_silent_drive_aborts_and_its_stop_is_not_confirmed(rig):
+def test_a_drive_cut_off_the_bus_stops_itself_and_its_stop_is_not_confirmed(rig):
     drv, fake = rig
     exc, t_fault, _ = move_with_fault(drv, fake, "drop_connections", joint=4)
     msg = str(exc)
     assert "joint 4 (node 4)" in msg, msg
-    assert stops_after(fake, t_fault) == {1, 2, 3, 5, 6}  # node 4 is off the bus
+    assert stops_after(fake, t_fault) == {1, 2, 3, 5, 6}  # node 4 hears nothing the agent sends...
+    assert self_stops_after(fake, t_fault) == {4}  # ... and stops itself once the agent's heartbeat is lost
     report = drv.last_stop_report
     assert not report.acknowledged and "NOT acknowledged" in report.describe()
+
+
+def test_a_cut_bus_stops_every_drive_by_the_heartbeat_it_no_longer_hears(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "drop_connections")
+    assert "stalled" in str(exc) or "heartbeat lost" in str(exc), str(exc)
+    assert stops_after(fake, t_fault) == set()  # no quick stop of the agent's reaches them
+    assert self_stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
+    assert not drv.last_stop_report.acknowledged
+    deadline = time.monotonic() + 10.0  # the arm ramps down at the drives' quick stop deceleration (0x6085)
+    while fake.robot.snapshot().moving and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not fake.robot.snapshot().moving
+    assert all(d.state in ("QUICK STOP ACTIVE", "SWITCH ON DISABLED") for d in fake.drives)
+
+
+def test_the_drives_judge_the_agents_heartbeat_on_bus_time_from_its_first_heartbeat():
+    """A drive's consumer heartbeat: monitoring starts with the first heartbeat; the heartbeat's age is measured
+    on the bus (the master's send times), so a pause of the process that delays both alike is no loss."""
+    fake = SimulatedCANopenArm.from_config(config())  # not started: no bus, the drive alone
+    d = fake.drives[0]
+    d.node.sdo[0x1016][1].raw = 127 << 16 | 150
+    d.node.sdo[0x6007].raw = 3
+    with pytest.raises(Exception, match="0x06090030|[Vv]alue range"):
+        d.node.sdo[0x6007].raw = 7  # not a reaction CiA 402 defines
+    d.state = "SWITCHED ON"
+    d.check_consumer(100.0)
+    assert d.consumer_state == "unknown"  # no heartbeat heard yet: nothing to miss
+    d.on_heartbeat_of(5, 100.0)  # another node's heartbeat
+    assert d.consumer_state == "unknown"
+    d.on_heartbeat_of(127, 100.0)
+    d.check_consumer(100.14)  # a SYNC sent 140 ms after the heartbeat (however late it arrives): in time
+    assert d.consumer_state == "active" and d.state == "SWITCHED ON"
+    d.silent = True  # cut off the bus: the next heartbeat never reaches it
+    d.on_heartbeat_of(127, 100.2)
+    d.check_consumer(100.16)
+    assert d.consumer_state == "timeout" and d.state == "SWITCH ON DISABLED"  # quick stop: transition 7
+    assert [e.kind for e in fake.events] == ["heartbeat lost"]  # it was not moving: nothing to stop
+
+
+def test_a_late_sdo_server_mid_move_trips_and_stops_every_drive(rig):
+    drv, fake = rig
+    exc, t_fault, _ = move_with_fault(drv, fake, "slow_reply", delay_s=0.15)
+    msg = str(exc)
+    assert isinstance(exc, SupervisionTrip) and "no SDO reply from joint" in msg, msg
+    assert "replies late or not at all" in msg
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
+    assert drv.last_stop_report.acknowledged  # the PDOs still run: the statuswords confirm it
+    assert not [e for e in fake.events if e.kind == "move" and e.t > t_fault]
+
+
+def test_no_set_point_goes_out_while_a_drive_leaves_sdo_unanswered(rig):
+    drv, fake = rig
+    drv.start_stream(lambda s: None)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)  # enabled, one move done
+    t_fault = time.monotonic()
+    fake.inject_fault("no_reply")
+    with pytest.raises(SupervisionTrip, match="no SDO reply from joint"):
+        drv.move_joints(START, SPEED, ACCEL, 30.0)
+    assert not [e for e in fake.events if e.kind == "move" and e.t > t_fault]
+    assert stops_after(fake, t_fault) == {1, 2, 3, 4, 5, 6}
 
 
 def test_a_drive_leaving_operation_enabled_aborts(rig):

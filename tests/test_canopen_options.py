@@ -47,6 +47,9 @@ def test_other_mistakes_name_their_key(data):
     _refused(data, "driver.heartbeat_timeout_ms", 100, "driver.heartbeat_timeout_ms", "must exceed heartbeat_ms")
     _refused(data, "driver.sync_rate_hz", 5, "driver.sync_rate_hz")
     _refused(data, "driver.node_id", [1, 2, 3, 4, 5, 6], "driver.node_id", "")  # a misspelt key is unknown
+    _refused(data, "driver.master_node_id", 4, "driver.master_node_id", "is joint 4's drive")
+    _refused(data, "driver.master_heartbeat_timeout_ms", 50, "driver.master_heartbeat_timeout_ms",
+             "must exceed master_heartbeat_ms")
 
 
 def test_a_bad_node_id_fails_plan_before_any_bus_opens(data, tmp_path):

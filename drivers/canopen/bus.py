@@ -3,7 +3,11 @@
 The SYNC producer is the driver's own thread rather than canopen's ``SyncProducer`` (a bare
 periodic frame) because a CiA 301 master sends its synchronous RPDOs right after a SYNC, inside
 the synchronous window: a batch queued with ``after_next_sync`` goes out together right after
-one SYNC, so every drive acts on it at the same following SYNC.
+one SYNC, so every drive acts on it at the same following SYNC. The same thread produces the
+agent's own heartbeat (COB-ID 0x700 + ``master_node_id``, NMT state OPERATIONAL) that every drive
+consumes (0x1016): a master whose cyclic task stops, or a bus cut between it and the drives,
+silences both, and each drive stops itself once the heartbeat is older than its consumer time.
+Sent before the SYNC it is due with, never behind a late one.
 
 ``quick_stop_on_new_bus`` is the supervision's stop when the driver's own bus object is gone: a
 new python-can bus on the same interface and channel sends the quick stop controlword to every
@@ -26,6 +30,8 @@ from payload_agent.drivers.canopen.pdo import RPDO2_COB, RPDO_COMMAND, TPDO1_COB
 from payload_agent.errors import CommunicationError
 
 SYNC_COB = 0x080
+HEARTBEAT_COB = 0x700
+NMT_OPERATIONAL = b"\x05"
 SDO_REQUEST_COB, SDO_RESPONSE_COB = 0x600, 0x580
 _SDO_UPLOAD = struct.Struct("<BHB4x")  # ccs=2 initiate upload request: command, index, sub-index
 
@@ -51,9 +57,12 @@ def open_bus(opts: CANopenOptions) -> can.BusABC:
 class SyncProducer:
     """SYNC at a fixed rate from its own thread; frames queued with ``after_next_sync`` follow one SYNC."""
 
-    def __init__(self, send, period_s: float):
+    def __init__(self, send, period_s: float, heartbeat_node: int | None = None, heartbeat_s: float = 0.0):
         self._send = send  # send(cob_id, data)
         self.period_s = float(period_s)
+        self._heartbeat_cob = None if heartbeat_node is None or heartbeat_s <= 0 else HEARTBEAT_COB + heartbeat_node
+        self.heartbeat_s = float(heartbeat_s)
+        self.heartbeats = 0
         self._after: list[tuple[int, bytes]] = []
         self._lock = threading.Lock()
         self._running = threading.Event()
@@ -86,7 +95,7 @@ class SyncProducer:
             self._after = []
 
     def _run(self) -> None:
-        next_t = time.monotonic()
+        next_t = next_heartbeat = time.monotonic()
         while self._running.is_set():
             delay = next_t - time.monotonic()
             if delay > 0:
@@ -94,6 +103,11 @@ class SyncProducer:
             with self._lock:
                 batch, self._after = self._after, []
             try:
+                now = time.monotonic()
+                if self._heartbeat_cob is not None and now >= next_heartbeat:
+                    self._send(self._heartbeat_cob, NMT_OPERATIONAL)
+                    self.heartbeats += 1
+                    next_heartbeat = max(next_heartbeat + self.heartbeat_s, now)
                 self._send(SYNC_COB, b"")
                 for cob_id, data in batch:
                     self._send(cob_id, data)

@@ -1,22 +1,25 @@
 """CANopen CiA 402 servo drives, one per joint, through the canopen library on python-can.
 
 Connect (``_open``): open the bus, put every drive in NMT PRE-OPERATIONAL, check it is a CiA 402
-drive (0x1000), read its identity, write its producer heartbeat (0x1017), its PDO layout
+drive (0x1000), read its identity, write its producer heartbeat (0x1017), its consumer heartbeat
+of the agent and its reaction to losing it (0x1016, 0x6007: ``watch``), its PDO layout
 (``pdo.configure_pdos``), its quick stop deceleration and target window, read its rated torque
-or current (0x6076 / 0x6075), start NMT and the SYNC producer, and wait for every drive's first
-TPDO. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
+or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
+heartbeat), and wait for every drive's first TPDO; then ``watch.SdoWatch`` polls the drives' SDO
+servers until close. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
 
 Motion (``_move_joints``, see ``motion``): the first move enables the drives through the CiA 402
-power state machine in profile position mode (0x6060 = 1); each move writes profile velocity
-and acceleration/deceleration (0x6081/0x6083/0x6084) scaled so all joints arrive together
-(``model.profile.synchronised_joint_rates``), sends every target (0x607A) with the new-set-point
-bit in one synchronous RPDO batch, waits for each drive's set-point acknowledge, completes the
+power state machine in profile position mode (0x6060 = 1); each move sends profile velocity
+and acceleration/deceleration (0x6081/0x6083/0x6084, RPDO3/RPDO4) scaled so all joints arrive
+together (``model.profile.synchronised_joint_rates``) and every target (0x607A) with the
+new-set-point bit in one synchronous RPDO batch, waits for each drive's set-point acknowledge, completes the
 handshake and waits for target reached (statusword bit 10), polling the supervision.
 
 Stream: one Sample per SYNC from the six TPDO1 frames (``pdo.TpdoCollector``); ``t_ctrl`` is the
-earliest frame's bus timestamp (``msg.timestamp``). SDO is used for configuration only.
+earliest frame's bus timestamp (``msg.timestamp``). SDO is used for configuration only (and the
+liveness poll).
 
 Stop: the quick stop controlword to every drive in an asynchronous RPDO, confirmed from their
 statuswords (TPDO, else SDO); over a new bus object when the old one is gone. The drives report
@@ -35,7 +38,7 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from payload_agent.drivers.base import Driver, MotionLimits, Supervision
-from payload_agent.drivers.canopen import motion
+from payload_agent.drivers.canopen import device, motion
 from payload_agent.drivers.canopen import objects as obj
 from payload_agent.drivers.canopen.bus import SyncProducer, open_bus
 from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
@@ -44,7 +47,8 @@ from payload_agent.drivers.canopen.monitor import DriveMonitor
 from payload_agent.drivers.canopen.options import CANopenOptions, check_options
 from payload_agent.drivers.canopen.pdo import (RPDO2_COB, RPDO_COMMAND, TPDO1, Frame, TpdoCollector,
                                                configure_pdos)
-from payload_agent.errors import (CommunicationError, ConfigError, MotionStopped, RobotNotReadyError,
+from payload_agent.drivers.canopen.watch import SdoWatch, configure_master_watch
+from payload_agent.errors import (CommunicationError, MotionStopped, RobotNotReadyError,
                                   SupervisionTrip)
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
@@ -52,7 +56,6 @@ log = logging.getLogger(__name__)
 
 CIA402_PROFILE = 402  # 0x1000 device type, low 16 bits
 FIRST_TPDO_WAIT_S = 1.0
-RATED_MISMATCH = 0.01  # a YAML rated value more than 1 % off the drive's is refused
 NOTIFIER_CYCLE_S = 0.1  # python-can's receive thread wakes this often when idle: close() waits at most this
 
 
@@ -78,7 +81,8 @@ class CANopenDriver(Driver):
         self.effort_per_permille = [1.0] * self.n
         self.enabled = False
         self.fault_codes: dict[int, int] = {}  # joint -> 0x603F of drives found in FAULT at connect
-        self.cleared_faults: list[str] = []
+        self.cleared_faults: list[str] = []  # notes for state().detail: faults reset at connect, missing objects
+        self.sdo_watch: SdoWatch | None = None
         self.profile_cache: dict[tuple[int, int], int] = {}
         self.commanded: list[int | None] = [None] * self.n  # each drive's last set-point (counts) since enabled
         self._sdo_locks = [threading.Lock() for _ in range(self.n)]
@@ -133,6 +137,7 @@ class CANopenDriver(Driver):
     def _open(self) -> None:
         opts = self.options
         self.monitor = DriveMonitor(opts)
+        self.monitor.sdo_reply_limit_s = self.supervision.max_reply_wait_s
         self.tpdo = TpdoCollector(self.n)
         self.enabled = False
         self.profile_cache.clear()
@@ -149,21 +154,24 @@ class CANopenDriver(Driver):
                 node.nmt.add_heartbeat_callback(functools.partial(self.monitor.on_heartbeat, j))
                 node.emcy.add_callback(functools.partial(self._on_emcy, j))
                 self.monitor.check_frame_lengths(self.network, j, node)  # a short EMCY/heartbeat is a fault
+                self.network.subscribe(node.sdo.tx_cobid, functools.partial(self._on_sdo_response, j))
                 self.nodes.append(node)
             for node in self.nodes:
                 node.nmt.state = "PRE-OPERATIONAL"
             for j in range(self.n):
                 self._configure(j)
             self._subscribe_tpdos()
-            self._info = self._identity()
+            self._info = device.identity(self)
             self.monitor.heartbeat_since = time.monotonic()
             for node in self.nodes:
                 node.nmt.state = "OPERATIONAL"
             self.monitor.expect_operational = True
-            self.sync = SyncProducer(self.network.send_message, self.nominal_period_s).start()
+            self.sync = SyncProducer(self.network.send_message, self.nominal_period_s, opts.master_node_id,
+                                     opts.master_heartbeat_ms / 1000.0).start()
             self._wait_first_tpdos()
             self._wait_operational()
             self._check_faults_at_connect()
+            self.sdo_watch = SdoWatch(self).start()
         except BaseException:
             self._close()
             raise
@@ -175,6 +183,9 @@ class CANopenDriver(Driver):
             raise CommunicationError(f"{self.labels[j]} is not a CiA 402 drive: its device type (0x1000) is "
                                      f"0x{device_type:08X}, profile {device_type & 0xFFFF} instead of 402")
         self.sdo_write(j, obj.PRODUCER_HEARTBEAT, opts.heartbeat_ms)
+        note = configure_master_watch(self, j)
+        if note:
+            self.cleared_faults.append(note)
         effort_index = obj.TORQUE_ACTUAL if opts.effort_object == "torque" else obj.CURRENT_ACTUAL
         try:
             configure_pdos(self.nodes[j], effort_index)
@@ -183,57 +194,12 @@ class CANopenDriver(Driver):
                                      f"{exc}") from exc
         except SdoAbortedError as exc:
             raise CommunicationError(f"{self.labels[j]} refused the PDO layout (TPDO1: statusword, position actual, "
-                                     f"0x{effort_index:04X}; RPDO1: controlword + target; RPDO2: controlword): "
-                                     f"SDO abort {exc}") from exc
+                                     f"0x{effort_index:04X}; RPDO1: controlword + target; RPDO2: controlword; "
+                                     f"RPDO3: 0x6081 + 0x6083; RPDO4: 0x6084): SDO abort {exc}") from exc
         cpr = opts.counts_per_rad[j]
         self.sdo_write(j, obj.QUICK_STOP_DECELERATION, max(1, round(opts.quick_stop_decel_rad_s2 * cpr)))
         self.sdo_write(j, obj.POSITION_WINDOW, max(1, round(opts.position_window_deg * 0.017453292519943295 * cpr)))
-        self.effort_per_permille[j] = self._effort_scale(j)
-
-    def _effort_scale(self, j: int) -> float:
-        """Effort unit per per-mille: rated torque (N·m) or current (A) / 1000, or 1 for raw per mille."""
-        opts = self.options
-        if opts.effort_scaling == "permille":
-            return 1.0
-        torque = opts.effort_object == "torque"
-        index, unit, key = ((obj.RATED_TORQUE, "N·m", "rated_torque_nm") if torque else
-                            (obj.RATED_CURRENT, "A", "rated_current_a"))
-        yaml_values = opts.rated_torque_nm if torque else opts.rated_current_a
-        try:
-            drive = self.sdo_read(j, index) / 1000.0  # mN·m / mA
-        except CommunicationError as exc:
-            if not isinstance(exc.__cause__, SdoAbortedError):
-                raise
-            drive = 0.0  # the drive has no such object
-        yaml_value = None if yaml_values is None else yaml_values[j]
-        if drive > 0 and yaml_value is not None and abs(yaml_value - drive) > RATED_MISMATCH * drive:
-            raise ConfigError(f"driver.{key}[{j}]", f"{yaml_value:g} {unit}, but {self.labels[j]} reports "
-                                                    f"{drive:g} {unit} in 0x{index:04X}: remove the YAML value or "
-                                                    "check which drive is which joint")
-        rated = drive if drive > 0 else yaml_value
-        if rated is None:
-            raise ConfigError(f"driver.{key}", f"{self.labels[j]} has no rated value in 0x{index:04X}: give "
-                                               f"driver.{key} (6 values, {unit}) or set effort_scaling: permille")
-        return rated / 1000.0
-
-    def _identity(self) -> ControllerInfo:
-        def text(j: int, index: int) -> str:
-            try:
-                return str(self.sdo_read(j, index)).strip("\x00 ")
-            except CommunicationError:
-                return "?"
-        serials = []
-        for j in range(self.n):
-            try:
-                serials.append(f"{self.sdo_read(j, obj.IDENTITY, 4):08X}")
-            except CommunicationError:
-                serials.append("?")
-        try:
-            vendor = f"CANopen vendor-ID 0x{self.sdo_read(0, obj.IDENTITY, 1):08X}"
-        except CommunicationError:
-            vendor = "CANopen"
-        return ControllerInfo(vendor=vendor, model=f"{self.n} x {text(0, obj.DEVICE_NAME)} (CiA 402)",
-                              firmware=text(0, obj.SOFTWARE_VERSION), serial="/".join(serials))
+        self.effort_per_permille[j] = device.effort_scale(self, j)
 
     def _wait_first_tpdos(self) -> None:
         deadline = time.monotonic() + FIRST_TPDO_WAIT_S
@@ -279,6 +245,9 @@ class CANopenDriver(Driver):
         self.fault_codes.clear()
 
     def _close(self) -> None:
+        if self.sdo_watch is not None:
+            self.sdo_watch.stop()
+            self.sdo_watch = None
         self.enabled = False
         self.monitor.expect_enabled = [False] * self.n
         if self.network is not None and self.network.bus is not None:
@@ -306,6 +275,9 @@ class CANopenDriver(Driver):
     # -- stream --------------------------------------------------------------------------------
     def _on_emcy(self, j: int, err) -> None:
         self.monitor.on_emcy(j, err.code, err.register)
+
+    def _on_sdo_response(self, j: int, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.monitor.on_sdo_response(j)
 
     def _on_tpdo(self, j: int, pdo_map) -> None:  # the receive thread: record only
         data, t_recv = pdo_map.data, time.monotonic()

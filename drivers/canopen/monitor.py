@@ -10,7 +10,11 @@ drive. A fault is:
 - a heartbeat older than the consumer time (``heartbeat_timeout_ms``), or one reporting an NMT
   state other than OPERATIONAL, or a boot-up (the drive restarted);
 - a drive that stops sending its TPDO while the others keep answering SYNC;
-- a drive leaving OPERATION ENABLED while the driver expects it enabled.
+- a drive leaving OPERATION ENABLED while the driver expects it enabled;
+- an SDO request (the driver's liveness poll, ``watch.SdoWatch``) left unanswered for longer than
+  the reply limit while the drive kept answering SYNC with its TPDOs: its SDO server replies late
+  or not at all. Counting the drive's TPDOs since the request, not only the time, keeps a pause of
+  the agent's own process from looking like a late drive: the reply would have come before them.
 """
 
 from __future__ import annotations
@@ -44,6 +48,8 @@ class DriveMonitor:
         self.operational = [False] * n  # a heartbeat reported OPERATIONAL since then
         self.expect_enabled = [False] * n  # the driver put the drive in OPERATION ENABLED
         self.emcy: list[tuple[int, int, int]] = []  # (joint, code, error register), every EMCY received
+        self.sdo_pending: list[tuple[float, int] | None] = [None] * n  # (time of the request, seq then)
+        self.sdo_reply_limit_s = 0.3  # the driver sets it from the supervision (max_reply_wait_s)
         self.fault: str | None = None
         self.drive_fault = False
         self._lock = threading.Lock()
@@ -99,6 +105,10 @@ class DriveMonitor:
                        f"({bytes(data).hex() or 'none'}) where CiA 301 has {8 if what == 'EMCY' else 1}",
                        drive_fault=what == "EMCY")
 
+    def on_sdo_response(self, j: int) -> None:
+        """Any SDO server reply from drive ``j`` (the receive thread: in bus order with its TPDOs)."""
+        self.sdo_pending[j] = None
+
     def set_fault(self, text: str, drive_fault: bool = False) -> None:
         """Keep the first fault; ``drive_fault``: the drive itself stopped (EMCY, left OPERATION ENABLED),
         as opposed to the bus going quiet (heartbeat, PDO silence)."""
@@ -131,6 +141,23 @@ class DriveMonitor:
                     self.set_fault(f"{self.labels[j]} stopped sending its TPDO: none for "
                                    f"{1000 * (now - self.t_frame[j]):.0f} ms while the other drives answered SYNC; "
                                    f"error code {code}")
+        self._check_sdo(now, period_s)
+
+    def sdo_requested(self, j: int) -> None:
+        """The driver sends an SDO request to drive ``j`` now (call before sending it)."""
+        self.sdo_pending[j] = (time.monotonic(), self.seq[j])
+
+    def _check_sdo(self, now: float, period_s: float) -> None:
+        limit = self.sdo_reply_limit_s
+        syncs = max(3, int(0.5 * limit / period_s))  # half the SYNCs the limit spans: the drive is alive and busy
+        for j, pending in enumerate(self.sdo_pending):
+            if pending is None:
+                continue
+            t, seq = pending
+            if now - t > limit and self.seq[j] - seq >= syncs:
+                self.set_fault(f"no SDO reply from {self.labels[j]} for {1000 * (now - t):.0f} ms (limit "
+                               f"{1000 * limit:.0f} ms) while it answered {self.seq[j] - seq} SYNCs with its TPDO: "
+                               "its SDO server replies late or not at all")
 
     def _heartbeat_late(self, j: int, now: float) -> bool:
         t = self.t_heartbeat[j]

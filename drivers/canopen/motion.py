@@ -1,7 +1,9 @@
 """Profile position moves of the CANopen driver, the power state machine before them, and the quick stop.
 
 Every step waits on the drives' statuswords as their TPDOs bring them (``DriveMonitor.wait_for``),
-never on SDO polling, and polls the supervision while it waits.
+never on SDO polling, and polls the supervision while it waits. A move uses no SDO: its profile
+values travel in synchronous RPDOs with its set-points; before they go out, every drive must have
+answered one SDO liveness request sent for this move (``watch.SdoWatch.confirm_alive``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from payload_agent.drivers.canopen.bus import quick_stop_on_new_bus
 from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SETPOINT, CW_QUICK_STOP, FAULTY,
                                                   MODE_PROFILE_POSITION, OPERATION_ENABLED, SW_SETPOINT_ACK,
                                                   SW_TARGET_REACHED, describe_code, enable_step, state_of, stopped)
-from payload_agent.drivers.canopen.pdo import RPDO1_COB, RPDO_SETPOINT
+from payload_agent.drivers.canopen.pdo import (RPDO1_COB, RPDO3_COB, RPDO4_COB, RPDO_DECELERATION, RPDO_PROFILE,
+                                               RPDO_SETPOINT)
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
 from payload_agent.model.profile import lead_joint_caps, synchronised_joint_rates, trapezoid_duration
 
@@ -89,9 +92,10 @@ def ensure_enabled(drv: "CANopenDriver") -> None:
     drv.enabled = True
 
 
-def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float, travel_counts: int,
-                   duration_s: float) -> None:
-    """Profile velocity and acceleration = deceleration of joint ``j``, in position units.
+def _profile_frames(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float, travel_counts: int,
+                    duration_s: float) -> list[tuple[int, bytes]]:
+    """RPDO3 (profile velocity, acceleration) and RPDO4 (deceleration = acceleration) of joint ``j``, in
+    position units; only those whose values the drive does not hold already.
 
     The synchronised values rounded up to whole counts, so no joint arrives late; a joint whose
     travel is so small that even 1 count/s or 1 count/s² would make it late gets the triangle
@@ -102,10 +106,14 @@ def _write_profile(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s
     v, a = max(1, math.ceil(speed_rad_s * cpr)), max(1, math.ceil(accel_rad_s2 * cpr))
     if trapezoid_duration(d, v, a) > 1.01 * t:  # (rounding of the travel itself makes ~1e-7 s of difference)
         v, a = max(v, math.ceil(2 * d / t)), max(a, math.ceil(4 * d / (t * t)))
-    for index, value in ((obj.PROFILE_VELOCITY, v), (obj.PROFILE_ACCELERATION, a), (obj.PROFILE_DECELERATION, a)):
-        if drv.profile_cache.get((j, index)) != value:
-            drv.sdo_write(j, index, value)
-            drv.profile_cache[(j, index)] = value
+    nid, frames = drv.options.node_ids[j], []
+    if drv.profile_cache.get((j, RPDO3_COB)) != (v, a):
+        frames.append((RPDO3_COB + nid, RPDO_PROFILE.pack(v, a)))
+        drv.profile_cache[(j, RPDO3_COB)] = (v, a)
+    if drv.profile_cache.get((j, RPDO4_COB)) != a:
+        frames.append((RPDO4_COB + nid, RPDO_DECELERATION.pack(a)))
+        drv.profile_cache[(j, RPDO4_COB)] = a
+    return frames
 
 
 def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
@@ -128,8 +136,6 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
                                       else abs(counts[j] - m.position[j]) > window * o.counts_per_rad[j])]
     if not moving:
         return
-    for j in moving:
-        _write_profile(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)
 
     def poll() -> None:
         _poll(drv)
@@ -137,9 +143,13 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
     def setpoints(controlword: int) -> list[tuple[int, bytes]]:
         return [(RPDO1_COB + o.node_ids[j], RPDO_SETPOINT.pack(controlword, counts[j])) for j in moving]
 
+    drv.sdo_watch.confirm_alive(poll)  # a drive late on SDO trips here, before any set-point
     poll()  # nothing is sent once the supervision has stopped the arm
+    profile = [f for j in moving
+               for f in _profile_frames(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)]
     seq0 = list(m.seq)
-    drv.sync.after_next_sync(setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))  # all act at the same SYNC
+    # profiles first, then the set-points: all act at the same SYNC
+    drv.sync.after_next_sync(profile + setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))
     ack_wait = max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
     late = m.wait_for(lambda j, sw: bool(sw & SW_SETPOINT_ACK), seq0, moving, ack_wait, poll)
     if late:
@@ -168,6 +178,7 @@ def _forget_enabled(drv: "CANopenDriver") -> None:
     drv.monitor.expect_enabled = [False] * drv.n  # our own stop is not a fault
     drv.enabled = False
     drv.commanded = [None] * drv.n  # stopped short of their targets
+    drv.profile_cache.clear()  # profile RPDOs queued for the next SYNC may never have gone out
 
 
 def quick_stop(drv: "CANopenDriver") -> bool:
@@ -197,5 +208,8 @@ def quick_stop_fresh(drv: "CANopenDriver") -> bool:
     confirmed = quick_stop_on_new_bus(drv.options, drv.options.node_ids, FRESH_STOP_WAIT_S)
     missing = [drv.labels[j] for j, nid in enumerate(drv.options.node_ids) if nid not in confirmed]
     if missing:
-        log.warning("quick stop over a new bus not confirmed by %s", ", ".join(missing))
+        o = drv.options
+        log.warning("quick stop over a new bus not confirmed by %s%s", ", ".join(missing),
+                    f"; a drive cut off from the agent stops itself {o.master_heartbeat_timeout_ms} ms after the "
+                    "agent's last heartbeat it heard (0x1016, 0x6007 = 3)" if o.master_heartbeat_ms else "")
     return not missing

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from canopen import ObjectDictionary
 from canopen.objectdictionary import (INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32,
-                                      VISIBLE_STRING, ODRecord, ODVariable)
+                                      VISIBLE_STRING, ODArray, ODRecord, ODVariable)
 
 CONTROLWORD, STATUSWORD = 0x6040, 0x6041
 ERROR_CODE = 0x603F
@@ -22,6 +22,8 @@ PROFILE_VELOCITY, PROFILE_ACCELERATION, PROFILE_DECELERATION = 0x6081, 0x6083, 0
 QUICK_STOP_DECELERATION = 0x6085
 DEVICE_NAME, SOFTWARE_VERSION, IDENTITY = 0x1008, 0x100A, 0x1018
 ERROR_REGISTER, PRODUCER_HEARTBEAT = 0x1001, 0x1017
+CONSUMER_HEARTBEAT = 0x1016  # ARRAY of UNSIGNED32: node id << 16 | consumer time in ms
+ABORT_CONNECTION = 0x6007  # INTEGER16: what a drive does when it loses its master (3 = quick stop)
 
 _VARIABLES = [  # (index, name, data type, PDO-mappable)
     (0x1000, "Device type", UNSIGNED32, False),
@@ -30,6 +32,7 @@ _VARIABLES = [  # (index, name, data type, PDO-mappable)
     (SOFTWARE_VERSION, "Manufacturer software version", VISIBLE_STRING, False),
     (PRODUCER_HEARTBEAT, "Producer heartbeat time", UNSIGNED16, False),
     (ERROR_CODE, "Error code", UNSIGNED16, True),
+    (ABORT_CONNECTION, "Abort connection option code", INTEGER16, False),
     (CONTROLWORD, "Controlword", UNSIGNED16, True),
     (STATUSWORD, "Statusword", UNSIGNED16, True),
     (0x605A, "Quick stop option code", INTEGER16, False),
@@ -69,6 +72,10 @@ def cia402_dictionary() -> ObjectDictionary:
     od = ObjectDictionary()
     for index, name, data_type, mappable in _VARIABLES:
         od.add_object(_var(name, index, 0, data_type, mappable))
+    consumer = ODArray("Consumer heartbeat time", CONSUMER_HEARTBEAT)
+    consumer.add_member(_var("Highest sub-index", CONSUMER_HEARTBEAT, 0, UNSIGNED8))
+    consumer.add_member(_var("Consumer heartbeat time", CONSUMER_HEARTBEAT, 1, UNSIGNED32))  # template of 1..127
+    od.add_object(consumer)
     od.add_object(_record("Identity object", IDENTITY, [("Highest sub-index", UNSIGNED8), ("Vendor-ID", UNSIGNED32),
                                                          ("Product code", UNSIGNED32), ("Revision number", UNSIGNED32),
                                                          ("Serial number", UNSIGNED32)]))

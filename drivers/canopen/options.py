@@ -21,6 +21,10 @@ error names its key (``driver.node_ids[3]: node id 3 is already joint 3's``).
       sync_rate_hz: 250             # SYNC producer rate = sample rate
       heartbeat_ms: 50              # producer heartbeat time written to every drive (0x1017)
       heartbeat_timeout_ms: 150     # consumer: a drive silent for longer is lost (the run aborts)
+      master_node_id: 127           # the agent's own node id on the bus: its heartbeat is 0x700 + this
+      master_heartbeat_ms: 50       # the agent's heartbeat (sent with SYNC); 0: none, the drives cannot watch it
+      master_heartbeat_timeout_ms: 150  # consumer time written to every drive (0x1016): a drive that hears no
+                                    #   heartbeat from the agent for longer quick-stops itself (0x6007 = 3)
       clear_faults: false           # a drive found in FAULT at connect is reported; true: reset it (and say so)
 """
 
@@ -59,6 +63,13 @@ class CANopenOptions(DriverOptions):
     heartbeat_ms: int = option(50, min=5, max=10_000, help="producer heartbeat time written to each drive (0x1017)")
     heartbeat_timeout_ms: int = option(150, min=10, max=60_000, help="consumer heartbeat time: a drive silent "
                                                                      "for longer is lost")
+    master_node_id: int = option(127, min=1, max=127, help="the agent's own node id: its heartbeat COB-ID is "
+                                                             "0x700 + this; must differ from every drive's")
+    master_heartbeat_ms: int = option(50, min=0, max=10_000, help="the agent's heartbeat period; 0: none (the drives "
+                                                                  "then cannot stop themselves when the agent is lost)")
+    master_heartbeat_timeout_ms: int = option(150, min=10, max=60_000,
+                                              help="consumer heartbeat time written to every drive (0x1016): a drive "
+                                                   "that hears no heartbeat from the agent for longer quick-stops")
     sdo_timeout_s: float = option(0.5, min=0.01, max=10.0, help="how long an SDO transfer may wait for the drive")
     enable_timeout_s: float = option(1.0, min=0.05, max=30.0, help="per CiA 402 state transition")
     clear_faults: bool = option(False, help="reset a drive found in FAULT at connect (reported, never silent)")
@@ -103,4 +114,12 @@ def check_options(opts: CANopenOptions, key_path: str = "driver", source: str | 
     if opts.heartbeat_timeout_ms <= opts.heartbeat_ms:
         raise ConfigError(f"{key_path}.heartbeat_timeout_ms", f"must exceed heartbeat_ms ({opts.heartbeat_ms} ms), got "
                                                               f"{opts.heartbeat_timeout_ms} ms; 3x is usual", source)
+    if opts.master_node_id in seen:
+        raise ConfigError(f"{key_path}.master_node_id", f"node id {opts.master_node_id} is joint "
+                                                        f"{seen[opts.master_node_id] + 1}'s drive; the agent needs a "
+                                                        "node id of its own on the bus (127 is usual)", source)
+    if opts.master_heartbeat_ms and opts.master_heartbeat_timeout_ms <= opts.master_heartbeat_ms:
+        raise ConfigError(f"{key_path}.master_heartbeat_timeout_ms",
+                          f"must exceed master_heartbeat_ms ({opts.master_heartbeat_ms} ms), got "
+                          f"{opts.master_heartbeat_timeout_ms} ms; 3x is usual", source)
     return opts

@@ -9,6 +9,9 @@ it is PRE-OPERATIONAL (CiA 301: a mapping changes only while its PDO is invalid)
   0x607A, so the set-points of all six drives take effect at the same SYNC;
 - RPDO2, asynchronous (type 255, acted on at once): controlword 0x6040, for power state
   commands and the quick stop;
+- RPDO3, synchronous: profile velocity 0x6081 + profile acceleration 0x6083; RPDO4, synchronous:
+  profile deceleration 0x6084. A move's profile values go out in the same batch as its set-points
+  and take effect at the same SYNC: no SDO transfer stands between a move and its start;
 - every other PDO invalid.
 
 ``TpdoCollector`` keeps the TPDO1 frames per drive and hands out one set per SYNC once every
@@ -26,14 +29,18 @@ from dataclasses import dataclass
 
 from canopen import RemoteNode
 
-from payload_agent.drivers.canopen.objects import CONTROLWORD, POSITION_ACTUAL, STATUSWORD, TARGET_POSITION
+from payload_agent.drivers.canopen.objects import (CONTROLWORD, POSITION_ACTUAL, PROFILE_ACCELERATION,
+                                                   PROFILE_DECELERATION, PROFILE_VELOCITY, STATUSWORD, TARGET_POSITION)
 
 TPDO1 = struct.Struct("<Hih")  # statusword, position actual, effort actual (per mille)
 RPDO_SETPOINT = struct.Struct("<Hi")  # controlword, target position
 RPDO_COMMAND = struct.Struct("<H")  # controlword
+RPDO_PROFILE = struct.Struct("<II")  # profile velocity, profile acceleration
+RPDO_DECELERATION = struct.Struct("<I")  # profile deceleration
 SYNCHRONOUS_EVERY_SYNC = 1
 ASYNCHRONOUS = 255
-TPDO1_COB, RPDO1_COB, RPDO2_COB = 0x180, 0x200, 0x300  # + node id (CiA 301 predefined connection set)
+# + node id (CiA 301 predefined connection set)
+TPDO1_COB, RPDO1_COB, RPDO2_COB, RPDO3_COB, RPDO4_COB = 0x180, 0x200, 0x300, 0x400, 0x500
 
 
 def _write_map(pdo_map, entries: tuple[int, ...], trans_type: int | None, enabled: bool) -> None:
@@ -58,6 +65,10 @@ def configure_pdos(node: RemoteNode, effort_index: int) -> None:
             _write_map(pdo_map, (CONTROLWORD, TARGET_POSITION), SYNCHRONOUS_EVERY_SYNC, True)
         elif n == 2:
             _write_map(pdo_map, (CONTROLWORD,), ASYNCHRONOUS, True)
+        elif n == 3:
+            _write_map(pdo_map, (PROFILE_VELOCITY, PROFILE_ACCELERATION), SYNCHRONOUS_EVERY_SYNC, True)
+        elif n == 4:
+            _write_map(pdo_map, (PROFILE_DECELERATION,), SYNCHRONOUS_EVERY_SYNC, True)
         else:
             _write_map(pdo_map, (), None, False)
 
