@@ -55,3 +55,27 @@ def test_a_pose_in_millimetres_is_named_as_a_unit_mistake():
     in_mm = FlangePose(tuple(1000 * v for v in pose.position_m), pose.rotation)
     result = compare_pose(TRUE, Q, in_mm, 0.005, math.radians(1))
     assert not result.ok and "units" in result.likely_cause
+
+
+def test_sign_flipped_dh_is_refused_before_any_motion_command(tmp_path):
+    """A YAML with a2 and a3 flipped (a usual copy mistake between DH conventions), against the simulated EC66."""
+    import yaml
+
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.errors import SafetyError
+    from payload_agent.session.runner import RunOptions, run_identification
+
+    data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    for j in (1, 2):
+        data["robot"]["kinematics"]["dh"][j]["a_mm"] *= -1
+    data["driver"].update(rpc_port=0, monitor_port=0)
+    data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}
+    data.pop("watch", None)
+    cells = []
+    with pytest.raises(SafetyError) as err:
+        run_identification(parse_config(data, "flipped.yaml"),
+                           RunOptions(assume_yes=True, progress=False, report=False, out=lambda s: None,
+                                      on_cell=cells.append))
+    assert "signs of a2 and a3" in str(err.value) and "reported by the controller" in str(err.value)
+    assert not [e for e in cells[0].controller.events if e.kind == "move"]
+    assert not (tmp_path / "runs").exists()  # refused before a run folder was made
