@@ -129,7 +129,7 @@ def ur_driver() -> URRTDEDriver:
     drv = URRTDEDriver(URRTDEOptions(type="ur_rtde", host="127.0.0.1", frequency_hz=500.0),
                        MotionLimits(math.radians(180), math.radians(360)))
     drv._has_payload_fields = True
-    drv._version = (5, 11, 1, 0)[:1]  # no dashboard round trips from state()
+    drv._version = (5,)  # an e-Series without "is in remote control" (< 5.6): state() asks no dashboard
     return drv
 
 
