@@ -1,4 +1,4 @@
-"""Accuracy benchmark: simulated EC66, seeded payloads, five methods, two scenarios, four speeds.
+"""Accuracy benchmark: simulated EC66, seeded payloads, six methods, four scenarios, four speeds.
 
 Not a test: it prints numbers. Run ``.venv/bin/python -m benchmarks.accuracy [--quick] [--json PATH]
 [--plot PATH] [--default-procedure SPEC]``; ``--help`` lists every option.
@@ -26,6 +26,13 @@ Scenarios
              ±10 % between the empty and each loaded run, drive gains off by up to ±3 % per
              joint (the measured torque is multiplied), the simulated arm's DH lengths off by
              up to 0.5 mm (ArmSpec.with_dh_errors, uniform) while the agent uses the nominal ones.
+  hard       realistic + every error source of a real arm in the physics core (fakes/effects.py):
+             angle noise, timestamp jitter, joint zero offsets, gear elasticity, torque ripple,
+             asymmetric Coulomb friction, friction lower in a warmer tool run, effort quantisation,
+             a weak tool cable (benchmarks/hard.py has the magnitudes; docs/sources.md the sources)
+  hard-strong-cable  hard with a strong tool cable: the quality gate must refuse the result
+Ablations (``--scenarios``): realistic-exact-gains (realistic with exact drive gains) and
+realistic+EFFECT, one physics-core effect at a time (benchmarks/hard.ABLATION_SCENARIOS).
 Declared kinematic uncertainty (``--length-uncertainty-mm``): what the agent is told about its DH
 lengths, propagated into the general solver's σ. By default it matches each scenario's simulated
 arm, as a correctly configured agent would: 0 in "ideal" (exact lengths), 0.5/√3 ≈ 0.29 mm in the
@@ -41,6 +48,9 @@ Methods
   general-bi      weighted least squares on up/down sweeps combined at matching angles
   general-bi-cal  general-bi after a drive-gain calibration (agent/calibration.py) with the
                   reference payload on the same robot, same procedure
+  general-bi-cal-comp  general-bi-cal plus the remedies for a real arm (benchmarks/remedies.py): the
+                  declared joint stiffness compensated, stiffness, zero-offset, residual-friction and
+                  wrist-torque uncertainty in σ, the tool-cable check in the quality gate
   dynamic         the paper's §3.4 baseline (eq. 29): loaded − empty along a 5th-order Fourier
                   excitation trajectory of joints 4–6 (fakes/excitation.py, solvers/dynamic.py);
                   speed-independent, reported once per scenario in the row "excitation"
@@ -48,7 +58,6 @@ Procedures
   speed rows     sweep 1, 5, 10, 20 % of 144 °/s, travel 10 %, acceleration 20 %, 0–55° (pinned:
                  the sim config's procedure when the benchmark was set up)
   "default"      the recommended procedure, RECOMMENDED_DEFAULT (``--default-procedure``)
-Ablation (``--scenarios realistic-exact-gains``): realistic with exact drive gains.
 """
 
 from __future__ import annotations
@@ -87,7 +96,7 @@ def parse_procedure(text: str, label: str, base: Procedure) -> Procedure:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="3 payloads at 5 %% speed, both scenarios (< 2 min)")
+    p.add_argument("--quick", action="store_true", help="3 payloads at 5 %% speed, the four main scenarios (< 2 min)")
     p.add_argument("--payloads", type=int, default=20, help="number of seeded payloads (default 20)")
     p.add_argument("--speeds", help="comma-separated sweep speed percentages (default 1,5,10,20; quick: 5; "
                    "'none' for no speed rows)")
