@@ -145,8 +145,8 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
 
     drv.sdo_watch.confirm_alive(poll)  # a drive late on SDO trips here, before any set-point
     poll()  # nothing is sent once the supervision has stopped the arm
-    profile = [f for j in moving
-               for f in _profile_frames(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)]
+    profile = [frame for j in moving for frame in
+               _profile_frames(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)]
     seq0 = list(m.seq)
     # profiles first, then the set-points: all act at the same SYNC
     drv.sync.after_next_sync(profile + setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))

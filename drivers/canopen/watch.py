@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 QUICK_STOP_ON_ABORT = 3  # 0x6007: 0 no action, 1 fault signal, 2 disable voltage, 3 quick stop
 ABORT_NO_OBJECT, ABORT_NO_SUBINDEX = 0x06020000, 0x06090011
 POLL_INTERVAL_S = 0.02  # between two liveness requests (each drive every n x this)
+GATE_TIMEOUT_S = 2.0  # confirm_alive's last resort (the monitor's judgement trips long before, if PDOs run)
 
 
 def _abort_code(exc: CommunicationError) -> int | None:
@@ -115,7 +116,7 @@ class SdoWatch:
     def confirm_alive(self, poll: Callable[[], None]) -> None:
         """Return once every drive answered an SDO request sent after this call; ``poll()`` raises on a trip."""
         t0 = time.monotonic()
-        deadline = t0 + self.drv.options.sdo_timeout_s + self.drv.monitor.sdo_reply_limit_s
+        deadline = t0 + max(GATE_TIMEOUT_S, 2 * (self.drv.options.sdo_timeout_s + self.drv.monitor.sdo_reply_limit_s))
         self._hurry.set()
         try:
             while True:
@@ -155,6 +156,8 @@ class SdoWatch:
             answered = True  # an abort is an answer
         except (SdoCommunicationError, can.CanError, OSError, AttributeError):
             pass  # no answer: the monitor has judged it (PDOs alive) or the stream watchdog will (bus gone)
+        except Exception as exc:  # noqa: BLE001 - a malformed reply (canopen's decoder raised): not an answer,
+            log.debug("SDO liveness request to %s: %s: %s", drv.labels[j], type(exc).__name__, exc)  # keep watching
         finally:
             monitor.sdo_pending[j] = None
             lock.release()
