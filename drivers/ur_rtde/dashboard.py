@@ -57,7 +57,8 @@ class Identity:
 def dashboard_identify(host: str, timeout_s: float) -> Identity:
     """Model, PolyScope version, serial number and Remote Control, as ur-rtde's own constructor asks them."""
     version_line, model = dashboard_query(host, "PolyscopeVersion", "get robot model", timeout_s=timeout_s)
-    m = re.search(r"(\d+)\.(\d+)\.(\d+)\.(\d+)", version_line)
+    # ASCII digits, at most 9 each: a 5000-digit "version" is not one (int() would refuse it with ValueError)
+    m = re.search(r"(?<![0-9])([0-9]{1,9})\.([0-9]{1,9})\.([0-9]{1,9})\.([0-9]{1,9})(?![0-9])", version_line)
     if not m:
         raise CommunicationError(f"unexpected PolyscopeVersion reply from {host}: {version_line!r}")
     version = tuple(int(x) for x in m.groups())
