@@ -350,3 +350,88 @@ def test_fake_rtde_server_refuses_a_256th_output_recipe_instead_of_crashing(core
     ids = [payload[0] for kind, payload in replies if kind == rp.CONTROL_PACKAGE_SETUP_OUTPUTS]
     assert len(ids) == 300
     assert ids[:255] == list(range(1, 256)) and set(ids[255:]) == {0}
+
+
+# -- the dashboard server's reply lines (identification) -----------------------------------------------------
+class Dashboard:
+    """A loopback "dashboard server" on port 29999 of its own 127.x address: a greeting, then ``lines[i]``
+    as the reply to the i-th request of each connection; it closes after the last one."""
+
+    def __init__(self):
+        import random
+
+        from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT
+
+        rng = random.Random()
+        for _ in range(50):
+            host = f"127.{rng.randint(1, 254)}.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
+            try:
+                self._ls = socket.create_server((host, DASHBOARD_PORT))
+                break
+            except OSError:
+                continue
+        else:
+            pytest.skip("no free loopback address for port 29999")
+        self.host = host
+        self._ls.settimeout(0.2)
+        self.lines: list[bytes] = []
+        self._stop = threading.Event()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._ls.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            threading.Thread(target=self._serve, args=(conn, list(self.lines)), daemon=True).start()
+
+    @staticmethod
+    def _serve(conn, lines):
+        conn.settimeout(HANG_S)
+        try:
+            with conn, conn.makefile("rb") as f:
+                conn.sendall(b"Connected: Universal Robots Dashboard Server\n")
+                for line in lines:
+                    if not f.readline():
+                        return
+                    conn.sendall(line)
+                    if not line.endswith(b"\n"):
+                        return  # the reply is cut off by the connection's end (the client would wait for more)
+        except OSError:
+            pass
+
+    def close(self):
+        self._stop.set()
+        self._ls.close()
+
+
+@pytest.fixture(scope="module")
+def dashboard():
+    srv = Dashboard()
+    yield srv
+    srv.close()
+
+
+dashboard_lines = st.one_of(
+    st.binary(max_size=80).map(lambda b: b + b"\n"), st.binary(max_size=40),
+    st.sampled_from([b"URSoftware 5.11.1.108318 (Mar 22 2022)\n", b"URSoftware 3.15.7.106331\n", b"UR5\n",
+                     b"20215300042\n", b"true\n", b"false\n", b"URSoftware " + b"9" * 5000 + b".1.1.1\n",
+                     "URSoftware \u0665.\u0661\u0661.1.1\n".encode()]))
+
+
+@settings(FUZZ, max_examples=int(60 * SCALE))
+@given(st.lists(dashboard_lines, max_size=4))
+@example([b"URSoftware " + b"9" * 5000 + b".1.1.1\n", b"UR5\n"])
+def test_dashboard_identification_is_a_value_or_a_communication_error(dashboard, lines):
+    from payload_agent.drivers.ur_rtde.dashboard import Identity, dashboard_identify
+
+    dashboard.lines = lines
+    try:
+        ident = bounded(dashboard_identify, dashboard.host, 1.0)
+    except CommunicationError:
+        return
+    assert isinstance(ident, Identity) and len(ident.version) == 4
+    assert ident.info.firmware == ".".join(map(str, ident.version))
