@@ -103,7 +103,8 @@ def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_da
     phase = manifest["phases"]["empty"]
     assert phase["status"].startswith("aborted") and "protective stop" in phase["status"]
     sweep = phase["sweeps"][0]
-    assert sweep["name"] == "b-j2-up" and sweep["status"] == "aborted" and sweep["samples"] > 100
+    # the samples up to the stop are on disk (how many a busy machine delivers in 0.4 s is not ours to promise)
+    assert sweep["name"] == "b-j2-up" and sweep["status"] == "aborted" and sweep["samples"] >= 10
     lines = (run_dir / sweep["file"]).read_text().splitlines()
     assert len(lines) - 1 == sweep["samples"]
     assert "loaded" not in manifest["phases"] or not manifest["phases"]["loaded"].get("sweeps")
