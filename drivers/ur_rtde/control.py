@@ -188,12 +188,14 @@ class ControlChannel:
                 pass
 
     def close(self, timeout_s: float) -> None:
-        """Stop ur-rtde's script (it would otherwise keep the robot program), disconnect, end the worker."""
+        """Stop ur-rtde's script (it would otherwise keep the robot program) and end the worker.
+
+        The worker is ended, not asked to disconnect: ur-rtde's ``disconnect()`` sleeps 0.5 s, and the
+        operating system closes the worker's connections as cleanly when it exits.
+        """
         try:
             if self.ready():
                 self.request("stopScript", timeout_s=timeout_s, lock_timeout_s=timeout_s)
-            if self._conn is not None and not self.broken and self._proc is not None and self._proc.poll() is None:
-                self.request("close", timeout_s=timeout_s, lock_timeout_s=timeout_s)
         except Exception:
             pass
         self.discard()
