@@ -340,8 +340,28 @@ def test_watch_fires_on_the_tool_change_register(ur, tmp_path):
         return 0
 
     import threading
-    threading.Timer(0.3, fake.set_tool_change, args=(1,)).start()
-    code = watch(config, run_once, driver_factory=lambda: ModbusDriver(options, LIMITS, RELAXED), out=lines.append,
-                 max_runs=1)
+    reads = []
+
+    def factory():  # a driver whose trigger reads the test can see: the edge must come after a low read
+        drv = ModbusDriver(options, LIMITS, RELAXED)
+        read = drv.read_trigger
+        drv.read_trigger = lambda: reads.append(read()) or reads[-1]
+        return drv
+
+    def raise_after_a_low_read():
+        deadline = time.monotonic() + 30
+        while not reads and time.monotonic() < deadline:
+            time.sleep(0.01)
+        fake.set_tool_change(1)
+
+    threading.Thread(target=raise_after_a_low_read, daemon=True).start()
+    give_up = threading.Event()
+    timer = threading.Timer(60, give_up.set)  # never hang the suite: watch ends with no run, and the test fails
+    timer.start()
+    try:
+        code = watch(config, run_once, driver_factory=factory, out=lines.append, max_runs=1, stop_event=give_up)
+    finally:
+        timer.cancel()
+    assert reads and reads[0] is False
     assert code == 0 and len(runs) == 1
     assert any("the trigger register went high" in line for line in lines)

@@ -213,8 +213,11 @@ def test_elite_driver_reads_digital_inputs(elite):
 def test_watch_with_elite_fake_input(elite, base_cfg):
     runs = []
 
-    def pulse():
-        time.sleep(0.15)
+    def pulse():  # the edge comes after the watch has read the input low (a loaded machine connects slowly)
+        deadline = time.monotonic() + 30
+        while ("getInput", {"addr": 3}) not in elite.requests and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)
         elite.set_digital_input(3, 1)
 
     def run_once():
@@ -222,5 +225,12 @@ def test_watch_with_elite_fake_input(elite, base_cfg):
         return 0
 
     threading.Thread(target=pulse, daemon=True).start()
-    code = watch(input_cfg(base_cfg), run_once, driver_factory=lambda: elite_driver(elite), out=Log(), max_runs=1)
+    give_up = threading.Event()
+    timer = threading.Timer(60, give_up.set)  # never hang the suite
+    timer.start()
+    try:
+        code = watch(input_cfg(base_cfg), run_once, driver_factory=lambda: elite_driver(elite), out=Log(), max_runs=1,
+                     stop_event=give_up)
+    finally:
+        timer.cancel()
     assert code == 0 and len(runs) == 1 and runs[0] >= 2  # it read low at least once before the edge
