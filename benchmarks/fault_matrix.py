@@ -59,6 +59,7 @@ class Cell:
     driver: str
     fault: str
     passed: bool = False
+    applicable: bool = True  # False: this controller (with this config) cannot produce the fault
     stop_s: float | None = None
     exit_code: int | None = None
     problems: list[str] = dataclasses.field(default_factory=list)
@@ -113,8 +114,11 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
     except Exception as exc:  # noqa: BLE001 - an unexpected exception is itself a failed cell
         cell.exit_code, cell.message = 1, f"{type(exc).__name__}: {exc}"
     ctrl = seen.get("ctrl")
-    if ctrl is None or fault not in ctrl.faults:
-        cell.problems.append("not applicable")
+    if ctrl is None:
+        cell.problems.append("the simulated controller never started")
+        return cell
+    if fault not in ctrl.faults:  # e.g. NaN on a map of integer registers: no value can carry it
+        cell.applicable = False
         return cell
     fault_t = seen.get("fault_t")
     if fault_t is None:
@@ -197,11 +201,11 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="fault-matrix-") as tmp:
                 c = run_cell(driver, fault, Path(tmp))
             cells.append(c)
-            print(f"  {driver:9s} {fault:17s} {'pass' if c.passed else 'FAIL'}"
+            print(f"  {driver:9s} {fault:17s} {'n/a ' if not c.applicable else 'pass' if c.passed else 'FAIL'}"
                   + (f"  stop {1000 * c.stop_s:.0f} ms" if c.stop_s is not None else "")
-                  + ("" if c.passed else f"  {'; '.join(c.problems)}"), flush=True)
+                  + ("" if c.passed or not c.applicable else f"  {'; '.join(c.problems)}"), flush=True)
     print_matrix(cells)
-    return 0 if cells and all(c.passed for c in cells) else 1
+    return 0 if cells and all(c.passed or not c.applicable for c in cells) else 1
 
 
 def print_matrix(cells: list[Cell]) -> None:
@@ -214,14 +218,15 @@ def print_matrix(cells: list[Cell]) -> None:
         row = []
         for d in drivers:
             c = by.get((d, f))
-            if c is None:
+            if c is None or not c.applicable:
                 row.append("n/a")
             else:
                 stop = f" {1000 * c.stop_s:.0f} ms" if c.stop_s is not None else ""
                 row.append(("pass" if c.passed else "FAIL") + stop)
         print(f"| {f} | " + " | ".join(row) + " |")
-    failed = [c for c in cells if not c.passed]
-    print(f"\n{len(cells) - len(failed)} passed, {len(failed)} failed")
+    failed = [c for c in cells if c.applicable and not c.passed]
+    na = sum(not c.applicable for c in cells)
+    print(f"\n{len(cells) - len(failed) - na} passed, {len(failed)} failed" + (f" ({na} not applicable)" if na else ""))
 
 
 if __name__ == "__main__":
