@@ -176,6 +176,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="current joint angles in degrees, to check the approach move too")
     plan.add_argument("--connect", action="store_true",
                       help="connect to the controller to read where the robot stands (nothing moves)")
+    plan.add_argument("--target-std", metavar="G,MM",
+                      help="predict the uncertainty (1σ: mass in g, centre of mass in mm) of candidate procedures "
+                           "before moving and show the fastest that meets it")
 
     solve = add("solve", "re-run the analysis of a recorded run folder into a new result file (never overwrites)",
                 json_ok=True)
