@@ -38,33 +38,15 @@ from payload_agent.drivers.elite_ec.rpc import EliteRPCError, RpcClient
 from payload_agent.errors import CommunicationError
 from payload_agent.fakes.elite_ec_monitor import FRAME_SIZE, MONITOR_LAYOUT, pack_frame
 from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
+from fuzzing import HANG_S, bounded  # noqa: F401
 
 # DECODER_FUZZ_SCALE=20 searches 20 times harder (a deep run by hand; the suite keeps the default)
 SCALE = float(os.environ.get("DECODER_FUZZ_SCALE", "1"))
 FUZZ = settings(max_examples=int(80 * SCALE), deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-HANG_S = 10.0  # far beyond any timeout below: only a real hang gets here
 REPLY_TIMEOUT_S = 0.5
 
 
-def bounded(fn, *args, timeout_s: float = HANG_S):
-    """fn(*args) in a helper thread: its result, or its exception re-raised; a hang fails the test."""
-    box: dict = {}
-
-    def run():
-        try:
-            box["value"] = fn(*args)
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    th.join(timeout_s)
-    if th.is_alive():
-        pytest.fail(f"{getattr(fn, '__name__', fn)} did not return within {timeout_s} s: a hang")
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
 
 
 class ReplyServer:

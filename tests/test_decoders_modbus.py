@@ -35,12 +35,12 @@ from payload_agent.drivers.modbus.regmap import SIGNALS, build_map, load_preset,
 from payload_agent.errors import CommunicationError, ConfigError, UnsupportedCapability
 from payload_agent.fakes.modbus import store as fake_store
 from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
+from fuzzing import HANG_S, bounded  # noqa: F401
 
 # DECODER_FUZZ_SCALE=20 searches 20 times harder (a deep run by hand; the suite keeps the default)
 SCALE = float(os.environ.get("DECODER_FUZZ_SCALE", "1"))
 FUZZ = settings(max_examples=int(100 * SCALE), deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-HANG_S = 10.0
 LIMITS = MotionLimits(math.radians(180), math.radians(360))
 # a map of the kind a user writes: float32 angles, int16 revolution counters, a float32 clock
 USER_MAP = {"joint_angles": {"table": "input", "address": 0, "count": 12, "type": "float32", "unit": "deg"},
@@ -50,24 +50,6 @@ USER_MAP = {"joint_angles": {"table": "input", "address": 0, "count": 12, "type"
 MAPS = {name: {"preset": name} for name in preset_names()} | {"user": {"preset": "generic_float32", "map": USER_MAP}}
 
 
-def bounded(fn, *args, timeout_s: float = HANG_S):
-    """fn(*args) in a helper thread: its result, or its exception re-raised; a hang fails the test."""
-    box: dict = {}
-
-    def run():
-        try:
-            box["value"] = fn(*args)
-        except BaseException as exc:  # noqa: BLE001 - handed to the caller
-            box["error"] = exc
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    th.join(timeout_s)
-    if th.is_alive():
-        pytest.fail(f"{getattr(fn, '__name__', fn)} did not return within {timeout_s} s: a hang")
-    if "error" in box:
-        raise box["error"]
-    return box["value"]
 
 
 def modbus_driver(map_name: str) -> ModbusDriver:
