@@ -349,6 +349,7 @@ def run_case(args: tuple) -> list[dict]:
                    **_gate(gate_deltas, kin, est, **gate_kw))
         if "gain_rel_std" in gate_kw:
             row["gain_rel_std"] = [float(v) for v in gate_kw["gain_rel_std"]]
+            row["fitted_joints"] = [int(j) for j in gate_kw["gain_reference"][1]]
         rows.append(row)
     return rows
 

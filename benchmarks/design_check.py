@@ -34,7 +34,8 @@ def one(args) -> dict:
         return {"speed": speed, "error": row["error"]}
     _, _, config = cases.plans(proc)
     noise = design.NoiseModel((cases.NOISE_NM,) * 6, cases.TICK_S, gain_rel_std=tuple(row["gain_rel_std"]),
-                              length_std_m=row["length_std_mm"] / 1000.0)
+                              length_std_m=row["length_std_mm"] / 1000.0,
+                              gain_reference=(cases.theta_reference(), tuple(row["fitted_joints"])))
     cand = design.Candidate(speed, 25.0, 0.0, 55.0, 1, 40.0)
     pred = design.predict(config, cand, noise, design.nominal_theta(mass, cog), check_safety=False)
     return {"speed": speed, "pred_m": pred.mass_std_g, "pred_c": pred.cog_std_mm, "rep_m": row["mass_std_g"],

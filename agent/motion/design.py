@@ -81,6 +81,8 @@ class NoiseModel:
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
     length_std_m: float = 0.0  # DH-length standard uncertainty
+    # (θ_ref, fitted joints) of the drive-gain calibration, whose fit absorbed part of the length errors
+    gain_reference: tuple | None = None
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -172,14 +174,16 @@ def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.
     cov = inv * noise.inflation ** 2
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
     # (the sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
+    ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]))
     key = (id(config), plan.moves[1].target_rad if len(plan.moves) > 1 else None, tuple(theta), noise.gain_rel_std,
-           noise.length_std_m)
+           noise.length_std_m, ref)
     if key not in _SYSTEMATIC:
         sys_cov = np.zeros((4, 4))
         if noise.gain_rel_std is not None:
             sys_cov = sys_cov + wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
         if noise.length_std_m > 0:
-            sys_cov = sys_cov + general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m)
+            sys_cov = sys_cov + general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
+                                                             noise.gain_reference)
         if len(_SYSTEMATIC) > 64:
             _SYSTEMATIC.clear()
         _SYSTEMATIC[key] = sys_cov
