@@ -82,7 +82,8 @@ def test_rtu_unit_id_mismatch_gets_no_reply():
 def test_identification_over_rtu(tmp_path):
     data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
     data = tweak(data, "driver", {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0",
-                                  "baudrate": 460800, "preset": "generic_float32"})
+                                  "baudrate": 460800, "preset": "generic_float32",
+                                  "timeout_s": 1.0})  # a pty on a loaded machine answers late, not never
     data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
     data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
     data = tweak(data, "procedure.bidirectional", False)  # 4 sweeps a run: a shorter test

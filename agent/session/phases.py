@@ -26,6 +26,7 @@ from payload_agent.motion.safety import SafetyGate
 from payload_agent.recording.recorder import RunRecorder
 
 SAMPLE_WAIT_S = 5.0
+SETTLE_WAIT_S = 15.0  # after a move: the stream may lag the finished reply (a loaded host, a fast simulation)
 SETTLED_RAD = math.radians(0.05)
 
 
@@ -74,14 +75,14 @@ class PhaseRunner:
     def current_q(self, after: float | None = None, near: tuple[float, ...] | None = None) -> np.ndarray:
         """Latest joint angles; with ``after`` (monotonic time), from a sample received after it, and with
         ``near``, from one at those angles (the stream may lag the motion-finished reply)."""
-        deadline = time.monotonic() + SAMPLE_WAIT_S
+        deadline = time.monotonic() + (SAMPLE_WAIT_S if near is None else SETTLE_WAIT_S)
         while True:
             s = self.driver.wait_sample(max(0.0, deadline - time.monotonic()), after=after)
             if near is None or np.max(np.abs(np.asarray(s.q) - near)) < SETTLED_RAD:
                 return np.asarray(s.q, float)
             if time.monotonic() > deadline:
                 raise CommunicationError(f"the joint angles did not settle at the move's target within "
-                                         f"{SAMPLE_WAIT_S:.0f} s after the controller reported it finished")
+                                         f"{SETTLE_WAIT_S:.0f} s after the controller reported it finished")
             time.sleep(0.002)
 
     def run_phase(self, name: str, plan: Plan, resume: bool = False) -> None:
