@@ -81,8 +81,12 @@ class PhaseRunner:
             if near is None or np.max(np.abs(np.asarray(s.q) - near)) < SETTLED_RAD:
                 return np.asarray(s.q, float)
             if time.monotonic() > deadline:
-                raise CommunicationError(f"the joint angles did not settle at the move's target within "
-                                         f"{SETTLE_WAIT_S:.0f} s after the controller reported it finished")
+                off = np.abs(np.asarray(s.q, float) - np.asarray(near, float))
+                j = int(np.argmax(off))
+                raise CommunicationError(
+                    f"the joint angles did not settle at the move's target within {SETTLE_WAIT_S:.0f} s after "
+                    f"the controller reported it finished: joint {j + 1} streams {math.degrees(s.q[j]):.4f} deg, "
+                    f"target {math.degrees(near[j]):.4f} deg (the newest sample, controller time {s.t_ctrl} s)")
             time.sleep(0.002)
 
     def run_phase(self, name: str, plan: Plan, resume: bool = False) -> None:

@@ -29,7 +29,10 @@ class SimulatedCell:
                                                 f"known: {', '.join(sorted(SPECS))}", config.source)
         self.config = config
         self.sim = config.simulation
-        self.controller = simulator_class(config.driver_type).from_config(config)
+        try:  # the simulated controller binds its ports as it is made
+            self.controller = simulator_class(config.driver_type).from_config(config)
+        except OSError as exc:
+            raise _cannot_listen(config, exc) from None
         self.truth_mass_kg = self.sim.payload.mass_kg
         self.truth_cog_mm = tuple(self.sim.payload.cog_mm)
         self.options: DriverOptions = config.driver_options
@@ -39,9 +42,7 @@ class SimulatedCell:
             self.controller.start()
         except OSError as exc:
             self.close()
-            raise CommunicationError(f"the simulated {self.config.driver_type} controller could not listen: {exc}. "
-                                     "Another simulation may be using the address; stop it or set a free "
-                                     "driver.host / ports in the YAML.") from None
+            raise _cannot_listen(self.config, exc) from None
         self.options = self.controller.bound_options(self.config.driver_options)
         return self
 
@@ -70,3 +71,9 @@ class SimulatedCell:
     @property
     def truth_json(self) -> dict[str, Any]:
         return {"mass_kg": self.truth_mass_kg, "cog_mm": list(self.truth_cog_mm)}
+
+
+def _cannot_listen(config: Config, exc: OSError) -> CommunicationError:
+    return CommunicationError(f"the simulated {config.driver_type} controller could not listen: {exc}. "
+                              "Another simulation may be using the address; stop it or set a free "
+                              "driver.host / ports in the YAML.")
