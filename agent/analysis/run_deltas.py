@@ -18,7 +18,7 @@ from payload_agent.analysis.combine import add_combined
 from payload_agent.analysis.delta import DeltaSweep, subtract_all, window_of
 from payload_agent.analysis.segmenter import SweepCommand, Window, sweep_commands
 from payload_agent.errors import DataError
-from payload_agent.recording.rundata import load_manifest, load_phase
+from payload_agent.recording.rundata import SweepData, load_manifest, load_phase
 from payload_agent.types import SweepKey
 
 
@@ -33,13 +33,13 @@ def commands_of(manifest: dict[str, Any], where: str = "run") -> dict[SweepKey, 
         raise DataError(f"{where}: manifest.json: cannot read the plan ({type(exc).__name__}: {exc})") from None
 
 
-def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
-               combine: bool = True, notes: list[str] | None = None) -> dict[SweepKey, DeltaSweep]:
-    """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
+def phases_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
+               notes: list[str] | None = None
+               ) -> tuple[dict[SweepKey, SweepData], dict[SweepKey, SweepData], dict[SweepKey, SweepCommand]]:
+    """(loaded sweeps, empty sweeps, the plan's sweep commands) of a run, effort in N·m with ``gains``.
 
-    Both phases are segmented with the run's own plan (a baseline is only valid for the same plan).
-    With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
-    combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
+    The empty phase comes from ``baseline_dir`` if given. The raw sweeps, before any subtraction:
+    what ``evaluation.systematics`` compensates (joint elasticity) and measures (friction) on.
     """
     manifest = load_manifest(run_dir)
     loaded = load_phase(run_dir, "loaded", gains, manifest)
@@ -50,6 +50,18 @@ def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
     commands = commands_of(manifest, str(run_dir))
     if notes is not None and not commands:
         notes.append("the manifest has no plan: constant-speed windows found in the data alone")
+    return loaded, empty, commands
+
+
+def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
+               combine: bool = True, notes: list[str] | None = None) -> dict[SweepKey, DeltaSweep]:
+    """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
+
+    Both phases are segmented with the run's own plan (a baseline is only valid for the same plan).
+    With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
+    combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
+    """
+    loaded, empty, commands = phases_for(run_dir, gains, baseline_dir, notes=notes)
     deltas = subtract_all(loaded, empty, commands)
     if combine:
         deltas, problems = add_combined(deltas)

@@ -32,6 +32,28 @@ DEFAULT_LENGTH_UNCERTAINTY_MM = 0.5
 # Gearbox friction falls markedly as the joints warm up from cold; a baseline recorded on a cold
 # robot does not describe a warm one. 10 °C is roughly cold start vs. after an hour of work.
 DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C = 10.0
+# A real arm's joints (docs/sources.md "Physics core: error sources"): the catalogue stiffness of a
+# strain-wave gear is "an average of numerous tests", taken as ±20 % uniform: 20/√3 = 11.5 % standard
+# uncertainty; encoder zeroing leaves "a few hundredths of a degree"; Coulomb friction differs by
+# direction by up to ±15 % (uniform): 15/√3 = 8.7 % standard uncertainty of the asymmetry
+DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT = 12.0
+DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG = 0.02
+DEFAULT_FRICTION_ASYMMETRY_PERCENT = 8.7
+MIN_STIFFNESS_NM_PER_RAD = 100.0  # softer than this twists a joint by 0.6° per N·m: a unit mistake
+
+
+@dataclass(frozen=True)
+class JointSystematicsConfig:
+    """What the robot YAML declares about its joints' systematic errors (``evaluation.systematics``).
+
+    ``robot.kinematics.stiffness_nm_per_rad`` (absent: rigid), ``stiffness_uncertainty_percent``,
+    ``zero_offset_uncertainty_deg`` and ``robot.friction_asymmetry_percent``, in SI / fractions.
+    """
+
+    stiffness_nm_per_rad: tuple[float, ...] | None = None  # None, or 0 on a joint: rigid, not compensated
+    stiffness_rel_std: float = DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT / 100.0
+    zero_offset_std_rad: tuple[float, ...] = (math.radians(DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG),) * N_JOINTS
+    friction_asymmetry_std: float = DEFAULT_FRICTION_ASYMMETRY_PERCENT / 100.0  # of the Coulomb level, by direction
 
 
 @dataclass(frozen=True)
@@ -45,6 +67,8 @@ class RobotConfig:
     # standard uncertainty of every non-zero DH length (a_i, d_i), independent per length; the
     # general solver propagates it into the reported covariance (robot.kinematics.length_uncertainty_mm)
     length_uncertainty_m: float = DEFAULT_LENGTH_UNCERTAINTY_MM / 1000.0
+    # joint stiffness, zero and friction-asymmetry uncertainties (robot.kinematics.*, robot.friction_asymmetry_percent)
+    joints: JointSystematicsConfig = JointSystematicsConfig()
 
     @property
     def kinematics(self) -> Kinematics:
@@ -138,8 +162,10 @@ class Config:
 
 
 SECTIONS = ("robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch")
-ROBOT_KEYS = ("name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s", "max_joint_accel_deg_s2")
-KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm")
+ROBOT_KEYS = ("name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s", "max_joint_accel_deg_s2",
+              "friction_asymmetry_percent")
+KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm", "stiffness_nm_per_rad", "stiffness_uncertainty_percent",
+                   "zero_offset_uncertainty_deg")
 DH_KEYS = ("a_mm", "d_mm", "alpha_deg", "offset_deg")
 EFFORT_KEYS = ("unit", "gains_nm_per_unit")
 PROCEDURE_KEYS = ("name", "speed_percent", "travel_speed_percent", "accel_percent", "base_deg", "sweep_deg",
@@ -205,8 +231,9 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
                   raw=data)
 
 
-def parse_kinematics(kin: Node) -> tuple[tuple[DHRow, ...], float]:
-    """``robot.kinematics``: the DH rows (offset_deg required, units checked) and the length uncertainty, mm."""
+def parse_kinematics(kin: Node, robot: Node | None = None) -> tuple[tuple[DHRow, ...], float, JointSystematicsConfig]:
+    """``robot.kinematics``: the DH rows (offset_deg required, units checked), the length uncertainty (mm)
+    and the joints' declared systematics (with ``robot.friction_asymmetry_percent`` when ``robot`` is given)."""
     kin.string("convention", choices=["standard_dh"])
     rows_raw = kin.raw("dh")
     if not isinstance(rows_raw, list) or len(rows_raw) != N_JOINTS:
@@ -229,14 +256,37 @@ def parse_kinematics(kin: Node) -> tuple[tuple[DHRow, ...], float]:
                           offset_rad=math.radians(offset)))
     units.check_dh(raw_rows, kin.key("dh"), kin.source)
     length_std_mm = kin.number("length_uncertainty_mm", DEFAULT_LENGTH_UNCERTAINTY_MM, min=0, max=50)
+    joints = _joint_systematics(kin, robot)
     kin.reject_unknown()
-    return tuple(rows), length_std_mm
+    return tuple(rows), length_std_mm, joints
+
+
+def _joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
+    """The optional stiffness, zero-offset and friction-asymmetry declarations (see JointSystematicsConfig)."""
+    stiffness = None
+    if kin.has("stiffness_nm_per_rad") and kin.data["stiffness_nm_per_rad"] is not None:
+        stiffness = kin.per_joint("stiffness_nm_per_rad", N_JOINTS, min=0, max=1e9)
+        soft = [i for i, k in enumerate(stiffness) if 0 < k < MIN_STIFFNESS_NM_PER_RAD]
+        if soft:
+            raise kin.error(f"stiffness_nm_per_rad[{soft[0]}]",
+                            f"{stiffness[soft[0]]:g} N·m/rad is implausibly soft for a robot joint (at least "
+                            f"{MIN_STIFFNESS_NM_PER_RAD:g}; 0 means rigid): is it in N·m/deg or N·m/arcmin?")
+        if not any(stiffness):
+            stiffness = None
+    stiff_pct = kin.number("stiffness_uncertainty_percent", DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT, min=0, max=100)
+    zero_deg = kin.per_joint("zero_offset_uncertainty_deg", N_JOINTS, DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG,
+                             min=0, max=5)
+    asym_pct = DEFAULT_FRICTION_ASYMMETRY_PERCENT
+    if robot is not None:
+        asym_pct = robot.number("friction_asymmetry_percent", DEFAULT_FRICTION_ASYMMETRY_PERCENT, min=0, max=100)
+    return JointSystematicsConfig(stiffness, stiff_pct / 100.0, tuple(math.radians(v) for v in zero_deg),
+                                  asym_pct / 100.0)
 
 
 def _robot(node: Node) -> RobotConfig:
     name = node.string("name")
     model = node.string("model")
-    rows, length_std_mm = parse_kinematics(node.child("kinematics", keys=KINEMATICS_KEYS))
+    rows, length_std_mm, joints = parse_kinematics(node.child("kinematics", keys=KINEMATICS_KEYS), node)
     limits_raw = node.raw("joint_limits_deg")
     if not isinstance(limits_raw, list) or len(limits_raw) != N_JOINTS:
         raise node.error("joint_limits_deg", f"expected {N_JOINTS} [min, max] pairs, got {limits_raw!r:.60}")
@@ -253,7 +303,7 @@ def _robot(node: Node) -> RobotConfig:
     accel = node.number("max_joint_accel_deg_s2", gt=0, max=10000)
     node.reject_unknown()
     return RobotConfig(name, model, rows, tuple(limits), math.radians(speed), math.radians(accel),
-                       length_std_mm / 1000.0)
+                       length_std_mm / 1000.0, joints)
 
 
 def _effort(node: Node) -> EffortConfig:

@@ -62,9 +62,9 @@ def parse_recorded_config(snapshot: Any, manifest: Mapping[str, Any], source: st
     robot_node = top.child("robot")
     name = robot_node.string("name")
     model = robot_node.string("model", "") if robot_node.has("model") else ""
-    rows, length_std_mm = parse_kinematics(robot_node.child("kinematics", keys=KINEMATICS_KEYS))
+    rows, length_std_mm, joints = parse_kinematics(robot_node.child("kinematics", keys=KINEMATICS_KEYS), robot_node)
     robot = RobotConfig(name, model, rows, ((-2 * math.pi, 2 * math.pi),) * N_JOINTS, math.inf, math.inf,
-                        length_std_mm / 1000.0)
+                        length_std_mm / 1000.0, joints)
     effort = recorded_effort(manifest, snapshot, source)
     proc = snapshot.get("procedure") if isinstance(snapshot.get("procedure"), Mapping) else {}
     solver = proc.get("solver", "general")

@@ -38,7 +38,8 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.analysis.run_deltas import deltas_for
+from payload_agent.analysis.run_deltas import phases_for
+from payload_agent.evaluation import systematics
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
@@ -270,9 +271,14 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
 
 def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: Sequence[float],
               baseline_dir: Path | None = None) -> GainCalibration:
-    """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains."""
+    """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains.
+
+    The declared joint stiffness is compensated in both phases first (``systematics.prepare``), as
+    in every identification the gains are then used for.
+    """
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
-    deltas = deltas_for(Path(run_dir), nominal, baseline_dir)
+    loaded, empty, commands = phases_for(Path(run_dir), nominal, baseline_dir)
+    deltas = systematics.prepare(loaded, empty, config.robot.joints, commands).deltas
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics, nominal,
                                                      known_mass_kg, known_cog_m)
     c = tuple(float(v) for v in known_cog_m)

@@ -11,10 +11,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from payload_agent.evaluation import quality
+from payload_agent.evaluation import quality, systematics
 from payload_agent.evaluation.calibration import effective_calibration, effective_gains
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.analysis.run_deltas import check_segmentation, deltas_for
+from payload_agent.analysis.run_deltas import check_segmentation, deltas_for, phases_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
@@ -65,7 +65,7 @@ def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
 def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate,
                    gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
                    gain_reference: tuple[Sequence[float], Sequence[int]] | None = None,
-                   others: Sequence[Estimate] = ()) -> dict[str, Any]:
+                   others: Sequence[Estimate] = (), syst: systematics.Systematics | None = None) -> dict[str, Any]:
     """Redundant checks recorded beside the result; ``payload_agent.evaluation.quality.require_passed`` enforces them.
 
     The uncertainty terms are those the primary estimate was solved with (see ``solve_all``): the
@@ -73,7 +73,7 @@ def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary:
     The primary estimate is checked whichever solver made it, against ``others`` too.
     """
     return quality.evaluate(deltas, kin, primary, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
-                            gain_reference=gain_reference, others=others)
+                            gain_reference=gain_reference, others=others, systematics=syst)
 
 
 def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
@@ -85,7 +85,11 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     (``gains_nm_per_unit``, ``gains_source``) and the primary estimate's notes. With a
     calibration, its per-joint uncertainty is part of the general solver's covariance; with
     nominal gains the reported uncertainty cannot include the gain error, and a note says so.
-    The DH lengths' uncertainty (``robot.kinematics.length_uncertainty_mm``) is always part of it.
+    The DH lengths' uncertainty (``robot.kinematics.length_uncertainty_mm``) is always part of it,
+    and so are a real arm's systematic errors (``evaluation.systematics``): the declared joint
+    stiffness is compensated in both runs before the subtraction, and its uncertainty, the joint
+    zeros', the friction the two-direction average leaves and constant wrist torques go into the
+    general solver's covariance and into the quality gate's pose comparison.
     """
     gain_rel_std = gain_reference = None
     if gains is not None:
@@ -104,19 +108,34 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
             note = ("drive gains are nominal: the reported uncertainty does not include their error (a few % "
                     "on most arms); run `payload-agent calibrate` with a known reference payload")
     notes: list[str] = []
-    deltas = deltas_for(run_dir, gains_arr, baseline_dir, notes=notes)
+    loaded, empty, commands = phases_for(run_dir, gains_arr, baseline_dir, notes=notes)
+    decl = config.robot.joints
+    prepared = systematics.prepare(loaded, empty, decl, commands)
+    notes.extend(prepared.notes)
+    deltas = prepared.deltas
     kin = config.robot.kinematics
     primary, others = solve_all(deltas, kin, solver or config.procedure.solver, gain_rel_std,
                                 config.robot.length_uncertainty_m, gain_reference)
+    syst = systematics.evaluate(prepared, kin, decl, gain_rel_std)
+    primary, others = _with_systematics(primary, syst), [_with_systematics(e, syst) for e in others]
     primary.notes.extend(notes)
     if note:
         primary.notes.append(note)
     quality_result = quality_checks(deltas, kin, primary, gain_rel_std, config.robot.length_uncertainty_m,
-                                    gain_reference, others)
+                                    gain_reference, others, syst)
     extra = {"gains_nm_per_unit": [float(g) for g in gains_arr], "gains_source": source}
     if gain_rel_std is not None:
         extra["gains_rel_std"] = list(gain_rel_std)
     return RunResult(config.robot.name, str(run_dir), primary, others, quality=quality_result, extra=extra)
+
+
+def _with_systematics(est: Estimate, syst: systematics.Systematics) -> Estimate:
+    """The general solver's estimate widened by the systematic terms (evaluated on its fit); others unchanged."""
+    if est.solver != general.NAME:
+        if syst.terms:
+            est.notes.append(f"the systematic terms ({syst.describe()}) are in the general solver's σ only")
+        return est
+    return syst.apply(est)
 
 
 def check_baseline_segmentation(config: Config, run_dir: Path) -> None:

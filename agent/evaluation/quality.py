@@ -24,7 +24,10 @@ cannot include an unknown gain error): calibrate.
   not added in quadrature: the same gain error ε_j and the same length error δp_k are
   propagated through both per-pose fits (first order, as in ``wls.gain_covariance`` and
   ``general.kinematic_sensitivities``, the calibration's absorption of length errors included)
-  and only the part that moves the two estimates differently enters the difference's covariance;
+  and only the part that moves the two estimates differently enters the difference's covariance.
+  The systematic terms of a real arm (``evaluation.systematics``: joint stiffness and zeros,
+  residual friction, wrist torques), when the caller passes them, enter the same way: each term
+  holds every pose's own response to its parameters;
 - conditioning of the combined fit;
 - mass positive, clearly above its own uncertainty (a tool is mounted) and below a sane bound;
 - enough constant-speed samples in every sweep;
@@ -33,6 +36,8 @@ cannot include an unknown gain error): calibrate.
 - drive-gain consistency: with θ fitted on all joints, each well-loaded joint's measured
   torque must match the model to within a few per cent (a larger mismatch is a wrong drive
   gain, which no other check sees because it scales both poses alike);
+- tool cable (``cable_check``): a constant torque on the still wrist that the payload's weight does
+  not explain and that moves the result, named as the likely cause;
 - the primary estimate itself, whichever solver made it (``solver_checks``): it reports an
   uncertainty; a primary other than the general fit passes its own mass checks; and it agrees
   with the other solvers' estimates on the same data within their uncertainty (the general and
@@ -52,6 +57,7 @@ from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.solvers import general, wls
+from payload_agent.evaluation import cable_check
 from payload_agent.evaluation.solver_checks import make_check as _check, solver_checks
 
 POSE_AGREEMENT_Z = 3.0  # |m_b − m_d| / σ above this fails (mass)
@@ -118,7 +124,7 @@ def _pose_fit(groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
 def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate, *,
              gain_rel_std: Iterable[float] | None = None, length_std_m: float | None = None,
              gain_reference: tuple[Iterable[float], Iterable[int]] | None = None,
-             others: Sequence[Estimate] = ()) -> dict[str, Any]:
+             others: Sequence[Estimate] = (), systematics: Any = None) -> dict[str, Any]:
     """Every check on one identification; ``passed`` is True only if all passed (see the module docstring).
 
     ``others``: the other solvers' estimates on the same data; the primary must agree with each
@@ -127,6 +133,8 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
     ``gain_rel_std``, ``length_std_m`` and ``gain_reference``: the uncertainty terms the primary
     estimate was solved with (``general.solve``); the pose-agreement check propagates the same
     terms through both per-pose fits. Without them it compares on the sensor noise alone.
+    ``systematics`` (``evaluation.systematics.Systematics``): the real arm's terms the estimate
+    carries; each pose's own response to them enters the pose comparison.
     """
     q: dict[str, Any] = {"passed": True, "reasons": []}
     checks: list[dict[str, Any]] = []
@@ -159,6 +167,9 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
                 cov = cov + f["G"] @ np.diag(gain_std ** 2) @ f["G"].T
             if f["S"] is not None:
                 cov = cov + length_std ** 2 * f["S"].T @ f["S"]
+            if systematics is not None:
+                f["A"], f["A_std"] = systematics.sensitivities(pose)
+                cov = cov + (f["A"] * f["A_std"] ** 2) @ f["A"].T
             var = np.diag(J @ cov @ J.T)
         except (DataError, np.linalg.LinAlgError) as exc:
             q["reasons"].append(f"pose {pose} alone: not solvable ({exc})")
@@ -172,8 +183,11 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
     q["pose_agreement_sigma"] = ("noise of each pose's own fit (independent)"
                                  + (" + drive-gain uncertainty" if gain_std is not None else "")
                                  + (f" + DH-length uncertainty {1000 * length_std:.3g} mm" if length_std > 0 else "")
+                                 + (f" + {systematics.describe()}" if systematics is not None and systematics.terms
+                                    else "")
                                  + ("; the common terms propagated through both poses' fits, only their "
-                                    "difference counted" if gain_std is not None or length_std > 0 else ""))
+                                    "difference counted" if gain_std is not None or length_std > 0
+                                    or systematics is not None else ""))
     hint = ("" if gain_std is not None else "; with uncalibrated drive gains their error is not in σ: "
             "run `payload-agent calibrate`")
     names = sorted(per_pose)
@@ -240,6 +254,10 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
                                  where=label, residual_rms_nm=rms, noise_nm=noise))
         checks.extend(_gain_checks(groups, theta))
 
+    # --- a tool cable or hose on the wrist ---------------------------------------------------
+    cable = cable_check.check(deltas, kin, gain_rel_std=gain_std)
+    checks.append(cable)
+
     # --- samples --------------------------------------------------------------------------
     if sweeps:
         fewest = min(sweeps, key=lambda d: len(d.q))
@@ -265,6 +283,9 @@ def _difference_std(fa: dict[str, Any], fb: dict[str, Any], gain_std: np.ndarray
                     length_std: float) -> np.ndarray:
     """Standard deviation of o_a − o_b, o = [m, cx, cy, cz] of two poses' own fits.
 
+    Systematic terms (``A``: ∂θ/∂p of each pose's fit, ``A_std``: σ_p, the same parameters in
+    both) are differenced like the gains.
+
     Noise: independent (different sweeps), J_a·Σ_a·J_aᵀ + J_b·Σ_b·J_bᵀ. Drive gains and DH lengths:
     the same errors act on both fits, so their first-order effects are differenced before squaring,
     D·diag(σ²)·Dᵀ with D = J_a·G_a − J_b·G_b (gains) and J_a·S_aᵀ − J_b·S_bᵀ (lengths).
@@ -277,6 +298,9 @@ def _difference_std(fa: dict[str, Any], fb: dict[str, Any], gain_std: np.ndarray
     if length_std > 0 and fa["S"] is not None and fb["S"] is not None:
         D = Ja @ fa["S"].T - Jb @ fb["S"].T
         cov = cov + length_std ** 2 * D @ D.T
+    if fa.get("A") is not None and fb.get("A") is not None:  # systematic terms: the same parameters in both
+        D = Ja @ fa["A"] - Jb @ fb["A"]
+        cov = cov + (D * fa["A_std"] ** 2) @ D.T
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 

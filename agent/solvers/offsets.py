@@ -150,25 +150,39 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *selectors: Selec
 
 # -- the friction residual as an uncertainty instead of an estimate -------------------------------------
 
-def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
-    """Per moving joint (0-based): the friction level the empty run shows, half the up − down effort gap.
+@dataclass(frozen=True)
+class FrictionGap:
+    """One sweep's odd friction level: half the up − down effort gap at matching angles (N·m), its noise."""
+
+    level_nm: float  # in the direction of motion of the "up" leg: positive when friction opposes motion
+    std_nm: float  # standard uncertainty of the median gap (noise, autocorrelation-corrected)
+
+
+def friction_gaps(sweeps: Mapping[SweepKey, SweepData], commands: Mapping | None = None
+                  ) -> dict[tuple[str, int], FrictionGap]:
+    """Per (pose, moving joint 0-based): the friction level a run shows, half its up − down effort gap.
 
     At the same angle of the moving joint, gravity is the same in both legs and friction odd in
-    speed flips: (τ_up − τ_down)/2 is its level at the sweep speed (Coulomb + viscous·speed).
-    Median over the legs' common constant-speed angles, largest over the joint's sweeps.
+    speed flips: (τ_up − τ_down)/2 is its level at the sweep speed (Coulomb + viscous·speed +
+    load-dependent), signed so that friction opposing the motion is positive whichever way "up"
+    turns the joint. Median over the legs' common constant-speed angles; ``commands`` (the plan's,
+    ``segmenter.sweep_commands``) place the windows as the subtraction does.
     """
     from payload_agent.analysis.delta import window_of
+    from payload_agent.solvers.wls import autocorrelation_time
 
-    out: dict[int, float] = {}
-    for key, up in empty.items():
+    commands = commands or {}
+    out: dict[tuple[str, int], FrictionGap] = {}
+    for key, up in sweeps.items():
         if key.direction != "up":
             continue
-        down = empty.get(SweepKey(key.pose, key.joint, "down", key.speed_percent))
+        dkey = SweepKey(key.pose, key.joint, "down", key.speed_percent)
+        down = sweeps.get(dkey)
         if down is None:
             continue
         j = key.joint - 1
         try:
-            wu, wd = window_of(up), window_of(down)
+            wu, wd = window_of(up, commands.get(key)), window_of(down, commands.get(dkey))
         except DataError:
             continue
         xu, tu = up.q[wu.slice, j], up.effort_nm[wu.slice, j]
@@ -177,9 +191,40 @@ def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
         inside = (xu >= xd[order][0]) & (xu <= xd[order][-1])
         if inside.sum() < 10:
             continue
-        gap = 0.5 * np.abs(np.median(tu[inside] - np.interp(xu[inside], xd[order], td[order])))
-        out[j] = max(out.get(j, 0.0), float(gap))
+        d = tu[inside] - np.interp(xu[inside], xd[order], td[order])
+        sign = 1.0 if xu[-1] >= xu[0] else -1.0  # the up leg's direction of motion
+        med = float(np.median(d))
+        tau = autocorrelation_time(d - med)[0]
+        std = 0.5 * 1.2533 * float(np.std(d)) * np.sqrt(max(tau, 1.0) / len(d))  # median of ~normal noise
+        gap = FrictionGap(0.5 * sign * med, std)
+        if (key.pose, j) not in out or abs(gap.level_nm) > abs(out[(key.pose, j)].level_nm):
+            out[(key.pose, j)] = gap
     return out
+
+
+def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
+    """Per moving joint (0-based): the largest friction level the run shows over its poses (``friction_gaps``)."""
+    out: dict[int, float] = {}
+    for (_, j), gap in friction_gaps(empty).items():
+        out[j] = max(out.get(j, 0.0), abs(gap.level_nm))
+    return out
+
+
+def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], res: FitResult, selector: Selector
+                         ) -> dict[str, np.ndarray]:
+    """∂θ/∂b_k of a constant torque b_k on the rows ``selector`` names k: s_k = (YᵀWY)⁻¹·YᵀW·1_k.
+
+    ``res`` is the fit of ``groups`` (its weights and normal inverse); θ moves by Σ_k s_k·b_k.
+    """
+    w, inv = res.weights, res.normal_inverse
+    by_name = {d.key.name: d for d in sweeps}
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    s: dict[str, np.ndarray] = {}
+    for i, g in enumerate(groups):
+        name = selector(g, by_name[g.sweep])
+        if name is not None:
+            s[name] = s.get(name, 0.0) + inv @ (g.Y.T @ w[starts[i]:starts[i + 1]])
+    return s
 
 
 def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, friction_nm: Mapping[int, float],
@@ -187,60 +232,52 @@ def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinemati
     """Covariance of θ from an unknown constant torque on each moving joint, σ_j = rel_std × friction_nm[j].
 
     What the two-direction average leaves is even in speed: a Coulomb direction asymmetry a times
-    the change of the friction level f between the empty and the loaded run, a·Δf·F. ``rel_std`` is
-    the standard uncertainty of a·Δf (e.g. 0.087 × 0.082: asymmetry uniform ±15 %, friction change by
-    drift and warm-up). One cause per joint, so the offsets of all sweeps of a joint move together:
-    Σ = Σ_j σ_j² · s_j s_jᵀ with s_j = (YᵀWY)⁻¹·YᵀW·1_j over joint j's moving rows.
+    the change of the friction level between the empty and the loaded run. One cause per joint, so
+    the offsets of all sweeps of a joint move together: Σ = Σ_j σ_j² · s_j s_jᵀ with s_j summed over
+    joint j's moving rows. (``evaluation.systematics`` measures the change per sweep instead.)
     """
     sweeps, groups = plain_groups(deltas, kin)
     res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
-    w, inv = res.weights, res.normal_inverse
-    by_name = {d.key.name: d for d in sweeps}
-    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
-    s: dict[int, np.ndarray] = {}
-    for i, g in enumerate(groups):
-        if g.joint != by_name[g.sweep].moving or g.joint not in friction_nm:
-            continue
-        wi = w[starts[i]:starts[i + 1]]
-        s[g.joint] = s.get(g.joint, 0.0) + inv @ (g.Y.T @ wi)
+    s = offset_sensitivities(sweeps, groups, res,
+                             lambda g, d: str(g.joint) if g.joint == d.moving and g.joint in friction_nm else None)
     cov = np.zeros((4, 4))
     for j, v in s.items():
-        sigma = rel_std * friction_nm[j]
-        cov += sigma ** 2 * np.outer(v, v)
+        cov += (rel_std * friction_nm[int(j)]) ** 2 * np.outer(v, v)
     return cov
 
 
-def wrist_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, float]:
-    """Covariance of θ from constant wrist torques the model lacks, sized from the data; and that size (N·m).
+def wrist_offset_size(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                      gain_rel_std: Iterable[float] | None = None) -> float:
+    """How big constant wrist torques the model lacks are on this arm with this tool (N·m), from the data.
 
     A small tool cable, or gear ripple that grows with load on a wrist joint standing still, puts a
     constant torque on joints 4–6 during a sweep. The fit with one offset per (pose, wrist joint)
     estimates them, b̂ with covariance C; their spread beyond noise, σ_w² = max(0, (Σ b̂² − tr C)/k)
-    (method of moments), is how big such torques are on this arm with this tool. Treated as random,
-    each moves θ̂ by s_k·b_k (s_k = (YᵀWY)⁻¹·YᵀW·1_k over the rows sharing offset k), so
-    Σ = σ_w²·Σ_k s_k s_kᵀ. Zero when the data show no such torque; large ones fail ``cable_check``.
+    (method of moments). Zero when the data show no such torque; large ones fail ``cable_check``.
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
     sweeps, groups = plain_groups(deltas, kin)
-    base_names = augment(sweeps, groups, moving_joint)[1]
+    base_names = set(augment(sweeps, groups, moving_joint)[1])
     both = fit_offsets(deltas, kin, moving_joint, wrist_joint, gain_rel_std=gain)
-    idx = [i for i, n in enumerate(both.labels) if n not in set(base_names)]
+    idx = [i for i, n in enumerate(both.labels) if n not in base_names]
     if not idx:
-        return np.zeros((4, 4)), 0.0
+        return 0.0
     b = both.offsets_nm[idx]
     c = both.offsets_cov[np.ix_(idx, idx)]
-    var_w = max(0.0, float(b @ b - np.trace(c)) / len(idx))
-    if var_w == 0.0:
+    return float(np.sqrt(max(0.0, float(b @ b - np.trace(c)) / len(idx))))
+
+
+def wrist_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, float]:
+    """Covariance of θ from constant wrist torques of the size ``wrist_offset_size`` finds, and that size.
+
+    Treated as random, each (pose, wrist joint) torque moves θ̂ by s_k·b_k, so Σ = σ_w²·Σ_k s_k s_kᵀ.
+    """
+    sigma_w = wrist_offset_size(deltas, kin, gain_rel_std)
+    if sigma_w == 0.0:
         return np.zeros((4, 4)), 0.0
-    res = fit(groups, gain)
-    w, inv = res.weights, res.normal_inverse
-    by_name = {d.key.name: d for d in sweeps}
-    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
-    s: dict[str, np.ndarray] = {}
-    for i, g in enumerate(groups):
-        name = wrist_joint(g, by_name[g.sweep])
-        if name is not None:
-            s[name] = s.get(name, 0.0) + inv @ (g.Y.T @ w[starts[i]:starts[i + 1]])
-    cov = sum((var_w * np.outer(v, v) for v in s.values()), np.zeros((4, 4)))
-    return cov, float(np.sqrt(var_w))
+    sweeps, groups = plain_groups(deltas, kin)
+    res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
+    s = offset_sensitivities(sweeps, groups, res, wrist_joint)
+    cov = sum((sigma_w ** 2 * np.outer(v, v) for v in s.values()), np.zeros((4, 4)))
+    return cov, sigma_w

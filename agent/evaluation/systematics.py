@@ -1,0 +1,298 @@
+"""The one recipe for a real arm's systematic errors: compensate what is declared, put the rest into σ.
+
+A real arm has errors no amount of averaging removes, the same on every sample of a run. This
+module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``calibrate``
+(``calibration.fit_gains``) and the accuracy benchmark (method general-bi-cal-comp) all do about them:
+
+1. ``prepare``: the declared joint stiffness (``robot.kinematics.stiffness_nm_per_rad``) is
+   compensated in the loaded and the empty run alike (``solvers.compliance.compensate``: every
+   sample moved to its link angle q − τ/k) before the baseline subtraction and the combination
+   of the two directions;
+2. ``evaluate``: every entry of ``TERMS`` turns what is known about one error source into a
+   ``Term``: its parameters' standard deviations and θ's first-order response to each, for the
+   combined fit (``ALL``) and for each pose's own fit (so the quality gate's pose-agreement check
+   counts exactly the part that moves the poses apart):
+   - stiffness: the declared stiffness' relative uncertainty (``stiffness_uncertainty_percent``),
+     per joint, by finite differences of the whole analysis (``compliance.sensitivities``);
+   - joint zeros: ``zero_offset_uncertainty_deg`` per joint, likewise;
+   - residual friction: the two-direction average cancels friction odd in speed; a Coulomb
+     direction asymmetry a_j leaves a_j·F even in speed, which cancels against the baseline only if
+     the friction level F did not change. The change ΔF is MEASURED per sweep (half the up − down
+     effort gap in the loaded run minus the same in the empty run, ``offsets.friction_gaps``; it
+     includes warm-up, drift and load-dependent friction alike), the asymmetry is DECLARED
+     (``robot.friction_asymmetry_percent``, a standard deviation): one parameter a_j per joint,
+     acting through a_j·ΔF on every sweep of joint j, plus ΔF's own measurement noise per sweep;
+   - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
+     dependent gear ripple), one per (pose, wrist joint), sized from the data
+     (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
+3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
+   per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison.
+
+To add an error source, append a function ``(Context) -> list[Term]`` to ``TERMS``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from payload_agent.analysis.combine import add_combined
+from payload_agent.analysis.delta import DeltaSweep, subtract_all
+from payload_agent.configuration.config import JointSystematicsConfig
+from payload_agent.errors import DataError
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.recording.rundata import SweepData
+from payload_agent.solvers import compliance, general, offsets, wls
+from payload_agent.solvers.results import Estimate
+from payload_agent.types import SweepKey
+
+ALL = "all"  # the key of the combined fit's sensitivities (the others are pose names)
+RIGID = JointSystematicsConfig(None, 0.0, (0.0,) * 6, 0.0)  # nothing declared: no compensation, no term
+
+Sweeps = Mapping[SweepKey, SweepData]
+Deltas = dict[SweepKey, DeltaSweep]
+
+
+def joint_declaration(decl: JointSystematicsConfig) -> compliance.JointSystematics:
+    return compliance.JointSystematics(decl.stiffness_nm_per_rad, decl.stiffness_rel_std, decl.zero_offset_std_rad)
+
+
+def deltas_of(loaded: Sweeps, empty: Sweeps, commands: Mapping | None = None,
+              notes: list[str] | None = None) -> Deltas:
+    """Loaded minus empty, and the friction-cancelling combination of the two directions."""
+    deltas, problems = add_combined(subtract_all(dict(loaded), dict(empty), commands))
+    if notes is not None:
+        notes.extend(problems)
+    return deltas
+
+
+@dataclass
+class Prepared:
+    """A run's sweeps as the analysis sees them: raw, compensated, and their deltas."""
+
+    raw_loaded: Sweeps
+    raw_empty: Sweeps
+    loaded: dict[SweepKey, SweepData]  # compensated
+    empty: dict[SweepKey, SweepData]
+    deltas: Deltas  # of the compensated sweeps, combined where both directions were recorded
+    commands: Mapping | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def prepare(loaded: Sweeps, empty: Sweeps, decl: JointSystematicsConfig, commands: Mapping | None = None
+            ) -> Prepared:
+    """Step 1: compensate the declared stiffness in both runs, subtract, combine."""
+    c = joint_declaration(decl).compliance()
+    lo, em = compliance.compensate(loaded, c), compliance.compensate(empty, c)
+    notes: list[str] = []
+    deltas = deltas_of(lo, em, commands, notes)
+    return Prepared(loaded, empty, lo, em, deltas, commands, notes)
+
+
+@dataclass(frozen=True)
+class Term:
+    """One systematic error source: P parameters' standard deviations and θ's response to each."""
+
+    name: str
+    std: np.ndarray  # (P,)
+    sens: Mapping[str, np.ndarray]  # ALL or a pose -> (4, P) ∂θ/∂p (θ = [m, m·c] of that fit)
+    note: str
+
+    def covariance(self, which: str = ALL) -> np.ndarray:
+        A = self.sens.get(which)
+        if A is None:
+            return np.zeros((4, 4))
+        return (A * self.std ** 2) @ A.T
+
+
+@dataclass
+class Systematics:
+    """Every term of a run; what the estimate and the quality gate add to their covariance."""
+
+    terms: list[Term] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # terms that could not be evaluated, and why
+
+    def covariance(self, which: str = ALL) -> np.ndarray:
+        return sum((t.covariance(which) for t in self.terms), np.zeros((4, 4)))
+
+    def sensitivities(self, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """(A, σ): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it)."""
+        if not self.terms:
+            return np.zeros((4, 0)), np.zeros(0)
+        blocks = [t.sens.get(which, np.zeros((4, len(t.std)))) for t in self.terms]
+        return np.hstack(blocks), np.concatenate([t.std for t in self.terms])
+
+    def apply(self, est: Estimate) -> Estimate:
+        """``est`` (a general fit on the prepared deltas) with every term in its covariance and notes."""
+        if est.covariance is None or not (self.terms or self.notes):
+            return est
+        cov = np.asarray(est.covariance, float).copy()
+        cov[:4, :4] += self.covariance(ALL)
+        out = compliance.with_covariance(est, cov)
+        return replace(out, notes=list(out.notes) + [t.note for t in self.terms] + list(self.notes))
+
+    def describe(self) -> str:
+        return " + ".join(t.name for t in self.terms)
+
+
+# -- the fits every term is evaluated on ------------------------------------------------------------------
+
+@dataclass
+class Context:
+    """What the terms need: the prepared run, the model, the declaration and the base fits."""
+
+    prepared: Prepared
+    kin: Kinematics
+    decl: JointSystematicsConfig
+    gain_rel_std: Sequence[float] | None
+    sweeps: list[DeltaSweep]
+    groups: dict[str, list[wls.Group]]  # ALL and each pose
+    fits: dict[str, wls.FitResult]
+
+    @classmethod
+    def build(cls, prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
+              gain_rel_std: Sequence[float] | None = None) -> "Context":
+        sweeps = general.select_sweeps(prepared.deltas)
+        all_groups = general.build_groups(sweeps, kin)
+        pose_of = {d.key.name: d.key.pose for d in sweeps}
+        groups = {ALL: all_groups}
+        for pose in sorted(set(pose_of.values())):
+            groups[pose] = [g for g in all_groups if pose_of[g.sweep] == pose]
+        fits = {}
+        for which, gs in groups.items():
+            try:
+                fits[which] = wls.fit(gs, gain_rel_std if which == ALL else None)
+            except (DataError, np.linalg.LinAlgError):
+                continue  # a pose that cannot be solved alone: the gate says so
+        if ALL not in fits:
+            raise DataError("systematics: the combined fit is impossible")
+        return cls(prepared, kin, decl, gain_rel_std, sweeps, groups, fits)
+
+    def thetas(self, deltas: Deltas) -> np.ndarray:
+        """θ of every base fit (ALL, then the poses) on other deltas, with the base fits' weights: (4·F,)."""
+        sweeps = general.select_sweeps(deltas)
+        pose_of = {d.key.name: d.key.pose for d in sweeps}
+        groups = general.build_groups(sweeps, self.kin)
+        out = []
+        for which, base in self.fits.items():
+            gs = [g for g in groups if which == ALL or pose_of[g.sweep] == which]
+            sigma = base.sigma_nm
+            w = np.concatenate([np.full(len(g.y), 1.0 / max(sigma.get(g.label, wls.SIGMA_FLOOR_NM), 1e-12) ** 2)
+                                for g in gs])
+            theta, _ = wls.weighted_lstsq(np.vstack([g.Y for g in gs]), np.concatenate([g.y for g in gs]), w)
+            out.append(theta)
+        return np.concatenate(out)
+
+    def split(self, d: np.ndarray) -> dict[str, np.ndarray]:
+        """(P, 4·F) finite-difference rows -> {fit: (4, P)}."""
+        return {which: d[:, 4 * i:4 * i + 4].T for i, which in enumerate(self.fits)}
+
+    def offset_sens(self, selector: offsets.Selector, labels: Sequence[str]) -> dict[str, np.ndarray]:
+        """{fit: (4, P)} of constant torques on the rows ``selector`` names ``labels[p]``."""
+        out = {}
+        for which, res in self.fits.items():
+            s = offsets.offset_sensitivities(self.sweeps, self.groups[which], res, selector)
+            out[which] = np.column_stack([s.get(lab, np.zeros(4)) for lab in labels]) if labels else np.zeros((4, 0))
+        return out
+
+
+# -- the terms ----------------------------------------------------------------------------------------------
+
+def joint_terms(ctx: Context) -> list[Term]:
+    """Declared stiffness and zero-offset uncertainties, by finite differences of the whole analysis."""
+    jd = joint_declaration(ctx.decl)
+    c, zstd = jd.compliance(), jd.zero_std()
+    s_c = np.where(c > 0, jd.stiffness_rel_std, 0.0)
+    if not s_c.any() and not zstd.any():
+        return []
+    p = ctx.prepared
+
+    def theta_of(lo, em):
+        return ctx.thetas(deltas_of(lo, em, p.commands))
+
+    d_c, d_z = compliance.sensitivities(p.raw_loaded, p.raw_empty, jd, theta_of)
+    out = []
+    if s_c.any():
+        k = jd.stiffness_nm_per_rad or ()
+        out.append(Term("joint stiffness", s_c, ctx.split(d_c),
+                        "joint elasticity compensated (k = " + "/".join(f"{v:.3g}" for v in k) + " N·m/rad), "
+                        f"its ±{100 * jd.stiffness_rel_std:.0f} % uncertainty in σ"))
+    if zstd.any():
+        out.append(Term("joint zeros", zstd, ctx.split(d_z),
+                        f"joint zero uncertainty {np.degrees(zstd.max()):.3g}° in σ"))
+    return out
+
+
+def friction_terms(ctx: Context) -> list[Term]:
+    """Coulomb direction asymmetry (declared) × the friction change between the runs (measured per sweep)."""
+    asym = float(ctx.decl.friction_asymmetry_std)
+    if asym <= 0:
+        return []
+    p = ctx.prepared
+    loaded = offsets.friction_gaps(p.loaded, p.commands)
+    empty = offsets.friction_gaps(p.empty, p.commands)
+    combined = [d for d in ctx.sweeps if d.key.direction == "both"]
+    pairs = [(d.key.pose, d.moving) for d in combined if (d.key.pose, d.moving) in loaded
+             and (d.key.pose, d.moving) in empty]
+    if not pairs:
+        return []
+    change = {pj: loaded[pj].level_nm - empty[pj].level_nm for pj in pairs}
+    noise = {pj: float(np.hypot(loaded[pj].std_nm, empty[pj].std_nm)) for pj in pairs}
+    joints = sorted({j for _, j in pairs})
+    labels = [f"{pose}/j{j + 1}" for pose, j in pairs]
+
+    def per_sweep(g: wls.Group, d: DeltaSweep) -> str | None:
+        return f"{d.key.pose}/j{g.joint + 1}" if g.joint == d.moving and d.key.direction == "both" else None
+
+    sweep_sens = ctx.offset_sens(per_sweep, labels)
+    sens = {}
+    for which, S in sweep_sens.items():
+        # a_j acts through a_j·ΔF on every sweep of joint j; then each sweep's own ΔF noise
+        A = np.column_stack([sum(change[pj] * S[:, i] for i, pj in enumerate(pairs) if pj[1] == j) for j in joints])
+        sens[which] = np.hstack([A, S])
+    std = np.concatenate([np.full(len(joints), asym), [asym * noise[pj] for pj in pairs]])
+    worst = max(pairs, key=lambda pj: abs(change[pj]))
+    return [Term("residual friction", std, sens,
+                 f"friction direction asymmetry (±{100 * asym:.3g} %) × the friction change between the runs "
+                 f"(measured, up to {change[worst]:+.3f} N·m on joint {worst[1] + 1} in pose {worst[0]}) in σ")]
+
+
+def wrist_terms(ctx: Context) -> list[Term]:
+    """Constant torques on the still wrist, one per (pose, wrist joint), of the size the data show."""
+    try:
+        sigma_w = offsets.wrist_offset_size(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std)
+    except (DataError, np.linalg.LinAlgError):
+        return []
+    if sigma_w <= 0:
+        return []
+    labels = sorted({offsets.wrist_joint(g, d) for d in ctx.sweeps for g in general.build_groups([d], ctx.kin)}
+                    - {None})
+    return [Term("wrist torques", np.full(len(labels), sigma_w), ctx.offset_sens(offsets.wrist_joint, labels),
+                 f"constant wrist torques of {1000 * sigma_w:.0f} mN·m rms (from the data) in σ")]
+
+
+TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms]
+
+
+def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
+             gain_rel_std: Sequence[float] | None = None,
+             terms: Sequence[Callable[[Context], list[Term]]] | None = None) -> Systematics:
+    """Step 2: every term of ``TERMS`` on a prepared run (``gain_rel_std`` as the estimate was solved with)."""
+    out = Systematics()
+    try:
+        ctx = Context.build(prepared, kin, decl, gain_rel_std)
+    except (DataError, np.linalg.LinAlgError) as exc:
+        out.notes.append(f"systematic error terms not evaluated: {exc}")
+        return out
+    for make in (TERMS if terms is None else terms):
+        try:
+            out.terms.extend(make(ctx))
+        except (DataError, np.linalg.LinAlgError) as exc:
+            out.notes.append(f"{make.__name__.replace('_', ' ')} not evaluated: {exc}")
+    return out
+
+
+__all__ = ["ALL", "RIGID", "Prepared", "Term", "Systematics", "Context", "TERMS", "prepare", "evaluate",
+           "deltas_of", "joint_terms", "friction_terms", "wrist_terms"]
