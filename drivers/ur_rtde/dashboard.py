@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 import socket
+import time
 from dataclasses import dataclass
 
 from payload_agent.errors import CommunicationError
@@ -19,24 +20,56 @@ from payload_agent.types import ControllerInfo
 DASHBOARD_PORT = 29999
 
 
+MAX_LINE_BYTES = 4096  # the dashboard's replies are short lines; anything longer is not one
+
+
 def dashboard_query(host: str, *commands: str, timeout_s: float) -> list[str]:
-    """Send each command on one new connection; their reply lines (CommunicationError on any failure)."""
+    """Send each command on one new connection; their reply lines (CommunicationError on any failure).
+
+    The whole exchange has one deadline (``timeout_s`` per reply line), and a reply line is at most
+    ``MAX_LINE_BYTES``: a peer that trickles bytes or never sends a newline cannot hold the driver.
+    """
     try:
         with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout_s) as s:
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            f = s.makefile("rwb")
-            f.readline()  # greeting
+            reader = _LineReader(s, host, timeout_s * (1 + len(commands)))
+            reader.line()  # greeting
             replies = []
             for cmd in commands:
-                f.write(cmd.encode() + b"\n")
-                f.flush()
-                line = f.readline()
-                if not line:
-                    raise CommunicationError(f"dashboard server {host}:{DASHBOARD_PORT} closed the connection")
-                replies.append(line.decode(errors="replace").strip())
+                s.sendall(cmd.encode() + b"\n")
+                replies.append(reader.line().decode(errors="replace").strip())
             return replies
     except OSError as exc:
         raise CommunicationError(f"cannot talk to the dashboard server at {host}:{DASHBOARD_PORT}: {exc}") from exc
+
+
+class _LineReader:
+    """Newline-terminated lines from a socket, bounded in length and by one deadline."""
+
+    def __init__(self, sock: socket.socket, host: str, budget_s: float):
+        self.sock, self.host = sock, host
+        self.deadline = time.monotonic() + budget_s
+        self.buf = b""
+
+    def line(self) -> bytes:
+        while b"\n" not in self.buf:
+            if len(self.buf) > MAX_LINE_BYTES:
+                raise CommunicationError(f"dashboard server {self.host}:{DASHBOARD_PORT} sent a reply line longer "
+                                         f"than {MAX_LINE_BYTES} bytes")
+            left = self.deadline - time.monotonic()
+            try:
+                if left <= 0:
+                    raise TimeoutError
+                self.sock.settimeout(left)
+                chunk = self.sock.recv(1024)
+            except TimeoutError:
+                raise CommunicationError(f"dashboard server {self.host}:{DASHBOARD_PORT} did not complete its reply "
+                                         "in time") from None
+            if not chunk:
+                raise CommunicationError(f"dashboard server {self.host}:{DASHBOARD_PORT} closed the connection")
+            self.buf += chunk
+        line, self.buf = self.buf.split(b"\n", 1)
+        return line
 
 
 def dashboard_stop(host: str, timeout_s: float) -> bool:

@@ -1,0 +1,91 @@
+"""The UR dashboard client cannot be held by a peer: an endless reply line and a trickling one both end in
+CommunicationError within the exchange's deadline, and a well-formed exchange still works."""
+
+from __future__ import annotations
+
+import random
+import socket
+import threading
+import time
+
+import pytest
+
+from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT, MAX_LINE_BYTES, dashboard_query
+from payload_agent.errors import CommunicationError
+
+
+class Peer:
+    """A loopback server on port 29999 of its own 127.x address, serving each connection with ``behave``."""
+
+    def __init__(self, behave):
+        rng = random.Random()
+        for _ in range(50):
+            host = f"127.{rng.randint(1, 254)}.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
+            try:
+                self.ls = socket.create_server((host, DASHBOARD_PORT))
+                break
+            except OSError:
+                continue
+        else:
+            pytest.skip("no free loopback address for port 29999")
+        self.host, self.behave, self.stop = host, behave, threading.Event()
+        self.ls.settimeout(0.2)
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.ls.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            with conn:
+                try:
+                    self.behave(conn, self.stop)
+                except OSError:
+                    pass
+
+    def close(self):
+        self.stop.set()
+        self.ls.close()
+
+
+def _endless(conn, stop):
+    while not stop.is_set():
+        conn.sendall(b"x" * 1024)
+
+
+def _trickle(conn, stop):
+    conn.sendall(b"Connected: Universal Robots Dashboard Server\n")
+    while not stop.is_set():
+        conn.sendall(b"y")
+        time.sleep(0.05)
+
+
+def _polite(conn, stop):
+    conn.sendall(b"Connected: Universal Robots Dashboard Server\n")
+    with conn.makefile("rb") as f:
+        while f.readline():
+            conn.sendall(b"Stopped\n")
+
+
+@pytest.mark.parametrize("behave, said", [(_endless, f"longer than {MAX_LINE_BYTES} bytes"),
+                                          (_trickle, "did not complete its reply in time")])
+def test_a_peer_cannot_hold_the_client(behave, said):
+    peer = Peer(behave)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(CommunicationError, match=said):
+            dashboard_query(peer.host, "stop", timeout_s=0.5)
+        assert time.monotonic() - t0 < 30.0  # bounded by the deadline (1 s here), not by the peer
+    finally:
+        peer.close()
+
+
+def test_a_well_formed_exchange_still_works():
+    peer = Peer(_polite)
+    try:
+        assert dashboard_query(peer.host, "stop", "stop", timeout_s=2.0) == ["Stopped", "Stopped"]
+    finally:
+        peer.close()
