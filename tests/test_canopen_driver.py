@@ -127,6 +127,7 @@ def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
 def test_move_enables_through_the_state_machine_and_joints_arrive_together(rig):
     drv, fake = rig
     drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
     for d in fake.drives:
         states = [s for _, s in d.history]
@@ -167,6 +168,7 @@ def test_clear_faults_resets_a_faulted_drive_and_says_so(rig, caplog):
     st = drv.state()
     assert st.motion_allowed and "joint 3 (node 3) was in FAULT at connect (error code 0x8611" in st.detail
     drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
 
 
@@ -278,6 +280,7 @@ def test_a_late_sdo_server_mid_move_trips_and_stops_every_drive(rig):
 def test_no_set_point_goes_out_while_a_drive_leaves_sdo_unanswered(rig):
     drv, fake = rig
     drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)  # enabled, one move done
     t_fault = time.monotonic()
     fake.inject_fault("no_reply")
@@ -339,6 +342,7 @@ def test_never_finishing_move_times_out_and_stops(rig):
 def test_quick_stop_over_a_new_bus_when_the_old_one_is_gone(rig):
     drv, fake = rig
     drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
     t0 = time.monotonic()
     drv.network.bus.shutdown()  # the driver's bus object is gone (adapter unplugged and back)
@@ -399,6 +403,7 @@ def test_current_actual_is_scaled_by_the_rated_current_the_drive_reports(rig):
     for d in fake.drives:
         assert [e[0] for e in d.tpdos()[0][3]] == [0x6041, 0x6064, 0x6078]
     drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
     s = drv.wait_sample(2.0, after=time.monotonic())
     # the simulated joints' torque constant is 10 N·m/A: current = torque / 10

@@ -395,6 +395,7 @@ def test_long_move_fast_sim_with_payload():
             target = [1.2, -1.0, 1.0, -1.2, -1.0, 1.0]
             samples = []
             d.start_stream(samples.append)
+            d.wait_sample(10.0)  # the driver refuses to move before its first sample
             d.move_joints(target, 0.5, 1.0, timeout_s=30.0)  # ~2.5 s simulated, ~0.3 s wall
             d.stop_stream()
             assert np.allclose(d._recv.getActualQ(), target, atol=1e-6)
