@@ -117,9 +117,9 @@ class FakeEliteController(EliteMethods, SimulatedController):
 
         self._rpc = LineJsonRpcServer(host, rpc_port, self._dispatch, name="elite-rpc",
                                       raw_override=self._raw_override)
-        # drop a client only after ~2 s of wall time behind (the sim may run many times faster)
-        self._monitor = MonitorServer(host, monitor_port,
-                                      max_queue=int(max(250, 2.0 * robot.time_scale / robot.tick_s)))
+        # 250 frames (2 s simulated) may wait behind a full socket buffer; beyond that the client holds
+        # the simulation back (elastic time), so the stream never lags a fast simulation by seconds
+        self._monitor = MonitorServer(host, monitor_port, max_queue=250)
         self._token: int | None = None
         self._started = False
 

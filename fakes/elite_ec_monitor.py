@@ -11,9 +11,12 @@ See docs/sources.md, section "Elite EC".
 
 Here a frame is sent every 8 ms of SIMULATED time: the server subscribes to the
 SimRobot clock and emits whenever simulated time crosses the next 8 ms boundary.
-Each client has its own sender thread and a bounded queue, so a slow client never
-stalls the simulation thread; a client that falls far behind is disconnected, as a
-real controller closes a connection whose send buffer stays full.
+Each client has its own sender thread and a bounded queue. A client that reads, but slower
+than a fast simulation produces (50× real time on a loaded host), holds the simulation
+thread back until its queue has room: simulated time is elastic, so the client sees the
+stream a real controller would send in real time. A client that stops reading is
+disconnected after ``BLOCK_LIMIT_S``, as a real controller closes a connection whose send
+buffer stays full.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import queue
 import socket
 import struct
 import threading
+import time
 from typing import Mapping
 
 from payload_agent.fakes.tcp_server import TCPServer, shutdown_socket
@@ -140,16 +144,18 @@ class _Client:
             self.dead.set()
 
     def offer(self, frame: bytes) -> bool:
-        """Queue a frame; False when the client fell too far behind (it is then dropped)."""
-        if self.dead.is_set():
-            return False
-        try:
-            self.queue.put_nowait(frame)
-            return True
-        except queue.Full:
-            self.lagged = True
-            self.drop()
-            return False
+        """Queue a frame, waiting up to ``BLOCK_LIMIT_S`` for room; False when the client does not read
+        (it is then dropped) or was dropped."""
+        deadline = time.monotonic() + BLOCK_LIMIT_S
+        while not self.dead.is_set():
+            try:
+                self.queue.put(frame, timeout=0.05)
+                return True
+            except queue.Full:
+                if time.monotonic() > deadline:
+                    self.lagged = True
+                    self.drop()
+        return False
 
     def drop(self) -> None:
         self.dead.set()
@@ -161,6 +167,7 @@ class _Client:
 
 
 SEND_BUFFER_BYTES = 32 * 1024
+BLOCK_LIMIT_S = 2.0  # wall time a full queue may hold the simulation back before its client is dropped
 
 
 class MonitorServer:

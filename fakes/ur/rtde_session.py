@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from payload_agent.fakes.ur.controller import URControllerCore
 
 CLIENT_STALL_S = 0.5  # a client whose socket takes nothing for this long is dropped
+BACKLOG_WAIT_S = 1.0  # wall time the simulation waits for the fake's own sender before packages are lost
 
 
 @dataclass
@@ -257,6 +258,10 @@ class RTDESession:
                     rec.next_t += rec.period
                     if rec.next_t < s.t_exact:  # fell behind (paused clock): do not burst
                         rec.next_t = s.t_exact + rec.period
+            deadline = time.monotonic() + BACKLOG_WAIT_S
+            while len(self.queue) > self.max_queue and self.alive and time.monotonic() < deadline:
+                self.cv.notify()
+                self.cv.wait(0.05)  # the fake's own sender is behind (a busy machine): simulated time waits
             if len(self.queue) > self.max_queue:
                 blocked = self.blocked_since
                 if blocked is not None and time.monotonic() - blocked > CLIENT_STALL_S:
@@ -307,6 +312,7 @@ class RTDESession:
                     return
                 items = list(self.queue)
                 self.queue.clear()
+                self.cv.notify_all()  # a simulation thread waiting for room goes on
             scale = max(self.ctrl.robot.time_scale, 1e-9)
             min_gap = 0.6 * min(rec.period for rec, _ in items) / scale
             pace = min_gap >= 0.0001 and len(items) <= 25
