@@ -231,19 +231,20 @@ def record_reference(robot, plan_bi, draws) -> dict:
     return ref
 
 
-def _calibrate(ref: dict, empty: dict, config, unfitted_std: float
+def _calibrate(ref: dict, empty: dict, config, unfitted_std: float, decl=None
                ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
     """Gain scale, relative gain uncertainty and fitted joints from the reference run's sweeps.
 
     agent/calibration.py fits the joints that carry enough reference torque; as in the agent's
     own analysis (``GainCalibration.gain_rel_std(unfitted=...)``) the others keep their nominal
-    gain with ``unfitted_std`` (``declared_unfitted_gain_std``) as its uncertainty.
+    gain with ``unfitted_std`` (``declared_unfitted_gain_std``) as its uncertainty. ``decl``
+    (``JointSystematicsConfig``): a declared joint stiffness is compensated first, as
+    ``calibration.fit_gains`` does (``systematics.prepare``); None: rigid.
     """
+    from payload_agent.evaluation import systematics
     from payload_agent.evaluation.calibration import fit_gains_from_deltas
-    from payload_agent.analysis.combine import add_combined
-    from payload_agent.analysis.delta import subtract_all
 
-    deltas, _ = add_combined(subtract_all(ref, empty))
+    deltas = systematics.prepare(ref, empty, systematics.RIGID if decl is None else decl).deltas
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics,
                                                      np.asarray(config.effort.gains_nm_per_unit),
                                                      REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
@@ -259,11 +260,11 @@ def theta_reference() -> list[float]:
 def _gate(deltas: dict, kin, est, **kw) -> dict:
     """The agent's own quality gate (``quality.evaluate``) on the deltas and uncertainty terms a method used.
 
-    ``kw``: ``gain_rel_std``, ``length_std_m``, ``gain_reference``, passed as ``analysis.analyse_run``
-    passes them. Returns whether it passed and the names of what failed (checks, and reasons that
+    ``kw``: ``gain_rel_std``, ``length_std_m``, ``gain_reference`` and ``systematics``, passed as
+    ``analysis.analyse_run`` passes them. Returns whether it passed and the names of what failed (checks, and reasons that
     belong to no check, such as a pose that cannot be solved on its own).
     """
-    from payload_agent.evaluation import quality
+    from payload_agent.evaluation import cable_check, quality
 
     try:
         q = quality.evaluate(deltas, kin, est, **kw)
@@ -272,8 +273,12 @@ def _gate(deltas: dict, kin, est, **kw) -> dict:
     failed = [c["check"] for c in q.get("checks", []) if not c.get("passed")]
     listed = {c.get("reason") for c in q.get("checks", []) if not c.get("passed")}
     failed += [r.split(" (")[0] for r in q.get("reasons", []) if r not in listed]  # without the numbers
-    return {"gate_passed": bool(q.get("passed")), "gate_failed": failed,
-            "gate_values": {c["check"]: c["value"] for c in q.get("checks", [])}}
+    out = {"gate_passed": bool(q.get("passed")), "gate_failed": failed,
+           "gate_values": {c["check"]: c["value"] for c in q.get("checks", [])}}
+    cable = next((c for c in q.get("checks", []) if c["check"] == cable_check.NAME), None)
+    if cable is not None:
+        out["cable"] = {k: cable.get(k) for k in ("chi2", "chi2_limit", "mass_shift_g", "cog_shift_mm", "passed")}
+    return out
 
 
 def run_case(args: tuple) -> list[dict]:

@@ -72,9 +72,11 @@ class Declared:
     stiffness_nm_per_rad: tuple[float, ...] | None  # None: rigid (no compensation)
     stiffness_rel_std: float
     zero_offset_std_rad: float
-    # standard uncertainty of (Coulomb direction asymmetry) × (friction change between the runs),
-    # relative to the friction level the baseline shows (solvers/offsets.friction_offset_covariance)
-    friction_even_rel_std: float = 0.0
+    # standard uncertainty of the Coulomb friction's direction asymmetry (robot.friction_asymmetry_percent);
+    # the agent measures the friction change between the runs it multiplies (evaluation/systematics.py)
+    friction_asymmetry_std: float = 0.0
+    # standard uncertainty of the friction level's change between the runs, relative (robot.friction_change_percent)
+    friction_change_std: float = 0.0
 
 
 def draw(scenario: str, index: int):
@@ -117,5 +119,5 @@ def draw(scenario: str, index: int):
     change = math.sqrt(DRIFT ** 2 / 3.0 + ((WARMUP_MAX_C * FRICTION_PER_C) ** 2 / 3.0 if on("temperature") else 0.0))
     declared = Declared(STIFFNESS_NM_PER_RAD if on("elasticity") else None, STIFFNESS_SPREAD / math.sqrt(3.0),
                         math.radians(ZERO_OFFSET_STD_DEG) if on("zero_offset") else 0.0,
-                        ASYMMETRY_MAX / math.sqrt(3.0) * change if on("asymmetry") else 0.0)
+                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change)
     return tool, reference, declared

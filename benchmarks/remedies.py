@@ -1,78 +1,58 @@
 """The benchmark method general-bi-cal-comp: general-bi-cal with the remedies for a real arm's effects.
 
-What the agent would do once the lead hooks the new modules into the pipeline:
-
-1. compensate the declared joint stiffness (``solvers.compliance.compensate``) in the tool run, the
-   empty-flange baseline and the calibration reference run alike;
-2. widen σ by the declared stiffness and zero-offset uncertainties (``compliance.systematic_covariance``);
-3. widen σ by the friction the two-direction average leaves, even in speed (direction asymmetry × a
-   friction change between the runs: temperature, drift), sized from the friction level the baseline
-   shows (``offsets.friction_offset_covariance``). PA_BENCH_OFFSETS=1 fits those offsets instead
-   (``offsets.solve``): less bias from asymmetry, more from slow gear ripple (docs/benchmarks.md);
-4. widen σ by constant wrist torques the data show (a weak tool cable, load-dependent gear ripple on a
-   wrist joint standing still), sized from the data (``offsets.wrist_offset_covariance``);
-5. add the tool-cable check (``evaluation.cable_check``) to the quality gate.
+What the agent itself does (``payload-agent run`` / ``solve`` / ``calibrate``), through its own recipe
+``payload_agent.evaluation.systematics``: the declared joint stiffness is compensated in the tool run,
+the empty-flange baseline and the calibration reference run alike; the declared stiffness and
+zero-offset uncertainties, the friction the two-direction average leaves (declared direction asymmetry ×
+the friction change measured between the runs) and constant wrist torques sized from the data go into σ
+and into the quality gate's pose comparison; the gate's tool-cable check does the rest.
 
 The declared values are what a correctly configured agent knows about the simulated arm
-(``benchmarks.hard.Declared``).
+(``benchmarks.hard.Declared``), as the robot YAML's ``robot.kinematics.stiffness_nm_per_rad``,
+``stiffness_uncertainty_percent``, ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent`` and
+``robot.friction_change_percent`` would say; the realistic arm has none of these effects and declares none.
 """
 
 from __future__ import annotations
 
-import os
+import dataclasses
 
 import numpy as np
 
-from benchmarks.cases import COMP, _calibrate, _gate, _scaled, theta_reference
+from benchmarks.cases import COMP, _calibrate, _gate, theta_reference
 
-FRICTION_OFFSETS = os.environ.get('PA_BENCH_OFFSETS') == '1'
+
+def declaration(declared):
+    """``benchmarks.hard.Declared`` (or None: nothing) as the agent's ``JointSystematicsConfig``."""
+    from payload_agent.configuration.config import JointSystematicsConfig
+    from payload_agent.evaluation import systematics
+
+    if declared is None:
+        return systematics.RIGID
+    return JointSystematicsConfig(declared.stiffness_nm_per_rad, declared.stiffness_rel_std,
+                                  (declared.zero_offset_std_rad,) * 6, declared.friction_asymmetry_std,
+                                  declared.friction_change_std)
+
+
+def scaled(sweeps: dict, scale: np.ndarray) -> dict:
+    """Sweeps with their effort at the calibrated gains (what the agent loads after a calibration)."""
+    return {k: dataclasses.replace(s, effort_nm=np.asarray(s.effort_nm) * scale) for k, s in sweeps.items()}
 
 
 def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict):
     """(Estimate, gate columns) of general-bi-cal-comp on one case's recorded sweeps."""
-    from payload_agent.analysis.combine import add_combined
-    from payload_agent.analysis.delta import subtract_all
-    from payload_agent.evaluation import cable_check
-    from payload_agent.solvers import compliance, general, offsets
+    from payload_agent.evaluation import systematics
+    from payload_agent.solvers import general
 
     kin = config.robot.kinematics
-    decl = compliance.JointSystematics() if declared is None else compliance.JointSystematics(
-        declared.stiffness_nm_per_rad, declared.stiffness_rel_std, declared.zero_offset_std_rad)
-    c = decl.compliance()
-    empty_c = compliance.compensate(empty, c)
-    scale, gain_rel_std, fitted = _calibrate(compliance.compensate(ref, c), empty_c, config, unfitted_std)
+    decl = declaration(declared)
+    scale, gain_rel_std, fitted = _calibrate(ref, empty, config, unfitted_std, decl)
     kw = dict(kin_kw, gain_rel_std=list(gain_rel_std), gain_reference=(theta_reference(), fitted))
-
-    def deltas_of(lo, em):
-        combined, _ = add_combined(subtract_all(lo, em))
-        return _scaled(combined, scale)
-
-    def estimate_of(lo, em):
-        if FRICTION_OFFSETS:
-            return offsets.solve(deltas_of(lo, em), kin, name=COMP, **kw)
-        return general.solve(deltas_of(lo, em), kin, name=COMP, **kw)
-
-    est = compliance.solve_with_systematics(loaded, empty, decl, estimate_of)
-    gate_deltas = deltas_of(compliance.compensate(loaded, c), empty_c)
-    wrist_cov, wrist_nm = offsets.wrist_offset_covariance(gate_deltas, kin, gain_rel_std)
-    if wrist_nm > 0:
-        est = compliance.with_covariance(est, np.asarray(est.covariance) + wrist_cov,
-                                         note=f"constant wrist torques of {1000 * wrist_nm:.0f} mN·m rms in σ")
-    rel = 0.0 if declared is None else declared.friction_even_rel_std
-    if rel > 0:
-        extra = offsets.friction_offset_covariance(gate_deltas, kin, offsets.odd_friction_nm(empty_c), rel,
-                                                   gain_rel_std)
-        est = compliance.with_covariance(est, np.asarray(est.covariance) + extra,
-                                         note=f"friction asymmetry × change (±{100 * rel:.2g} % of the baseline's "
-                                              "friction) in σ")
-    gate = _gate(gate_deltas, kin, est, **kw)
-    cable = cable_check.check(gate_deltas, kin, gain_rel_std=gain_rel_std)
-    gate["gate_values"][cable["check"]] = cable["value"]
-    gate["cable"] = {k: cable.get(k) for k in ("chi2", "chi2_limit", "mass_shift_g", "cog_shift_mm", "passed")}
-    if not cable["passed"]:
-        gate["gate_passed"] = False
-        gate["gate_failed"] = [*gate["gate_failed"], cable["check"]]
-    return est, gate
+    prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl)
+    est = general.solve(prepared.deltas, kin, name=COMP, **kw)
+    syst = systematics.evaluate(prepared, kin, decl, kw["gain_rel_std"])
+    est = syst.apply(est)
+    return est, _gate(prepared.deltas, kin, est, systematics=syst, **kw)
 
 
-__all__ = ["comp_estimate"]
+__all__ = ["comp_estimate", "declaration"]

@@ -39,6 +39,11 @@ DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C = 10.0
 DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT = 12.0
 DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG = 0.02
 DEFAULT_FRICTION_ASYMMETRY_PERCENT = 8.7
+# how much a joint's friction level may change between the baseline and the tool run in a way the net
+# change the data show does not reveal (components changing in opposite directions: Coulomb friction
+# falls as the joints warm up, load-dependent friction rises with the tool's weight): a ±10 % drift
+# and a warm-up within storage.baseline_max_temperature_delta_c at about −1 %/°C, each uniform: √(2·10²/3) ≈ 8 %
+DEFAULT_FRICTION_CHANGE_PERCENT = 8.0
 MIN_STIFFNESS_NM_PER_RAD = 100.0  # softer than this twists a joint by 0.6° per N·m: a unit mistake
 
 
@@ -47,13 +52,15 @@ class JointSystematicsConfig:
     """What the robot YAML declares about its joints' systematic errors (``evaluation.systematics``).
 
     ``robot.kinematics.stiffness_nm_per_rad`` (absent: rigid), ``stiffness_uncertainty_percent``,
-    ``zero_offset_uncertainty_deg`` and ``robot.friction_asymmetry_percent``, in SI / fractions.
+    ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent`` and ``robot.friction_change_percent``,
+    in SI / fractions (all standard deviations).
     """
 
     stiffness_nm_per_rad: tuple[float, ...] | None = None  # None, or 0 on a joint: rigid, not compensated
     stiffness_rel_std: float = DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT / 100.0
     zero_offset_std_rad: tuple[float, ...] = (math.radians(DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG),) * N_JOINTS
     friction_asymmetry_std: float = DEFAULT_FRICTION_ASYMMETRY_PERCENT / 100.0  # of the Coulomb level, by direction
+    friction_change_std: float = DEFAULT_FRICTION_CHANGE_PERCENT / 100.0  # of the baseline's friction level
 
 
 @dataclass(frozen=True)
@@ -163,7 +170,7 @@ class Config:
 
 SECTIONS = ("robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch")
 ROBOT_KEYS = ("name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s", "max_joint_accel_deg_s2",
-              "friction_asymmetry_percent")
+              "friction_asymmetry_percent", "friction_change_percent")
 KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm", "stiffness_nm_per_rad", "stiffness_uncertainty_percent",
                    "zero_offset_uncertainty_deg")
 DH_KEYS = ("a_mm", "d_mm", "alpha_deg", "offset_deg")
@@ -262,7 +269,7 @@ def parse_kinematics(kin: Node, robot: Node | None = None) -> tuple[tuple[DHRow,
 
 
 def _joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
-    """The optional stiffness, zero-offset and friction-asymmetry declarations (see JointSystematicsConfig)."""
+    """The optional stiffness, zero-offset and friction declarations (see JointSystematicsConfig)."""
     stiffness = None
     if kin.has("stiffness_nm_per_rad") and kin.data["stiffness_nm_per_rad"] is not None:
         stiffness = kin.per_joint("stiffness_nm_per_rad", N_JOINTS, min=0, max=1e9)
@@ -276,11 +283,12 @@ def _joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
     stiff_pct = kin.number("stiffness_uncertainty_percent", DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT, min=0, max=100)
     zero_deg = kin.per_joint("zero_offset_uncertainty_deg", N_JOINTS, DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG,
                              min=0, max=5)
-    asym_pct = DEFAULT_FRICTION_ASYMMETRY_PERCENT
+    asym_pct, change_pct = DEFAULT_FRICTION_ASYMMETRY_PERCENT, DEFAULT_FRICTION_CHANGE_PERCENT
     if robot is not None:
         asym_pct = robot.number("friction_asymmetry_percent", DEFAULT_FRICTION_ASYMMETRY_PERCENT, min=0, max=100)
+        change_pct = robot.number("friction_change_percent", DEFAULT_FRICTION_CHANGE_PERCENT, min=0, max=100)
     return JointSystematicsConfig(stiffness, stiff_pct / 100.0, tuple(math.radians(v) for v in zero_deg),
-                                  asym_pct / 100.0)
+                                  asym_pct / 100.0, change_pct / 100.0)
 
 
 def _robot(node: Node) -> RobotConfig:

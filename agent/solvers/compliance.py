@@ -4,7 +4,7 @@ A strain-wave gear twists under load: the controller reports the motor-side angl
 stands at q − τ/k. The payload's torque adds its own twist, so the loaded and the empty run put
 the arm at different link angles for the same reported angle, and the regressor, evaluated at q,
 is slightly wrong. With a declared stiffness k per joint (``robot.kinematics.stiffness_nm_per_rad``
-in a robot YAML, when the lead hooks it in) ``compensate`` moves every sample to its link angle
+in a robot YAML) ``compensate`` moves every sample to its link angle
 q − τ_measured/k before the baseline subtraction, so both runs are matched and modelled at the
 angles gravity acts at.
 
@@ -14,8 +14,9 @@ zeroing). Both are systematic: the same on every sample, so no amount of data av
 ``systematic_covariance`` propagates them to first order: θ̂ is re-solved with each joint's
 compliance and zero shifted by a small step, and Σ = Σ_j σ_j² · (∂θ̂/∂p_j)(∂θ̂/∂p_j)ᵀ.
 
-Pure functions on recorded sweeps; the pipeline hook (``evaluation.pipeline`` / ``general.solve``)
-is the lead's. ``solve_with_systematics`` is the whole recipe for callers that have the raw sweeps.
+Pure functions on recorded sweeps. The agent's recipe (``evaluation.systematics``, used by
+``analyse_run``, ``calibrate`` and the benchmark) calls ``compensate`` and ``sensitivities``;
+``solve_with_systematics`` is the estimate-only form of the same two steps (no pose-wise terms).
 """
 
 from __future__ import annotations
