@@ -210,13 +210,12 @@ def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
     return out
 
 
-def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], res: FitResult, selector: Selector
-                         ) -> dict[str, np.ndarray]:
+def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.ndarray, inv: np.ndarray,
+                         selector: Selector) -> dict[str, np.ndarray]:
     """∂θ/∂b_k of a constant torque b_k on the rows ``selector`` names k: s_k = (YᵀWY)⁻¹·YᵀW·1_k.
 
-    ``res`` is the fit of ``groups`` (its weights and normal inverse); θ moves by Σ_k s_k·b_k.
+    ``w``, ``inv``: the row weights and normal inverse of the fit of ``groups``; θ moves by Σ_k s_k·b_k.
     """
-    w, inv = res.weights, res.normal_inverse
     by_name = {d.key.name: d for d in sweeps}
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
     s: dict[str, np.ndarray] = {}
@@ -238,7 +237,7 @@ def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinemati
     """
     sweeps, groups = plain_groups(deltas, kin)
     res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
-    s = offset_sensitivities(sweeps, groups, res,
+    s = offset_sensitivities(sweeps, groups, res.weights, res.normal_inverse,
                              lambda g, d: str(g.joint) if g.joint == d.moving and g.joint in friction_nm else None)
     cov = np.zeros((4, 4))
     for j, v in s.items():
@@ -278,6 +277,6 @@ def wrist_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
         return np.zeros((4, 4)), 0.0
     sweeps, groups = plain_groups(deltas, kin)
     res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
-    s = offset_sensitivities(sweeps, groups, res, wrist_joint)
+    s = offset_sensitivities(sweeps, groups, res.weights, res.normal_inverse, wrist_joint)
     cov = sum((sigma_w ** 2 * np.outer(v, v) for v in s.values()), np.zeros((4, 4)))
     return cov, sigma_w
