@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -127,7 +126,8 @@ def cli_run(tmp_path_factory):
     robot = sim_robot(tmp)
     out, err = io.StringIO(), io.StringIO()
     with _Env(XDG_STATE_HOME=str(tmp / "xdg-state")), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = cli.main(["run", "--robot", str(robot), "--yes", "--json", "--tool", "gripper-A"])
+        # --no-report: the report is written by the `report` command below (test_solve_history_and_report...)
+        rc = cli.main(["run", "--robot", str(robot), "--yes", "--json", "--no-report", "--tool", "gripper-A"])
     return tmp, robot, rc, out.getvalue(), err.getvalue()
 
 

@@ -37,13 +37,25 @@ def planned_sweeps(bidirectional: bool = False, n: int = 200):
 SPEED_RAD_S = 0.025  # the sweeps' constant speed (only the small centripetal term depends on it)
 
 
+_REGRESSORS: dict[tuple, np.ndarray] = {}
+
+
+def sweep_regressors(kin, key, q) -> np.ndarray:
+    """The general solver's regressor rows (n, 5, 4) of one sweep, computed once per arm, joint and angles:
+    several tests evaluate the same sweeps with another θ or another noise draw."""
+    cache_key = (kin.rows, key.joint, np.asarray(q, float).tobytes())
+    if cache_key not in _REGRESSORS:
+        _REGRESSORS[cache_key] = np.stack([general.regressor(kin, qi, range(1, 6), key.joint - 1, SPEED_RAD_S)
+                                           for qi in q])
+    return _REGRESSORS[cache_key]
+
+
 def synthetic(sweeps, kin, noise=0.0, rng=None, theta=THETA):
     """Exact Δτ of the model (gravity + centripetal at SPEED_RAD_S), plus optional Gaussian noise."""
     deltas = {}
     for key, q in sweeps:
         dtau = np.zeros_like(q)
-        for i, qi in enumerate(q):
-            dtau[i, 1:] = general.regressor(kin, qi, range(1, 6), key.joint - 1, SPEED_RAD_S) @ theta
+        dtau[:, 1:] = sweep_regressors(kin, key, q) @ theta
         if noise:
             dtau = dtau + rng.normal(0.0, noise, dtau.shape)
         deltas[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)

@@ -1,5 +1,6 @@
 """The driver contract carries a new protocol family end to end: tests/inproc_driver.py, run by the runner."""
 
+import math
 import threading
 import time
 
@@ -45,6 +46,9 @@ def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
 
 def test_stalled_stream_stops_the_arm_and_keeps_the_data(sim_ec66_data, tmp_path):
     data = tweak(sim_ec66_data, "simulation.time_scale", 5)  # sweeps long enough to stall in the middle
+    # the simulated arm starts where the plan's approach move goes (12 s of simulated travel saved)
+    approach = make_plan(inproc_config(data, tmp_path, "stall")).moves[0].target_rad
+    data = tweak(data, "simulation.start_deg", [math.degrees(a) for a in approach])
     config = inproc_config(data, tmp_path, "stall", max_stream_gap_ms=100)
     first_sweep = next(i for i, m in enumerate(make_plan(config).moves) if m.sweep is not None)
     seen = {}

@@ -55,6 +55,20 @@ def _profile(q0: np.ndarray, q1: np.ndarray, v: float, a: float) -> np.ndarray:
     return np.vstack([[q0] * 10, path, [q1] * 10])
 
 
+_REGRESSORS: dict[int, tuple[object, dict[bytes, np.ndarray]]] = {}
+
+
+def _regressor(kin, q: np.ndarray) -> np.ndarray:
+    """The payload regressor of kinematics ``kin`` at q, computed once per angle set: the synthetic runs
+    walk the same plan's paths in both phases and in each run (the kinematics object is held, so its id
+    stays its own)."""
+    _, table = _REGRESSORS.setdefault(id(kin), (kin, {}))
+    key = np.asarray(q, float).tobytes()
+    if key not in table:
+        table[key] = kin.payload_regressor(q, range(6))
+    return table[key]
+
+
 def make_run(tmp_path: Path, cfg, *, name: str = "20261121-080000-sim-ec66", gain_error: float = 1.0,
              stop_after: int | None = None) -> Path:
     """A recorded run (empty + loaded phase) as `payload-agent run` writes it, then analysed.
@@ -90,7 +104,7 @@ def make_run(tmp_path: Path, cfg, *, name: str = "20261121-080000-sim-ec66", gai
                 stopping = phase == "loaded" and stop_after is not None and n_sweep == stop_after
                 rec.begin_sweep(move)
                 for qi in (path[: len(path) // 2] if stopping else path):
-                    Y = kin.payload_regressor(qi, range(6))
+                    Y = _regressor(kin, qi)
                     tau = Y @ (ARM + payload) * scale + rng.normal(0, 0.05, 6)
                     rec.sink(Sample(t, t, tuple(map(float, qi)), tuple(map(float, tau / gains))))
                     t += DT
@@ -305,6 +319,12 @@ def _screenshot(html: Path, shot: Path, height: int = 2400) -> np.ndarray:
     return (img * 255).astype(int).reshape(-1, 3)
 
 
+def _n_colours(px: np.ndarray) -> int:
+    """How many distinct colours the screenshot holds (RGB packed into one integer: a 1-D unique, not a
+    row-wise one over millions of pixels)."""
+    return len(np.unique((px[:, 0] << 16) | (px[:, 1] << 8) | px[:, 2]))
+
+
 def _has(px: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> bool:
     return bool(np.any(np.all(np.abs(px - rgb) < tol, axis=1)))
 
@@ -312,7 +332,7 @@ def _has(px: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> bool:
 def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, stopped_report, tmp_path):
     for page in (failed_report[0] / "sub" / "r.html", stopped_report[0] / "report.html"):
         px = _screenshot(page, tmp_path / f"{page.parent.name}.png")
-        assert len(np.unique(px, axis=0)) > 200, f"{page}: the page did not render"
+        assert _n_colours(px) > 200, f"{page}: the page did not render"
         assert _has(px, (0xc0, 0x39, 0x2b)), f"{page}: no red FAILED badge / stop box"
         assert _has(px, (0x1f, 0x5f, 0xa8)), f"{page}: the recorded traces are not drawn"
 
@@ -320,6 +340,6 @@ def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, s
 def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
     out, _ = report_with_history
     px = _screenshot(out, tmp_path / "shot.png")
-    assert len(np.unique(px, axis=0)) > 200, "the screenshot is nearly uniform: the page did not render"
+    assert _n_colours(px) > 200, "the screenshot is nearly uniform: the page did not render"
     # the plots are drawn: the model's orange and the loaded sweep's blue appear on the page
     assert _has(px, (0xe0, 0x7b, 0x00)) and _has(px, (0x1f, 0x5f, 0xa8))

@@ -54,7 +54,9 @@ def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
     cfg_path = tmp_path / "sim-ur5e.yaml"
     cfg_path.write_text(yaml.safe_dump(_data(sim_ur5e_data, tmp_path)))
     truth = sim_ur5e_data["simulation"]["payload"]
-    rc = main(["run", "--robot", str(cfg_path), "--yes", "--retry-sweeps", "4", "--result", str(tmp_path / "r.json")])
+    # no report.html: the report is test_report's and test_end_to_end's (its plots cost seconds, not protocol)
+    rc = main(["run", "--robot", str(cfg_path), "--yes", "--no-report", "--retry-sweeps", "4",
+               "--result", str(tmp_path / "r.json")])
     assert rc == 0
     result = json.loads((tmp_path / "r.json").read_text())
     err_mass = result["mass_kg"] - truth["mass_kg"]
@@ -97,7 +99,8 @@ def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_da
             threading.Timer(0.4, cells[0].controller.inject_fault, ("protective_stop",)).start()
 
     with pytest.raises(MotionAbortedError, match="protective stop"):
-        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append, progress=False))
+        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append, progress=False,
+                                                report=False))
     run_dir = next((tmp_path / "runs").iterdir())
     manifest = load_manifest(run_dir)
     phase = manifest["phases"]["empty"]

@@ -8,11 +8,12 @@ procedure invalidates the baseline; --unattended never asks.
 
 import builtins
 import json
+import shutil
 
 import numpy as np
 import pytest
 
-from conftest import tweak
+from conftest import ROOT, tweak
 from payload_agent.output import history
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
@@ -38,6 +39,27 @@ def _never_ask(prompt):
 @pytest.fixture
 def no_stdin(monkeypatch):
     monkeypatch.setattr(builtins, "input", _never_ask)
+
+
+@pytest.fixture(scope="module")
+def stored_baseline(tmp_path_factory):
+    """`payload-agent baseline --unattended` once for the module: its state folder (the stored empty-flange
+    baseline), copied by each test that starts from a stored baseline into a state folder of its own."""
+    import yaml
+
+    tmp = tmp_path_factory.mktemp("baseline")
+    data = _data(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), tmp)
+    builtins_input, builtins.input = builtins.input, _never_ask
+    try:
+        assert main(["baseline", "--robot", _write(tmp, data), "--unattended"]) == 0
+    finally:
+        builtins.input = builtins_input
+    return tmp / "state"
+
+
+def _with_stored_baseline(stored_baseline, tmp_path):
+    """This test's state folder, holding the module's stored baseline (and nothing else)."""
+    shutil.copytree(stored_baseline, tmp_path / "state")
 
 
 def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(sim_ec66_data, tmp_path,
@@ -88,13 +110,12 @@ def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(s
     assert main(["history", "--robot", _write(tmp_path, data)]) == 0
 
 
-def test_changed_procedure_invalidates_baseline(sim_ec66_data, tmp_path, no_stdin, capsys):
+def test_changed_procedure_invalidates_baseline(sim_ec66_data, tmp_path, no_stdin, capsys, stored_baseline):
     data = _data(sim_ec66_data, tmp_path)
     cfg = parse_config(data, source="test")
+    _with_stored_baseline(stored_baseline, tmp_path)  # recorded with this procedure on a fresh simulated EC66
     cell = SimulatedCell(cfg).start()
     try:
-        run_identification(cfg, RunOptions(mode="baseline", unattended=True, cell=cell, ask=_never_ask,
-                                           out=lambda s: None, report=False))
         changed = parse_config(tweak(data, "procedure.sweep_deg", [0, 50]), source="test")
         moves = cell.robot.snapshot().move_id
         with pytest.raises(BaselineError, match="procedure changed"):
@@ -131,12 +152,12 @@ def _write(tmp_path, data) -> str:
     return str(path)
 
 
-def test_watch_runs_once_per_trigger_file_and_applies(sim_ec66_data, tmp_path, no_stdin):
+def test_watch_runs_once_per_trigger_file_and_applies(sim_ec66_data, tmp_path, no_stdin, stored_baseline):
     trigger = tmp_path / "tool-changed"
     data = tweak(_data(sim_ec66_data, tmp_path), "watch", {"trigger": {"type": "file", "path": str(trigger)},
                                                           "poll_interval_s": 0.05})
     path = _write(tmp_path, data)
-    assert main(["baseline", "--robot", path, "--unattended"]) == 0
+    _with_stored_baseline(stored_baseline, tmp_path)  # `baseline --unattended` exited 0 (the fixture asserts it)
     trigger.write_text("")
     assert main(["watch", "--robot", path, "--max-runs", "1", "--tool", "gripper-A"]) == 0
     assert not trigger.exists()  # consumed: one file, one run
