@@ -16,13 +16,15 @@ from payload_agent.recording.rundata import load_manifest
 AGENT = [sys.executable, "-m", "payload_agent.cli"]
 
 
-def sim_yaml(tmp_path: Path, time_scale: float = 10) -> Path:
+def sim_yaml(tmp_path: Path, time_scale: float | None = 10) -> Path:
     """The shipped sim-ec66.yaml on ephemeral ports; ``time_scale`` 10 is slow enough to be killed in the
-    middle of a sweep. The simulation section is not part of the resume fingerprint (the robot, effort,
-    driver, procedure and safety sections are), so the resumed run may simulate faster."""
+    middle of a sweep, None keeps the shipped one. The simulation section is not part of the resume
+    fingerprint (the robot, effort, driver, procedure and safety sections are), so the resumed run may
+    simulate faster."""
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     data["driver"].update(rpc_port=0, monitor_port=0)  # ephemeral ports: no clash with other simulations
-    data["simulation"]["time_scale"] = time_scale
+    if time_scale is not None:
+        data["simulation"]["time_scale"] = time_scale
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}
     data.pop("watch", None)
     path = tmp_path / "sim-ec66.yaml"
@@ -63,7 +65,7 @@ def test_sigkill_mid_sweep_then_resume(tmp_path):
     assert len(lines) > 10 and lines[0].startswith("t_ctrl_s")
     for line in lines[1:-1]:  # every complete line is a full sample (the last one may be cut)
         assert len(line.split(",")) == 14
-    sim_yaml(tmp_path, time_scale=50)  # the same robot YAML, its simulation at the shipped speed
+    sim_yaml(tmp_path, time_scale=None)  # the same robot YAML, its simulation at the shipped speed
     done = subprocess.run([*AGENT, "run", "--robot", str(robot), "--yes", "--no-report", "--resume", str(run)],
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr

@@ -50,11 +50,12 @@ def test_identifies_simulated_payload_over_the_protocol(sim_ec66_data, tmp_path)
 
 
 def test_estop_mid_sweep_stops_and_keeps_data(sim_ec66_data, tmp_path):
-    cfg = _config(sim_ec66_data, tmp_path, procedure__speed_percent=3)
+    # slow sweeps (3 %) so that the stop lands mid-sweep; one direction only: half the empty run to wait for
+    cfg = _config(sim_ec66_data, tmp_path, procedure__speed_percent=3, procedure__bidirectional=False)
     cells = []
 
     def out(line):
-        if "[loaded] 2/12" in line:  # the first loaded sweep has just been commanded
+        if "[loaded] 2/8" in line:  # the first loaded sweep has just been commanded
             cell = cells[0]
             threading.Timer(0.15, cell.controller.press_estop).start()
 
