@@ -129,8 +129,12 @@ class SimRobot:
             delay = next_wall - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            elif delay < -0.05:  # behind: slow simulated time down rather than burst
-                next_wall = time.monotonic()
+            else:
+                # behind (a saturated or loaded host): still hand the GIL over every tick, or the agent's
+                # stream reader and watchdog, sharing this process, wait behind the clock thread
+                time.sleep(0)
+                if delay < -0.05:  # slow simulated time down rather than burst
+                    next_wall = time.monotonic()
 
     def step(self) -> SimState:
         """Advance simulated time by one tick (called by the clock thread, or by tests directly)."""
