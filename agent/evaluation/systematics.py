@@ -26,6 +26,9 @@ module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``c
      declared relative change of the baseline's friction level (``robot.friction_change_percent``)
      enters beside the measured one. Parameters: per joint a_j·ΔF_j (measured, on every sweep of joint
      j) and a_j·δ_j (δ_j ~ friction_change × the baseline's level), per sweep ΔF's measurement noise;
+   - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
+     from one standing angle to the next (gear ripple growing with load), sized from the data
+     (``solvers.gain_scatter``);
    - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
      dependent gear ripple), one per (pose, wrist joint), sized from the data
      (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
@@ -48,7 +51,7 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.solvers import compliance, general, offsets, wls
+from payload_agent.solvers import compliance, gain_scatter, general, offsets, wls
 from payload_agent.solvers.results import Estimate
 from payload_agent.types import SweepKey
 
@@ -284,7 +287,15 @@ def wrist_terms(ctx: Context) -> list[Term]:
                  f"constant wrist torques of {1000 * sigma_w:.0f} mN·m rms (from the data) in σ")]
 
 
-TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms]
+def gain_scatter_terms(ctx: Context) -> list[Term]:
+    """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load),
+    sized from the data (``solvers.gain_scatter``)."""
+    out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
+                            {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL)
+    return [] if out is None else [Term("torque-gain scatter", *out)]
+
+
+TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms, gain_scatter_terms]
 
 
 def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
@@ -341,4 +352,4 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
 
 
 __all__ = ["ALL", "RIGID", "Prepared", "Term", "Systematics", "Context", "TERMS", "prepare", "evaluate",
-           "deltas_of", "joint_terms", "friction_terms", "wrist_terms", "planned_covariance"]
+           "deltas_of", "joint_terms", "friction_terms", "wrist_terms", "gain_scatter_terms", "planned_covariance"]

@@ -1,0 +1,228 @@
+"""Torque-gain scatter between the angles a joint stands at: measured from the data, put into σ.
+
+Why. A strain-wave gear's torque ripple grows with the torque through the gear (``fakes.effects.
+TorqueRipple``: A + L·|τ|, times sin of the motor-side angle). On a joint that *moves* during a
+sweep the mesh part oscillates many times and averages out. On a joint that *stands still* while
+another one sweeps it does not: the ripple factor s = sin(2N·q + φ) is frozen at the angle the joint
+stands at, and the payload's share of the gear torque, Δτ, comes with an extra L·s·Δτ. The loaded
+minus empty difference on that joint is (1 + ε)·Δτ with ε = ±L·s, a *gain error* of up to ±L
+(≈ 1 %) that is the same through the whole sweep and differs from one standing angle to the next.
+No white-noise or autocorrelation-robust (HAC) covariance can see it: within a sweep it is
+perfectly smooth and proportional to the signal, so the fit absorbs part of it and the rest looks
+like a tiny, slow residual. Neither does a per-joint drive-gain calibration remove it: the
+calibration fits one scale per joint, the mean over all of the joint's standing angles.
+
+Measured in the benchmark (realistic + ripple, 20 payloads, the same noise with and without the
+ripple): of the ripple's centre-of-mass error, the gain-like part on still joints is 0.20 mm rms per
+(sweep, joint) group, the moving joint's slow once-per-turn part 0.17 mm, the mesh part that HAC
+sees 0.002 mm (docs/benchmarks.md, "Gear ripple and σ").
+
+What. Every (joint, standing angle) pair k is a *cluster*: the still-joint rows of every sweep in
+which joint j stands at that angle (the wrist stands at one angle through all sweeps of a pose;
+joint 3 may stand at the same angle in two poses). The model allows each cluster its own relative
+gain error ε_k, random with variance τ²:
+
+    Δτ_g = (1 + ε_k)·Y_g·θ  for each still-joint group g of cluster k.
+
+``measure`` fits θ together with one column Y_g·θ̂ per cluster (linearised gain), giving ε̂ and its
+autocorrelation-robust covariance C. τ² is the maximum-likelihood variance of ε̂ ~ N(0, C + τ²·I)
+(``scatter_variance``), 0 when the scatter is within noise. The likelihood weighs clusters by their
+precision: a wrist joint carrying a few tenths of a N·m gives an ε̂ of tens of per cent either way
+and must not decide τ (a moment estimate let it, ×3 too large on some payloads). Each ε_k moves the
+plain fit by s_k = (YᵀWY)⁻¹·Σ_{g∈k} Y_gᵀW_g·Y_gθ̂, so Cov(θ̂) gains τ²·Σ_k s_k s_kᵀ. The moving joints
+carry no ε column: they anchor θ (a gain column on every group would make the overall scale
+unidentifiable); their slow once-per-turn ripple (0.1 of the mesh part) is left out.
+
+Conservative for the mass after a drive-gain calibration: the reference run stands at the same
+angles, so the calibration's per-joint scale absorbs part of each ε_k (for the mass most of it: the
+reference is a known mass); that absorption is not subtracted here.
+
+The term is derived from the data alone: nothing about the gear is declared. It is zero for an arm
+whose still joints agree with the model within noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.solvers import general, offsets
+from payload_agent.solvers.wls import FitResult, Group, fit
+from payload_agent.types import SweepKey
+
+SAME_ANGLE_RAD = 2e-3  # two still groups of one joint within this share a cluster (compensation moves q by τ/k)
+SELECTORS: tuple = ()  # nuisance offsets fitted beside the gain columns (see ``measure``)
+LR_CRITICAL = 5.412  # 1 % level of the boundary likelihood-ratio test (½χ²₀ + ½χ²₁: the 98 % χ²₁ quantile)
+MIN_CLUSTER_PEAK_NM = 1e-6  # a cluster whose modelled torque stays below this carries no gain information
+
+
+@dataclass(frozen=True)
+class GainScatter:
+    """What the data say about gain errors between standing angles."""
+
+    labels: list[str]  # cluster names, "j<joint>@<angle>°"
+    eps: np.ndarray  # (k,) fitted relative gain error of each cluster
+    eps_cov: np.ndarray  # (k, k) their covariance (autocorrelation-robust)
+    tau: float  # standard deviation of the scatter beyond noise (relative), 0 if none
+    sensitivities: np.ndarray  # (k, 4) ∂θ̂/∂ε_k of the plain fit
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """τ²·Σ_k s_k s_kᵀ: the covariance of θ = [m, m·c] this scatter adds."""
+        return self.tau ** 2 * (self.sensitivities.T @ self.sensitivities)
+
+
+def clusters(sweeps: list[DeltaSweep], groups: list[Group], tol_rad: float = SAME_ANGLE_RAD) -> list[str | None]:
+    """Cluster name of every group: (joint, standing angle) for still-joint groups, None for moving ones."""
+    by_name = {d.key.name: d for d in sweeps}
+    still: dict[int, list[tuple[float, int]]] = {}
+    for i, g in enumerate(groups):
+        d = by_name[g.sweep]
+        if g.joint != d.moving:
+            still.setdefault(g.joint, []).append((float(np.median(d.q[:, g.joint])), i))
+    out: list[str | None] = [None] * len(groups)
+    for j, items in still.items():
+        items.sort()
+        runs: list[list[tuple[float, int]]] = [[items[0]]]
+        for item in items[1:]:
+            if item[0] - runs[-1][-1][0] > tol_rad:
+                runs.append([])
+            runs[-1].append(item)
+        for run in runs:
+            label = f"j{j + 1}@{np.degrees(0.5 * (run[0][0] + run[-1][0])):.2f}°"
+            for _, i in run:
+                out[i] = label
+    return out
+
+
+def scatter_variance(eps: np.ndarray, cov: np.ndarray) -> float:
+    """Maximum-likelihood τ² ≥ 0 of ε̂ ~ N(0, C + τ²·I): the gain errors' variance beyond their noise.
+
+    0 unless the likelihood-ratio test rejects τ² = 0 at 1 % (``LR_CRITICAL``): with white noise the
+    robust C is itself a little optimistic (ε̂/se has an rms of 1.1–1.3 in the unit tests), and a small
+    τ² moves θ a lot (the still joints 2 and 3 carry tens of N·m), so chance scatter must not count.
+
+    The likelihood weighs each cluster by its precision, so a cluster whose payload torque is tiny (its ε̂
+    is a ratio of two small numbers, tens of per cent either way) cannot inflate τ the way a simple
+    moment estimate lets it; clusters with a clear gain error decide.
+    """
+    k = len(eps)
+    if k == 0:
+        return 0.0
+
+    def nll(t2: float) -> float:
+        a = cov + t2 * np.eye(k)
+        sign, logdet = np.linalg.slogdet(a)
+        if sign <= 0:
+            return np.inf
+        return float(logdet + eps @ np.linalg.lstsq(a, eps, rcond=None)[0])
+
+    top = max(float(eps @ eps) / k, 1e-12)
+    grid = np.concatenate(([0.0], top * np.logspace(-8, 0, 161)))
+    vals = [nll(t2) for t2 in grid]
+    i = int(np.argmin(vals))
+    if i == 0:
+        return 0.0
+    lo, hi = grid[i - 1], grid[min(i + 1, len(grid) - 1)]
+    for _ in range(60):  # golden-section refinement inside the bracketing grid cells
+        a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+        lo, hi = (lo, b) if nll(a) < nll(b) else (a, hi)
+    t2 = 0.5 * (lo + hi)
+    # only a scatter the data show: the likelihood-ratio test of τ² = 0 (on the boundary, so half χ²₁)
+    return t2 if nll(0.0) - nll(t2) > LR_CRITICAL else 0.0
+
+
+def sensitivities(sweeps: list[DeltaSweep], groups: list[Group], res: FitResult, theta: np.ndarray,
+                  labels: Sequence[str], tol_rad: float = SAME_ANGLE_RAD) -> np.ndarray:
+    """(4, k) ∂θ̂/∂ε_k of the fit ``res`` of ``groups`` to a relative gain error ε_k of cluster ``labels[k]``.
+
+    The error scales the payload torque of the cluster's rows, ε_k·Y_g·θ (``theta``: the best estimate of
+    the true θ, e.g. the combined fit's), so θ̂ moves by (YᵀWY)⁻¹·Σ_{g∈k} Y_gᵀW_g·Y_gθ per unit ε_k.
+    """
+    names = clusters(sweeps, groups, tol_rad)
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    S = np.zeros((4, len(labels)))
+    for i, (g, name) in enumerate(zip(groups, names)):
+        if name in labels:
+            wi = res.weights[starts[i]:starts[i + 1]]
+            S[:, list(labels).index(name)] += res.normal_inverse[:4, :4] @ (g.Y[:, :4].T @ (wi * (g.Y[:, :4] @ theta)))
+    return S
+
+
+def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+            gain_rel_std: Iterable[float] | None = None, tol_rad: float = SAME_ANGLE_RAD,
+            selectors: Sequence[offsets.Selector] = ()) -> GainScatter:
+    """The gain scatter between standing angles in these deltas (see the module docstring).
+
+    ``selectors``: nuisance offsets (``solvers.offsets``) fitted beside the gain columns, so that a constant
+    torque (e.g. on the still wrist: ``offsets.wrist_joint``) is not taken for a gain error.
+    """
+    gain = None if gain_rel_std is None else list(gain_rel_std)
+    sweeps = general.select_sweeps(deltas)
+    groups = general.build_groups(sweeps, kin)
+    plain = fit(groups, gain)
+    theta = plain.theta
+    names = clusters(sweeps, groups, tol_rad)
+    labels: list[str] = []
+    for g, name in zip(groups, names):
+        if name is not None and name not in labels and np.max(np.abs(g.Y @ theta)) > MIN_CLUSTER_PEAK_NM:
+            labels.append(name)
+    if not labels:
+        return GainScatter([], np.zeros(0), np.zeros((0, 0)), 0.0, np.zeros((0, 4)))
+    aug = []
+    for g, name in zip(groups, names):
+        extra = np.zeros((len(g.y), len(labels)))
+        if name in labels:
+            extra[:, labels.index(name)] = g.Y @ theta
+        aug.append(replace(g, Y=np.hstack([g.Y, extra])))
+    if selectors:
+        aug, _ = offsets.augment(sweeps, aug, *selectors)
+    res = fit(aug, gain)
+    k = slice(4, 4 + len(labels))
+    eps, eps_cov = res.theta[k], res.cov[k, k]
+    tau2 = scatter_variance(eps, eps_cov)
+    S = sensitivities(sweeps, groups, plain, theta, labels, tol_rad)
+    return GainScatter(labels, eps, eps_cov, float(np.sqrt(tau2)), S.T)
+
+
+def gain_scatter_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, str]:
+    """(4×4 covariance of θ = [m, m·c], note) from the gain scatter between standing angles.
+
+    The note is empty when the data show no scatter beyond noise (the covariance is then zero).
+    """
+    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS)
+    if gs.tau <= 0.0:
+        return np.zeros((4, 4)), ""
+    return gs.covariance, note(gs)
+
+
+def note(gs: GainScatter) -> str:
+    return (f"torque-gain scatter of {100 * gs.tau:.2g} % between the angles joints stand at "
+            f"({len(gs.labels)} (joint, angle) pairs, from the data; gear ripple under load) in σ")
+
+
+def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iterable[float] | None,
+         fits: Mapping[str, tuple[list[Group], FitResult]], combined: str
+         ) -> tuple[np.ndarray, dict[str, np.ndarray], str] | None:
+    """The scatter as one systematic term for ``evaluation.systematics``: (σ per cluster, {fit: (4, k)}, note).
+
+    ``fits``: every fit the term must reach (the combined one under the key ``combined``, each pose's
+    own), as (its groups, its result); each gets its own response to the same cluster errors, so a
+    comparison between fits counts only the part that moves them apart. None: no scatter beyond noise.
+    """
+    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS)
+    if gs.tau <= 0.0:
+        return None
+    theta = fits[combined][1].theta[:4]
+    sweeps = general.select_sweeps(deltas)
+    sens = {which: sensitivities(sweeps, groups, res, theta, gs.labels) for which, (groups, res) in fits.items()}
+    return np.full(len(gs.labels), gs.tau), sens, note(gs)
+
+
+__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "measure",
+           "gain_scatter_covariance", "note", "term"]
