@@ -15,7 +15,7 @@ calibration fits one scale per joint, the mean over all of the joint's standing 
 Measured in the benchmark (realistic + ripple, 20 payloads, the same noise with and without the
 ripple): of the ripple's centre-of-mass error, the gain-like part on still joints is 0.20 mm rms per
 (sweep, joint) group, the moving joint's slow once-per-turn part 0.17 mm, the mesh part that HAC
-sees 0.002 mm (docs/benchmarks.md, "Gear ripple and σ").
+sees 0.002 mm (the same-noise comparison of the realistic and realistic+ripple cases).
 
 What. Every (joint, standing angle) pair k is a *cluster*: the still-joint rows of every sweep in
 which joint j stands at that angle (the wrist stands at one angle through all sweeps of a pose;
