@@ -1,6 +1,7 @@
 """A procedure chosen for a target accuracy: predict σ of each candidate before moving, pick the fastest.
 
-For a candidate procedure (sweep speed, travel speed, sweep range, repetitions) the plan is made
+For a candidate procedure (which poses and sweeps: a procedure file; sweep speed, travel speed,
+acceleration, sweep range, repetitions) the plan is made
 as ``plan`` would make it; every sweep's constant-speed samples are placed where the segmenter will
 find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
 the controller's period), and the general solver's regressor is evaluated there for a nominal
@@ -11,13 +12,19 @@ the procedure, the information matrix is Σ YᵀY/σ², and
 
     Cov θ ≈ (Σ YᵀY/σ²)⁻¹ · inflation² + the systematic terms (drive gains, DH lengths),
 
-the same terms ``general.solve`` reports. ``inflation`` is the ratio of the reported
+the same terms ``general.solve`` reports, plus those of ``evaluation.systematics`` that can be
+predicted before the run (``systematics.planned_covariance``: joint zeros, and residual friction with
+the declared change of the friction level; the stiffness and the data-sized wrist and gain-scatter
+terms cannot be predicted before the run). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (1 without a baseline).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method.
 
-``choose`` evaluates a grid of candidates, keeps those the safety gate accepts, and returns the
-one that meets the target in the least robot time, with the whole trade-off table. The CLI hook
-(``plan --target-std G,MM``) is the lead's.
+``choose`` evaluates a grid of candidates, keeps those the safety gate accepts (the whole plan,
+as ``plan`` checks it), and returns the one that meets the target in the least robot time, with the
+whole trade-off table. The procedures tried are the configured one and the bundled procedures of
+``PROCEDURES``: joint-2 sweeps only in two or three tool orientations (procedures/j2_pair.yaml,
+j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear)
+and need no 90° joint-2 travel to a joint-3 sweep's start. The CLI hook is ``plan --target-std G,MM``.
 """
 
 from __future__ import annotations
@@ -30,14 +37,16 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from payload_agent.configuration.config import Config
+from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s
 
-SPEEDS_PERCENT = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0)
-TRAVEL_PERCENT = (20.0, 25.0)
-RANGES_DEG = ((0.0, 55.0), (0.0, 40.0))
-ACCELS_PERCENT = (20.0, 40.0)
-REPETITIONS = (1, 2, 3)
+SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0)
+TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
+RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0))
+ACCELS_PERCENT = (40.0, 100.0)
+REPETITIONS = (1, 2)
+# "" = the configured procedure; the others are bundled (procedures/*.yaml)
+PROCEDURES = ("", "j2_pair", "j2_triple")
 
 
 @dataclass(frozen=True)
@@ -48,11 +57,13 @@ class Candidate:
     sweep_to_deg: float
     repetitions: int = 1
     accel_percent: float = 20.0
+    procedure: str = ""  # procedure name or file; "" = the configured one
 
     def describe(self) -> str:
         reps = f" ×{self.repetitions}" if self.repetitions > 1 else ""
-        return (f"sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, accel {self.accel_percent:g} %, "
-                f"{self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
+        proc = f"{self.procedure}: " if self.procedure else ""
+        return (f"{proc}sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, "
+                f"accel {self.accel_percent:g} %, {self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
 
 
 @dataclass(frozen=True)
@@ -83,12 +94,17 @@ class NoiseModel:
     length_std_m: float = 0.0  # DH-length standard uncertainty
     # (θ_ref, fitted joints) of the drive-gain calibration, whose fit absorbed part of the length errors
     gain_reference: tuple | None = None
+    # evaluation.systematics' declarations (config.robot.joints: zero uncertainty, friction asymmetry and
+    # change) and each joint's friction level (N·m: the stored baseline's, or the simulation's Coulomb
+    # friction; None: the residual-friction term is not predicted)
+    joints: JointSystematicsConfig | None = None
+    friction_level_nm: tuple[float, ...] | None = None
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
     pc = dataclasses.replace(config.procedure, speed_percent=c.speed_percent, travel_speed_percent=c.travel_percent,
                              sweep_from_deg=c.sweep_from_deg, sweep_to_deg=c.sweep_to_deg,
-                             accel_percent=c.accel_percent)
+                             accel_percent=c.accel_percent, name=c.procedure or config.procedure.name)
     return dataclasses.replace(config, procedure=pc)
 
 
@@ -96,11 +112,11 @@ _PLANS: dict[tuple, Plan] = {}
 
 
 def plan_for(config: Config, c: Candidate) -> Plan:
-    """``make_plan`` for the candidate. The wrist solutions (the slow part) depend only on the sweep
-    range, so one plan per range is made and its sweep and travel speeds are set per candidate."""
+    """``make_plan`` for the candidate: one plan per procedure and sweep range, its sweep and travel
+    speeds and acceleration set per candidate (the moves' targets do not depend on them)."""
     from payload_agent.types import SweepKey
 
-    key = (id(config), config.source, c.sweep_from_deg, c.sweep_to_deg)
+    key = (id(config), config.source, c.procedure, c.sweep_from_deg, c.sweep_to_deg)
     if key not in _PLANS:
         if len(_PLANS) > 64:
             _PLANS.clear()
@@ -155,6 +171,14 @@ def planned_sweeps(plan: Plan, period_s: float):
 def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray,
                        repetitions: int = 1) -> tuple[np.ndarray, int]:
     """Predicted covariance of θ = [m, m·c] and the number of constant-speed samples of one run."""
+    noise_cov, sys_cov, n = covariance_parts(config, plan, noise, theta)
+    return noise_cov / repetitions + sys_cov, n
+
+
+def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """(noise covariance of one run, systematic covariance, constant-speed samples of one run)."""
+    repetitions = 1
     from payload_agent.solvers import general, wls
 
     kin = config.robot.kinematics
@@ -173,10 +197,12 @@ def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
     cov = inv * noise.inflation ** 2
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
-    # (the sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
+    # (procedure and sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
     ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]))
-    key = (id(config), plan.moves[1].target_rad if len(plan.moves) > 1 else None, tuple(theta), noise.gain_rel_std,
-           noise.length_std_m, ref)
+    # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
+    key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
+           plan.moves[1].target_rad if len(plan.moves) > 1 else None,
+           tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints), noise.friction_level_nm)
     if key not in _SYSTEMATIC:
         sys_cov = np.zeros((4, 4))
         if noise.gain_rel_std is not None:
@@ -184,10 +210,17 @@ def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.
         if noise.length_std_m > 0:
             sys_cov = sys_cov + general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
                                                              noise.gain_reference)
-        if len(_SYSTEMATIC) > 64:
+        if noise.joints is not None:
+            # evaluation.systematics' own prediction of its terms for a planned procedure (joint zeros,
+            # residual friction with the declared change of the friction level)
+            from payload_agent.evaluation import systematics
+
+            level = None if noise.friction_level_nm is None else dict(enumerate(noise.friction_level_nm))
+            sys_cov = sys_cov + systematics.planned_covariance(sweeps, kin, noise.joints, theta, w, level)
+        if len(_SYSTEMATIC) > 256:
             _SYSTEMATIC.clear()
         _SYSTEMATIC[key] = sys_cov
-    return cov + _SYSTEMATIC[key], sum(len(d.q) for d in sweeps)
+    return cov, _SYSTEMATIC[key], sum(len(d.q) for d in sweeps)
 
 
 _SYSTEMATIC: dict[tuple, np.ndarray] = {}
@@ -199,9 +232,29 @@ def nominal_theta(mass_kg: float, cog_mm: Sequence[float]) -> np.ndarray:
 
 def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, *, check_safety: bool = True
             ) -> Prediction:
-    from payload_agent.errors import PayloadAgentError
     from payload_agent.solvers.wls import cog_with_covariance
 
+    base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety)
+    if isinstance(base, tuple) and len(base) == 1:
+        return Prediction(c, float("nan"), float("nan"), float("nan"), 0, base[0])
+    time_s, noise_cov, sys_cov, n, problems = base
+    cov = noise_cov / c.repetitions + sys_cov
+    _, cov_c = cog_with_covariance(theta, cov)
+    return Prediction(c, c.repetitions * time_s, 1000.0 * math.sqrt(max(cov[0, 0], 0.0)),
+                      1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), n, problems)
+
+
+_RUNS: dict[tuple, tuple] = {}
+
+
+def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, check_safety: bool) -> tuple:
+    """One run of the candidate: (robot s, noise covariance, systematic covariance, samples, the safety
+    gate's problems), or (problems,) when it cannot be predicted; kept for the other repetition counts."""
+    from payload_agent.errors import PayloadAgentError
+
+    key = (id(config), config.source, c, repr(noise), tuple(theta), check_safety)
+    if key in _RUNS:
+        return _RUNS[key]
     cfg = with_candidate(config, c)
     try:
         plan = plan_for(config, c)
@@ -209,20 +262,31 @@ def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, 
         if check_safety:
             from payload_agent.motion.safety import SafetyGate
 
+            # the whole plan, exactly as ``plan`` and ``run`` check it before the first move
             problems = tuple(SafetyGate(cfg).check(plan, np.asarray(plan.moves[0].target_rad)).problems)
-        cov, n = predict_covariance(cfg, plan, noise, theta, c.repetitions)
+        noise_cov, sys_cov, n = covariance_parts(cfg, plan, noise, theta)
+        out: tuple = (robot_time_s(plan), noise_cov, sys_cov, n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
-        return Prediction(c, float("nan"), float("nan"), float("nan"), 0, (str(exc),))
-    _, cov_c = cog_with_covariance(theta, cov)
-    return Prediction(c, c.repetitions * robot_time_s(plan), 1000.0 * math.sqrt(max(cov[0, 0], 0.0)),
-                      1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), n, problems)
+        out = ((str(exc),),)
+    if len(_RUNS) > 4096:
+        _RUNS.clear()
+    _RUNS[key] = out
+    return out
 
 
 def candidates(speeds: Iterable[float] = SPEEDS_PERCENT, travels: Iterable[float] = TRAVEL_PERCENT,
                ranges: Iterable[tuple[float, float]] = RANGES_DEG, reps: Iterable[int] = REPETITIONS,
-               accels: Iterable[float] = ACCELS_PERCENT) -> list[Candidate]:
-    return [Candidate(s, t, lo, hi, r, a)
-            for s, t, (lo, hi), r, a in itertools.product(speeds, travels, ranges, reps, accels)]
+               accels: Iterable[float] = ACCELS_PERCENT, procedures: Iterable[str] = PROCEDURES) -> list[Candidate]:
+    return [Candidate(s, t, lo, hi, r, a, p)
+            for p, s, t, (lo, hi), r, a in itertools.product(procedures, speeds, travels, ranges, reps, accels)]
+
+
+def candidates_for(config: Config) -> list[Candidate]:
+    """The default grid for a robot: travel at most its speed cap, the configured procedure and the
+    bundled ones (without a duplicate of the configured one)."""
+    travel = tuple(sorted({min(t, config.safety.max_speed_percent) for t in TRAVEL_PERCENT}))
+    procs = tuple(p for p in PROCEDURES if not p or p != config.procedure.name)
+    return candidates(travels=travel, procedures=procs)
 
 
 @dataclass(frozen=True)
@@ -232,10 +296,10 @@ class Choice:
 
     def describe(self, mass_std_g: float, cog_std_mm: float, limit: int = 12) -> str:
         lines = [f"target σ: mass {mass_std_g:g} g, centre of mass {cog_std_mm:g} mm (1σ)",
-                 f"{'procedure':<40} {'robot s':>8} {'σ m g':>7} {'σ c mm':>7}  meets"]
+                 f"{'procedure':<56} {'robot s':>8} {'σ m g':>7} {'σ c mm':>7}  meets"]
         for p in [p for p in self.table if p.usable][:limit]:
             mark = "yes" if p.meets(mass_std_g, cog_std_mm) else ""
-            lines.append(f"{p.candidate.describe():<40} {p.robot_time_s:8.0f} {p.mass_std_g:7.2f} "
+            lines.append(f"{p.candidate.describe():<56} {p.robot_time_s:8.0f} {p.mass_std_g:7.2f} "
                          f"{p.cog_std_mm:7.2f}  {mark}")
         lines.append("chosen: " + (f"{self.best.candidate.describe()} ({self.best.robot_time_s:.0f} s)" if self.best
                                    else "none meets the target; slower sweeps, more repetitions or a calibration"))
@@ -244,10 +308,32 @@ class Choice:
 
 def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseModel, *,
            nominal_mass_kg: float = 2.0, nominal_cog_mm: Sequence[float] = (0.0, 0.0, 100.0),
-           grid: Sequence[Candidate] | None = None) -> Choice:
-    """The fastest candidate whose predicted σ meets the target (mass and every CoM axis, 1σ)."""
+           grid: Sequence[Candidate] | None = None, exhaustive: bool = False, after: int = 12) -> Choice:
+    """The fastest candidate whose predicted σ meets the target (mass and every CoM axis, 1σ).
+
+    The robot time of every candidate comes from its plan alone (cheap), so candidates are predicted
+    (safety gate and σ) fastest first until one meets the target, and ``after`` more for the table;
+    ``exhaustive`` predicts them all.
+    """
     theta = nominal_theta(nominal_mass_kg, nominal_cog_mm)
-    preds = [predict(config, c, noise, theta) for c in (grid or candidates())]
+
+    def time_of(c: Candidate) -> float:
+        from payload_agent.errors import PayloadAgentError
+
+        try:
+            return c.repetitions * robot_time_s(plan_for(config, c))
+        except (PayloadAgentError, ValueError):
+            return float("inf")  # predict() reports why
+
+    ordered = sorted(grid or candidates_for(config), key=time_of)
+    preds, found, extra = [], False, 0
+    for c in ordered:
+        p = predict(config, c, noise, theta)
+        preds.append(p)
+        found = found or p.meets(mass_std_g, cog_std_mm)
+        extra += found and p.usable
+        if found and extra > after and not exhaustive:
+            break
     preds.sort(key=lambda p: (not p.usable, p.robot_time_s))
     ok = [p for p in preds if p.meets(mass_std_g, cog_std_mm)]
     return Choice(ok[0] if ok else None, preds)

@@ -64,6 +64,9 @@ def move_duration_s(start: np.ndarray, target: np.ndarray, speed: float, accel: 
     return dist / speed + speed / accel
 
 
+_WRISTS: dict[tuple, dict[str, np.ndarray]] = {}
+
+
 def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
     proc = procedure or load_procedure(config.procedure.name)
     pc = config.procedure
@@ -77,12 +80,22 @@ def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
     margin = config.safety.joint_limit_margin_rad
     wrist_limits = [(a + margin, b - margin) for a, b in robot.joint_limits_rad[3:]]
 
+    # the wrist solutions (the slow part: a numerical solve per pose) depend on the poses, the base angle,
+    # the kinematics and the limits only, not on the sweep range or speeds: kept for the next plan
+    wkey = (proc.fingerprint, tuple(proc.poses), pc.base_deg, repr(robot.dh), tuple(wrist_limits))
     wrists: dict[str, np.ndarray] = {}
+    if wkey in _WRISTS:
+        wrists = {k: v.copy() for k, v in _WRISTS[wkey].items()}
     prefer = np.zeros(3)
     for name, pose in proc.poses.items():
+        if name in wrists:
+            continue
         q2, q3 = geo.joints_for(0.0, 0.0)
         R = geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
         wrists[name] = prefer = geo.wrist_for(q2, q3, R, wrist_limits, prefer)  # next pose: least wrist travel
+    if len(_WRISTS) > 64:
+        _WRISTS.clear()
+    _WRISTS[wkey] = {k: v.copy() for k, v in wrists.items()}
 
     def target(pose: str, joint: int, elev: float) -> np.ndarray:
         e2, e3 = (elev, elev) if joint == 2 else (math.pi / 2, elev)
