@@ -36,16 +36,30 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
         try:
             manifest = load_manifest(state.baseline_dir)
             gains = np.asarray(manifest.get("gains_nm_per_unit") or config.effort.gains_nm_per_unit, float)
-            std = measured_effort_std(load_phase(state.baseline_dir, "empty", gains, manifest))
-            return (NoiseModel(std, period, length_std_m=config.robot.length_uncertainty_m),
-                    f"effort noise measured in the stored baseline ({state.baseline_dir})")
+            empty = load_phase(state.baseline_dir, "empty", gains, manifest)
+            std = measured_effort_std(empty)
+            return (NoiseModel(std, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
+                               friction_level_nm=baseline_friction_nm(empty)),
+                    f"effort noise and friction measured in the stored baseline ({state.baseline_dir})")
         except DataError:
             pass
     if config.simulation is not None:
-        return (NoiseModel(tuple(config.simulation.noise_nm), period, length_std_m=config.robot.length_uncertainty_m),
-                "effort noise declared in the simulation section (no stored baseline)")
+        return (NoiseModel(tuple(config.simulation.noise_nm), period, length_std_m=config.robot.length_uncertainty_m,
+                           joints=config.robot.joints, friction_level_nm=tuple(config.simulation.coulomb_nm)),
+                "effort noise and friction declared in the simulation section (no stored baseline)")
     raise ConfigError("--target-std", "no stored empty-flange baseline to measure the effort noise from: record one "
                                       "with `payload-agent baseline`, then plan for a target accuracy", config.source)
+
+
+def baseline_friction_nm(empty) -> tuple[float, ...] | None:
+    """Each joint's friction level in the baseline's sweeps (largest over its poses), for the
+    residual-friction term of the prediction (``systematics.planned_covariance``)."""
+    from payload_agent.solvers.offsets import friction_gaps
+
+    level = [0.0] * 6
+    for (_, j), gap in friction_gaps(empty).items():
+        level[j] = max(level[j], abs(float(gap.level_nm)))
+    return tuple(level) if any(level) else None
 
 
 def plan_for_target(config: Config, text: str) -> tuple[Choice, str]:
