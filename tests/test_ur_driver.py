@@ -519,10 +519,19 @@ def test_stream_or_connection_fault_mid_move_stops_the_arm_within_half_a_second(
 def test_no_reply_to_the_move_command_is_a_trip_and_a_stop_over_the_dashboard(ur2, fresh):
     """The control script swallows moveJ: the command times out, the arm is stopped without it."""
     ur = ur2
-    ur.inject_fault("no_reply")
-    t0 = time.monotonic()
-    with pytest.raises(Exception) as exc:
-        fresh.move_joints(FAR, 0.3, 1.0, timeout_s=20.0)
+    for _ in range(3):
+        ur.inject_fault("no_reply")
+        t0 = time.monotonic()
+        with pytest.raises(Exception) as exc:
+            fresh.move_joints(FAR, 0.3, 1.0, timeout_s=20.0)
+        if "stream stalled" not in str(exc.value):
+            break
+        # a busy machine's own stream gap tripped the watchdog before the reply did (seen at load 10):
+        # not the case under test, tried again (as _fault_mid_move does), twice at most
+        settle(ur)
+        fresh.close()
+        fresh.connect()
+        fresh.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
     assert type(exc.value).__name__ == "SupervisionTrip" and "stopped answering" in str(exc.value)
     report = exc.value.stop_report
     assert report.acknowledged and report.via == "new connection"
