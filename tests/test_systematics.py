@@ -55,6 +55,7 @@ def test_bad_systematics_keys_are_refused_naming_the_key(sim_ec66_data, path, va
 
 
 def test_systematics_keys_and_their_defaults(sim_ec66_data):
+    sim_ec66_data["robot"].pop("friction_asymmetry_percent", None)  # the sim config declares its symmetric friction
     joints = parse_config(sim_ec66_data).robot.joints
     assert joints.stiffness_nm_per_rad is None  # rigid unless declared
     assert joints.zero_offset_std_rad == pytest.approx((math.radians(0.02),) * 6)
@@ -94,6 +95,7 @@ def recorded(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("systematics")
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    data["robot"].pop("friction_asymmetry_percent", None)  # the defaults, as on a real arm
     config = _config(data, tmp)
     elastic = _run(tmp, config, PhysicsEffects(stiffness_nm_per_rad=np.array(STIFFNESS)), seed=3)
     cable = _run(tmp, config, PhysicsEffects(tool_cable=ToolCable((0.3, 0.3, 0.3))), seed=4)
