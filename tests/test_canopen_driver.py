@@ -99,8 +99,10 @@ def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
         assert [e[0] for e in entries] == [0x6041, 0x6064, 0x6077]
         assert not any(valid for _, valid, _, _ in d.tpdos()[1:])
         assert d.node.sdo[0x1017].raw == 50
-        # the drive consumes the agent's heartbeat (node 127, 150 ms) and quick-stops when it is lost
-        assert d.node.sdo[0x1016][1].raw == 127 << 16 | 150 and d.node.sdo[0x6007].raw == 3
+        # the drive consumes the agent's heartbeat (node 127, the YAML's consumer time) and quick-stops when
+        # it is lost
+        consumer_ms = drv.options.master_heartbeat_timeout_ms
+        assert d.node.sdo[0x1016][1].raw == 127 << 16 | consumer_ms and d.node.sdo[0x6007].raw == 3
         assert d.consumer_state == "active"
         # the move's profile values travel in synchronous RPDOs with its set-points, not over SDO
         rpdos = d.rpdos()

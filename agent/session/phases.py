@@ -74,7 +74,11 @@ class PhaseRunner:
 
     def current_q(self, after: float | None = None, near: tuple[float, ...] | None = None) -> np.ndarray:
         """Latest joint angles; with ``after`` (monotonic time), from a sample received after it, and with
-        ``near``, from one at those angles (the stream may lag the motion-finished reply)."""
+        ``near``, from one at those angles (the stream may lag the motion-finished reply). Without
+        ``after``, a sample fresh enough for the driver to move on (after a pause of the stream, e.g. the
+        simulated tool change, the newest may be too old and the driver would refuse to move blind)."""
+        if after is None:
+            after = time.monotonic() - 0.5 * self.driver.gap_limit_s
         deadline = time.monotonic() + (SAMPLE_WAIT_S if near is None else SETTLE_WAIT_S)
         while True:
             s = self.driver.wait_sample(max(0.0, deadline - time.monotonic()), after=after)
