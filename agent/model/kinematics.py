@@ -37,6 +37,19 @@ def dh_transform(theta: float, row: DHRow) -> np.ndarray:
     )
 
 
+def dh_transforms(theta: np.ndarray, a: float, d: float, alpha: float) -> np.ndarray:
+    """Standard-DH transforms for an array of joint angles: (n, 4, 4), the batch of ``dh_transform``."""
+    n = len(theta)
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    T = np.zeros((n, 4, 4))
+    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2], T[:, 0, 3] = ct, -st * ca, st * sa, a * ct
+    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2], T[:, 1, 3] = st, ct * ca, -ct * sa, a * st
+    T[:, 2, 1], T[:, 2, 2], T[:, 2, 3] = sa, ca, d
+    T[:, 3, 3] = 1.0
+    return T
+
+
 def fixed_part(row: DHRow) -> np.ndarray:
     """Tz(d) Tx(a) Rx(alpha): the part of a DH transform that does not turn with the joint."""
     return dh_transform(0.0, row)
@@ -80,19 +93,52 @@ class Kinematics:
     def flange(self, q: Sequence[float]) -> np.ndarray:
         return self.pose(q).flange
 
+    def frames(self, q: np.ndarray) -> list[np.ndarray]:
+        """Base-frame transforms of DH frames 0..n for every sample: a list of n+1 (N, 4, 4) arrays.
+
+        The batch form of ``pose`` for joint angles q of shape (N, n) (one sample (n,) is taken as N = 1).
+        Joint i (0-based) turns about z of frame i through its origin; frame n is the flange.
+        """
+        q = np.atleast_2d(np.asarray(q, float))
+        if q.ndim != 2 or q.shape[1] != self.n:
+            raise ValueError(f"expected {self.n} joint angles per sample, got shape {q.shape}")
+        frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
+        for i, row in enumerate(self.rows):
+            frames.append(frames[-1] @ dh_transforms(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
+        return frames
+
+    def payload_regressors(self, q: np.ndarray, joints: Sequence[int], g: float = GRAVITY_M_S2) -> np.ndarray:
+        """``payload_regressor`` for every sample at once: q (N, n) -> Y (N, len(joints), 4).
+
+        Y[k, r] · [m, m·cx, m·cy, m·cz] is the static torque joint ``joints[r]`` must add at sample k
+        to hold a payload of mass m at c (flange frame, SI) against gravity; the support force is
+        g⃗ = (0, 0, g). With z the joint axis, o a point on it and p, R the flange pose:
+            Y[0] = z · ((p − o) × g⃗),   Y[1:4] = Rᵀ (g⃗ × z)
+        written out component-wise (g⃗ has only a z component), without per-sample np.cross.
+        """
+        joints = tuple(joints)
+        frames = self.frames(q)
+        flange = frames[-1]
+        p = flange[:, :3, 3]
+        R = flange[:, :3, :3]
+        Y = np.empty((len(p), len(joints), 4))
+        for r, j in enumerate(joints):
+            z = frames[j][:, :3, 2]
+            a = p - frames[j][:, :3, 3]
+            # (a × g⃗) = g·(a_y, −a_x, 0);  g⃗ × z = g·(−z_y, z_x, 0)
+            Y[:, r, 0] = g * (z[:, 0] * a[:, 1] - z[:, 1] * a[:, 0])
+            gz = np.stack((-g * z[:, 1], g * z[:, 0], np.zeros(len(z))), axis=1)
+            Y[:, r, 1:] = np.einsum("nij,ni->nj", R, gz)  # Rᵀ (g⃗ × z)
+        return Y
+
     def payload_regressor(self, q: Sequence[float], joints: Sequence[int], g: float = GRAVITY_M_S2) -> np.ndarray:
         """Rows of Y(q) with Δτ_j = Y_j · [m, m·cx, m·cy, m·cz] (c in the flange frame, SI).
 
         Δτ_j is the static torque the joint-j motor must add to hold a payload of
         mass m at c against gravity (g⃗ = (0, 0, g) is the supporting force direction).
+        One sample of ``payload_regressors`` (one formula for both).
         """
-        pose = self.pose(q)
-        p = pose.flange[:3, 3]
-        R = pose.flange[:3, :3]
-        gvec = np.array([0.0, 0.0, g])
-        rows = []
-        for j in joints:
-            z = pose.axis(j)
-            o = pose.origin(j)
-            rows.append(np.concatenate(([z @ np.cross(p - o, gvec)], R.T @ np.cross(gvec, z))))
-        return np.array(rows)
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n,):
+            raise ValueError(f"expected {self.n} joint angles, got shape {q.shape}")
+        return self.payload_regressors(q[None, :], joints, g)[0]

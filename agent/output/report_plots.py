@@ -47,7 +47,7 @@ def png(fig) -> bytes:
 
 def model_torque(kin, q: np.ndarray, theta: np.ndarray, joints: Sequence[int]) -> np.ndarray:
     """(n, len(joints)) payload torque Y(q)·θ̂."""
-    return np.array([kin.payload_regressor(qi, joints) @ theta for qi in q])
+    return kin.payload_regressors(q, joints) @ theta
 
 
 def _empty_at(empty: SweepData, x: np.ndarray, j: int, joints: Sequence[int]) -> np.ndarray:
@@ -167,7 +167,7 @@ def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Swe
     for ax, d in zip(axes, sweeps):
         pick = np.linspace(0, len(d.q) - 1, min(len(d.q), PLOT_POINTS)).astype(int)  # enough to see structure
         q = d.q[pick]
-        Y = np.array([kin.payload_regressor(qi, GRAVITY_JOINTS) for qi in q])  # (n, 5, 4)
+        Y = kin.payload_regressors(q, GRAVITY_JOINTS)  # (n, 5, 4)
         x = np.degrees(q[:, d.moving])
         for ci, jj in enumerate(GRAVITY_JOINTS):
             if np.max(np.abs(Y[:, ci, :])) < ZERO_ROW_TOL:

@@ -18,19 +18,6 @@ import numpy as np
 from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
 
 
-def _dh_batch(theta: np.ndarray, a: float, d: float, alpha: float) -> np.ndarray:
-    """Standard-DH transforms for an array of joint angles: (n, 4, 4)."""
-    n = len(theta)
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    T = np.zeros((n, 4, 4))
-    T[:, 0, 0], T[:, 0, 1], T[:, 0, 2], T[:, 0, 3] = ct, -st * ca, st * sa, a * ct
-    T[:, 1, 0], T[:, 1, 1], T[:, 1, 2], T[:, 1, 3] = st, ct * ca, -ct * sa, a * st
-    T[:, 2, 1], T[:, 2, 2], T[:, 2, 3] = sa, ca, d
-    T[:, 3, 3] = 1.0
-    return T
-
-
 def _skew(v: np.ndarray) -> np.ndarray:
     """(n, 3) -> (n, 3, 3) cross-product matrices."""
     S = np.zeros((len(v), 3, 3))
@@ -53,12 +40,9 @@ def chain_frames(kin: Kinematics, q: np.ndarray) -> list[np.ndarray]:
     """Base-frame transforms of DH frames 0..6 for every sample: a list of seven (n, 4, 4) arrays.
 
     Joint i (0-based) turns about z of frame i through its origin; frame 6 is the flange.
+    (``Kinematics.frames``: the forward kinematics live in one place.)
     """
-    q = np.atleast_2d(np.asarray(q, float))
-    frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
-    for i, row in enumerate(kin.rows):
-        frames.append(frames[-1] @ _dh_batch(q[:, i] + row.offset_rad, row.a_m, row.d_m, row.alpha_rad))
-    return frames
+    return kin.frames(q)
 
 
 def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
@@ -108,6 +92,37 @@ def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.nd
     return W
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b for (n, 3) arrays, component-wise (np.cross's axis juggling costs more than the math)."""
+    return np.stack((a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+                     a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), axis=1)
+
+
+def centripetal_regressors(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int,
+                           speed_rad_s: float) -> np.ndarray:
+    """``centripetal_regressor`` for every sample at once: q (N, 6) -> (N, len(joints), 4)."""
+    joints = tuple(joints)
+    q = np.atleast_2d(np.asarray(q, float))
+    w2 = float(speed_rad_s) ** 2
+    if w2 == 0.0:
+        return np.zeros((len(q), len(joints), 4))
+    frames = kin.frames(q)
+    p, R = frames[-1][:, :3, 3], frames[-1][:, :3, :3]
+    zk, ok = frames[moving][:, :3, 2], frames[moving][:, :3, 3]
+
+    def A(v: np.ndarray) -> np.ndarray:  # (z_k z_kᵀ − I) v, row-wise
+        return zk * np.einsum("ni,ni->n", zk, v)[:, None] - v
+
+    f_m = A(p - ok)  # centripetal acceleration of the flange origin per ω²
+    Y = np.empty((len(q), len(joints), 4))
+    for r, j in enumerate(joints):
+        z, a = frames[j][:, :3, 2], p - frames[j][:, :3, 3]
+        Y[:, r, 0] = w2 * np.einsum("ni,ni->n", z, _cross(a, f_m))
+        Y[:, r, 1:] = w2 * np.einsum("nij,ni->nj", R, A(_cross(z, a)) + _cross(f_m, z))  # Rᵀ(...)
+    return Y
+
+
 def centripetal_regressor(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int,
                           speed_rad_s: float) -> np.ndarray:
     """Rows added to Y(q) by carrying the payload round joint ``moving`` at constant speed ω.
@@ -116,22 +131,20 @@ def centripetal_regressor(kin: Kinematics, q: np.ndarray, joints: Iterable[int],
     (z_k through o_k) with acceleration ẍ = ω²·(z_k z_kᵀ − I)(x − o_k); the arm supplies the
     force m·ẍ, which loads joint j with z_j·((x − o_j) × m·ẍ). Expanded, this is linear in θ
     except for a term in m·c·cᵀ (a rotational-inertia effect, left out). Same sign convention
-    as ``Kinematics.payload_regressor`` (support force m·g·ẑ).
+    as ``Kinematics.payload_regressor`` (support force m·g·ẑ). One sample of
+    ``centripetal_regressors``.
     """
+    return centripetal_regressors(kin, np.asarray(q, float)[None, :], joints, moving, speed_rad_s)[0]
+
+
+def regressors(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int | None = None,
+               speed_rad_s: float = 0.0) -> np.ndarray:
+    """``regressor`` for every sample at once: q (N, 6) -> (N, len(joints), 4)."""
     joints = tuple(joints)
-    w2 = float(speed_rad_s) ** 2
-    if w2 == 0.0:
-        return np.zeros((len(joints), 4))
-    pose = kin.pose(q)
-    p, R = pose.flange[:3, 3], pose.flange[:3, :3]
-    zk, ok = pose.axis(moving), pose.origin(moving)
-    A = np.outer(zk, zk) - np.eye(3)
-    f_m = A @ (p - ok)  # centripetal acceleration of the flange origin per ω²
-    rows = []
-    for j in joints:
-        z, a = pose.axis(j), p - pose.origin(j)
-        rows.append(w2 * np.concatenate(([z @ np.cross(a, f_m)], R.T @ (A @ np.cross(z, a) + np.cross(f_m, z)))))
-    return np.array(rows)
+    Y = kin.payload_regressors(q, joints)
+    if moving is not None and speed_rad_s:
+        Y = Y + centripetal_regressors(kin, q, joints, moving, speed_rad_s)
+    return Y
 
 
 def regressor(kin: Kinematics, q: np.ndarray, joints: Iterable[int], moving: int | None = None,
