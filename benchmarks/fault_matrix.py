@@ -70,6 +70,9 @@ def load_sim_config(driver: str, storage: Path):
     data = yaml.safe_load((ROOT / SIM_CONFIGS[driver]).read_text())
     data["simulation"]["time_scale"] = min(float(data["simulation"]["time_scale"]), TIME_SCALE)
     data["safety"]["max_stream_gap_ms"] = GAP_LIMIT_MS
+    # CANopen drives cut off from the agent stop themselves after their consumer time of its heartbeat: the
+    # matrix uses the driver's real default (150 ms), not the sim config's allowance for a loaded host
+    data["driver"].pop("master_heartbeat_timeout_ms", None)
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     for key in ("rpc_port", "monitor_port", "port"):  # ephemeral ports: cells never collide with other sims
         if key in data["driver"] and data["driver"].get("transport", "tcp") == "tcp":
