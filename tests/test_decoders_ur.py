@@ -340,21 +340,10 @@ class Dashboard:
     as the reply to the i-th request of each connection; it closes after the last one."""
 
     def __init__(self):
-        import random
-
+        from loopback import listen_on_own_address
         from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT
 
-        rng = random.Random()
-        for _ in range(50):
-            host = f"127.{rng.randint(1, 254)}.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
-            try:
-                self._ls = socket.create_server((host, DASHBOARD_PORT))
-                break
-            except OSError:
-                continue
-        else:
-            pytest.skip("no free loopback address for port 29999")
-        self.host = host
+        self._ls, self.host = listen_on_own_address(DASHBOARD_PORT)
         self._ls.settimeout(0.2)
         self.lines: list[bytes] = []
         self._stop = threading.Event()

@@ -3,13 +3,13 @@ CommunicationError within the exchange's deadline, and a well-formed exchange st
 
 from __future__ import annotations
 
-import random
 import socket
 import threading
 import time
 
 import pytest
 
+from loopback import listen_on_own_address
 from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT, MAX_LINE_BYTES, dashboard_query
 from payload_agent.errors import CommunicationError
 
@@ -18,17 +18,8 @@ class Peer:
     """A loopback server on port 29999 of its own 127.x address, serving each connection with ``behave``."""
 
     def __init__(self, behave):
-        rng = random.Random()
-        for _ in range(50):
-            host = f"127.{rng.randint(1, 254)}.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
-            try:
-                self.ls = socket.create_server((host, DASHBOARD_PORT))
-                break
-            except OSError:
-                continue
-        else:
-            pytest.skip("no free loopback address for port 29999")
-        self.host, self.behave, self.stop = host, behave, threading.Event()
+        self.ls, self.host = listen_on_own_address(DASHBOARD_PORT)
+        self.behave, self.stop = behave, threading.Event()
         self.ls.settimeout(0.2)
         threading.Thread(target=self._accept, daemon=True).start()
 
