@@ -92,13 +92,24 @@ def test_identification_over_rtu(tmp_path):
     # three times in one phase, hence 4 retries below
     data = tweak(data, "safety.max_stream_gap_ms", 1000)
     data = tweak(data, "simulation.noise_nm", 0.5)
-    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
-    cfg = parse_config(data, source="test")
     truth = data["simulation"]["payload"]
-    cells = []
-    outcome = run_identification(cfg, RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json",
-                                                 out=lambda line: None, report=False, retry_sweeps=4,
-                                                 on_cell=cells.append))
+    # A pty served by a thread of this process can leave a request unanswered for over 1 s when the host is
+    # loaded (seen once with two busy loops beside the suite): the agent then rightly stops the arm
+    # (SupervisionTrip naming the silent line). That is the watchdog's job, tested elsewhere; here the whole
+    # identification is tried again, twice at most.
+    for attempt in range(3):
+        run_tmp = tmp_path / f"attempt{attempt}"
+        data = tweak(data, "storage", {"runs_dir": str(run_tmp / "runs"), "state_dir": str(run_tmp / "state")})
+        cfg = parse_config(data, source="test")
+        cells = []
+        try:
+            opts = RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json", out=lambda line: None,
+                              report=False, retry_sweeps=4, on_cell=cells.append)
+            outcome = run_identification(cfg, opts)
+            break
+        except SupervisionTrip as exc:
+            assert "stopped answering" in str(exc) or "stalled" in str(exc), exc
+            assert attempt < 2, exc
     result = json.loads((tmp_path / "r.json").read_text())
     assert abs(result["mass_kg"] - truth["mass_kg"]) < 0.05, result
     assert np.max(np.abs(np.array(result["cog_mm"]) - truth["cog_mm"])) < 8.0, result
