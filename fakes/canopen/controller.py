@@ -80,6 +80,8 @@ class SimClockBus(VirtualBus):
 
     def send(self, msg, timeout=None) -> None:
         with self._stamp_lock:
+            if not self._open:  # a drive's heartbeat thread may outlive the wire by one period at close
+                return
             self._last = msg.timestamp = max(self._clock(), self._last + 1e-6)
             super().send(msg, timeout)
 
