@@ -340,24 +340,13 @@ class Dashboard:
     as the reply to the i-th request of each connection; it closes after the last one."""
 
     def __init__(self):
-        from loopback import listen_on_own_address
+        from loopback import LoopbackServer, listen_on_own_address
         from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT
 
-        self._ls, self.host = listen_on_own_address(DASHBOARD_PORT)
-        self._ls.settimeout(0.2)
         self.lines: list[bytes] = []
-        self._stop = threading.Event()
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self):
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._ls.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            threading.Thread(target=self._serve, args=(conn, list(self.lines)), daemon=True).start()
+        self._server = LoopbackServer(*listen_on_own_address(DASHBOARD_PORT),
+                                      lambda conn: self._serve(conn, list(self.lines)))
+        self.host = self._server.host
 
     @staticmethod
     def _serve(conn, lines):
@@ -375,8 +364,7 @@ class Dashboard:
             pass
 
     def close(self):
-        self._stop.set()
-        self._ls.close()
+        self._server.close()
 
 
 @pytest.fixture(scope="module")

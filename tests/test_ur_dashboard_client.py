@@ -3,43 +3,21 @@ CommunicationError within the exchange's deadline, and a well-formed exchange st
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 
 import pytest
 
-from loopback import listen_on_own_address
+from loopback import LoopbackServer, listen_on_own_address
 from payload_agent.drivers.ur_rtde.dashboard import DASHBOARD_PORT, MAX_LINE_BYTES, dashboard_query
 from payload_agent.errors import CommunicationError
 
 
-class Peer:
+class Peer(LoopbackServer):
     """A loopback server on port 29999 of its own 127.x address, serving each connection with ``behave``."""
 
     def __init__(self, behave):
-        self.ls, self.host = listen_on_own_address(DASHBOARD_PORT)
-        self.behave, self.stop = behave, threading.Event()
-        self.ls.settimeout(0.2)
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self):
-        while not self.stop.is_set():
-            try:
-                conn, _ = self.ls.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            with conn:
-                try:
-                    self.behave(conn, self.stop)
-                except OSError:
-                    pass
-
-    def close(self):
-        self.stop.set()
-        self.ls.close()
+        ls, host = listen_on_own_address(DASHBOARD_PORT)
+        super().__init__(ls, host, lambda conn: behave(conn, self.stop))
 
 
 def _endless(conn, stop):
