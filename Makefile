@@ -8,7 +8,9 @@ PY := $(VENV)/bin/python
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,test]'
+	@# setuptools announces every editable install of a package-dir mapping ("Editable installation. Please be
+	@# careful with folders ..."), an information-only note, not a problem: silenced by its message only
+	PYTHONWARNINGS='ignore:Editable installation' $(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,test]'
 	touch $@
 
 # Identify the payload of the simulated EC66 end to end (real JSON-RPC protocol on loopback).

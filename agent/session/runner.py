@@ -248,7 +248,8 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
                                                                   **stored_info.to_json()},
                       opts.reference, cell.truth_json if cell else None,
                       None if pose_check is None else pose_check.to_json()).to_json(),
-        "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty})
+        "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty,
+        "solver": opts.solver or config.procedure.solver})  # `solve` redoes the run with the run's own solver
     if stored_info is not None:  # the run folder keeps its own copy: self-contained
         recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
         recorder.write_manifest()
