@@ -270,6 +270,7 @@ def test_stopped_run_gets_a_report_of_what_was_recorded_and_why(stopped_report):
     text = _text(page)
     assert "Payload identification stopped" in text and "run did not finish" in text
     assert "the sample stream stalled: no sample for 212 ms" in text
+    assert "SupervisionTrip" not in text and "supervision trip: motion stopped" in text  # a sentence, no class name
     assert "acknowledged by the controller" in text and "4 ms after the fault" in text
     manifest = json.loads((stopped_run / "manifest.json").read_text())
     sweeps = manifest["phases"]["loaded"]["sweeps"]

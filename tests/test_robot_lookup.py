@@ -71,3 +71,13 @@ def test_robot_files_and_presets_are_package_data():
     assert {"payload_agent.configs", "payload_agent.drivers.modbus.presets"} <= set(tool["packages"])
     assert tool["package-data"]["payload_agent.configs"] == ["*.yaml"]
     assert tool["package-data"]["payload_agent.drivers.modbus.presets"] == ["*.yaml"]
+
+
+def test_readme_sample_rates_match_the_simulation_configs():
+    """The README's CANopen row says what the simulation streams: SYNC rate in wall time, divided by the time scale."""
+    readme = (ROOT / "README.md").read_text()
+    sim = yaml.safe_load((ROOT / "configs" / "sim-canopen-arm.yaml").read_text())
+    sync, scale = sim["driver"]["sync_rate_hz"], sim["simulation"]["time_scale"]
+    row = next(line for line in readme.splitlines() if line.startswith("| `configs/sim-canopen-arm.yaml`"))
+    assert f"{sync:g} Hz SYNC in wall time = {sync / scale:g} per simulated second" in row
+    assert f"`time_scale` {scale:g}" in row

@@ -246,13 +246,15 @@ def _history_part(db: Path, robot: str, current: set[str]) -> tuple[list, P.Figu
 
 def stop_reason(manifest: dict) -> str:
     """Why a run without a result stopped, from its manifest (runner's ``stopped_because``, else the phases)."""
+    from payload_agent.output.stop_text import readable
+
     for key in ("stopped_because", "stop_reason"):
         if manifest.get(key):
-            return str(manifest[key])
+            return readable(str(manifest[key]))
     for ph in ("loaded", "empty"):
         status = str(((manifest.get("phases") or {}).get(ph) or {}).get("status", ""))
         if status.startswith("aborted"):
-            return f"{ph} run {status}"
+            return f"{ph} run aborted: " + readable(status.removeprefix("aborted").lstrip(": "))
     if manifest.get("finished_utc") or manifest.get("status") == "complete":
         return "the run finished, but its analysis wrote no result.json (run `payload-agent solve` on the folder)"
     return "unknown: the run ended without recording why (the process may have been killed)"
