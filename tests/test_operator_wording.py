@@ -53,3 +53,16 @@ def test_plan_json_has_no_float_noise(robot, capsys):
         assert all(round(v, 4) == v for v in move["target_deg"]), move
         assert move["expected_s"] is None or round(move["expected_s"], 3) == move["expected_s"]
     assert any(abs(abs(v) - 180) < 1e-9 for m in data["plan"]["moves"] for v in m["target_deg"]) or robot != "sim-ec66"
+
+
+def test_pendant_values_in_the_units_of_each_controllers_screen_and_the_script_form_apart():
+    from payload_agent.output.pendant import pendant_values
+
+    ur = pendant_values("ur_rtde", 2.0312, (30.33, -18.81, 60.44))
+    assert ur.length_unit == "mm" and "PolyScope" in ur.screen  # PolyScope's payload screen: kg and mm
+    assert "mass 2.031 kg, centre of gravity X 30.3 mm, Y -18.8 mm, Z 60.4 mm" in ur.describe()
+    assert ur.script == "set_target_payload(2.031, [0.0303, -0.0188, 0.0604])"  # URScript: metres
+    elite = pendant_values("elite_ec", 2.0312, (30.33, -18.81, 60.44))
+    assert elite.length_unit == "mm" and '"cog": [30.3, -18.8, 60.4]' in elite.script
+    generic = pendant_values("modbus", 2.0312, (30.33, -18.81, 60.44)).to_json()
+    assert generic["cog_unit"] == "mm" and generic["script"] is None

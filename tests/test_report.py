@@ -4,6 +4,7 @@ a passed run, a run whose quality checks failed, and a run the supervision stopp
 from __future__ import annotations
 
 import base64
+import html
 import json
 import math
 import os
@@ -230,16 +231,18 @@ def test_report_shows_the_values_for_the_controller_and_the_write_back(report_wi
     out, result = report_with_history
     text = _text(out.read_text())
     m = result["mass_kg"]
-    assert f"Values for the Elite EC controller (tool flange frame): mass {m:.3f} kg" in text
-    assert f"[{result['cog_mm'][0]:.1f}, " in text and "] mm" in text
+    assert f"Values for the Elite EC controller (tool flange frame; Elite pendant: tool payload): mass {m:.3f} kg" in text
+    assert f"centre of gravity X {result['cog_mm'][0]:.1f} mm, Y {result['cog_mm'][1]:.1f} mm" in text
+    assert f'cmd_set_payload {{"tool_num": 0, "m": {m:.3f}, "cog": [{result["cog_mm"][0]:.1f}, ' in html.unescape(text)
     assert "Not written to the controller" in text
-    # recorded through the UR driver: kg and metres; the manifest says it was written and read back
+    # recorded through the UR driver: PolyScope's screen in kg and mm, URScript in metres; written and read back
     run, page = failed_report
     result = json.loads((run / "result.json").read_text())
     text = _text(page)
-    m = result["mass_kg"]
-    assert f"Values for the Universal Robots controller (tool flange frame): mass {m:.3f} kg" in text
-    assert f"[{result['cog_mm'][0] / 1000:.4f}, " in text and re.search(r"\] m\b", text)
+    m, (x, y, z) = result["mass_kg"], result["cog_mm"]
+    assert f"mass {m:.3f} kg, centre of gravity X {x:.1f} mm, Y {y:.1f} mm, Z {z:.1f} mm" in text
+    assert "Values for the Universal Robots controller (tool flange frame; PolyScope" in text
+    assert f"URScript form: set_target_payload({m:.3f}, [{x / 1000:.4f}, {y / 1000:.4f}, {z / 1000:.4f}])" in text
     assert f"Written to the controller and read back: {m:.3f} kg" in text
 
 

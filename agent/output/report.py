@@ -159,9 +159,10 @@ def _result_page(run_dir: Path, manifest: dict, result: dict, config: Config, hi
         pendant = ('<div class="stopbox">The quality checks failed: do <b>not</b> type these values into the '
                    f'controller. ({H.e(pv.describe())})<br>{H.e(write_back_text(manifest, this_entry))}</div>')
     else:
-        pendant = (f'<div class="pendant">Values for the {H.e(pv.controller)} ({H.e(pv.frame)}): '
-                   f'<b>mass {pv.mass_kg:.3f} kg</b>, <b>centre of mass [{H.e(pv.cog_text)}] {H.e(pv.length_unit)}'
-                   f'</b><br>{H.e(write_back_text(manifest, this_entry))}</div>')
+        where = f"; {pv.screen}" if pv.screen else ""
+        script = f'<br>{H.e(pv.script_name)} form: <code>{H.e(pv.script)}</code>' if pv.script else ""
+        pendant = (f'<div class="pendant">Values for the {H.e(pv.controller)} ({H.e(pv.frame + where)}): '
+                   f'<b>{H.e(pv.pendant_text)}</b>{script}<br>{H.e(write_back_text(manifest, this_entry))}</div>')
     parts = H.head_html(f"Payload report {robot} {H.when_text(manifest)}") + [
         "<header>", f"<h1>Payload identification: {H.e(robot)}</h1>", H.meta_line(manifest, run_dir),
         f'<div class="headline">{headline} {badge}</div>', pendant,
