@@ -146,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(base)
     _session_args(base, report=False)
 
-    cal = add("calibrate", "fit the drive gains from a run with a known reference payload (moves the robot)")
+    cal = add("calibrate", "fit the drive gains from a run with a known reference payload (moves the robot; "
+                           "on a simulated robot the reference named here is the simulated tool)")
     _robot_arg(cal)
     cal.add_argument("--known-mass", type=float, required=True, metavar="KG", help="reference payload mass, kg")
     cal.add_argument("--known-cog", required=True, metavar="X,Y,Z",

@@ -143,7 +143,13 @@ def cmd_calibrate(args, con: Console) -> int:
     if not 0 < args.known_mass < 100:
         raise ConfigError("--known-mass", f"expected the reference payload's mass in kg, got {args.known_mass:g}")
     ref = PayloadSetting(mass_kg=args.known_mass, cog_m=tuple(v / 1000.0 for v in cog))
-    _session(args, con, "calibrate", reference=ref)
+
+    def mount_reference(cell) -> None:  # a simulated robot: the reference named here is what gets mounted
+        cell.change_tool(args.known_mass, tuple(cog))
+        con.say(f"Simulated robot: the reference payload {args.known_mass:g} kg at [{args.known_cog}] mm is the "
+                "simulated tool for this calibration (the YAML's simulation.payload is not used)")
+
+    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference)
     return 0
 
 

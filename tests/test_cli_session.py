@@ -206,6 +206,20 @@ def test_runs_by_name_solve_with_the_runs_solver_and_report_out_checked(cli_run,
     assert rc == 0 and (tmp / "by-name.html").is_file()
 
 
+def test_readme_calibrate_example_works_on_the_simulator(tmp_path, capsys, monkeypatch):
+    """README: `calibrate --known-mass 3.0 --known-cog 0,0,80` on a simulated robot mounts that reference
+    (the YAML's simulated tool weighs something else) and fits the gains: exit 0, the truth is the reference."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+    robot = sim_robot(tmp_path, "calsim")
+    assert yaml.safe_load(robot.read_text())["simulation"]["payload"]["mass_kg"] != 3.0
+    rc, out, err = _main(["calibrate", "--robot", str(robot), "--yes", "--known-mass", "3.0", "--known-cog",
+                          "0,0,80"], capsys)
+    assert rc == 0, err[-3000:]
+    assert "the reference payload 3 kg at [0,0,80] mm is the simulated tool" in out + err
+    gains = json.loads((tmp_path / "xdg-state" / "payload-agent" / "calsim" / "gains.json").read_text())
+    assert gains["reference_mass_kg"] == 3.0 and 2 in gains["fitted_joints"]
+
+
 def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypatch):
     from payload_agent.session.doctor import run_doctor
     from payload_agent.session.simulation import SimulatedCell
