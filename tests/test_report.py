@@ -345,5 +345,10 @@ def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
     out, _ = report_with_history
     px = _screenshot(out, tmp_path / "shot.png")
     assert _n_colours(px) > 200, "the screenshot is nearly uniform: the page did not render"
-    # the plots are drawn: the model's orange and the loaded sweep's blue appear on the page
-    assert _has(px, (0xe0, 0x7b, 0x00)) and _has(px, (0x1f, 0x5f, 0xa8))
+    # the plots are drawn: the model's orange, the loaded sweep's blue and the empty flange's down leg (its own
+    # colour now, not the up leg's grey) appear on the page
+    from payload_agent.output.report_plots import COLORS
+
+    rgb = lambda hex_: tuple(int(hex_[i:i + 2], 16) for i in (1, 3, 5))
+    assert _has(px, rgb(COLORS["model"])) and _has(px, rgb(COLORS["loaded"]))
+    assert COLORS["empty"] != COLORS["empty_down"] and _has(px, rgb(COLORS["empty_down"]), tol=6)
