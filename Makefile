@@ -5,12 +5,13 @@ PY := $(VENV)/bin/python
 
 .PHONY: sim test benchmark clean browser
 
+# setuptools announces every editable install of a package-dir mapping ("Editable installation. Please be
+# careful with folders ..."), an information-only note, not a problem: silenced by its message only
+$(VENV)/.installed: export PYTHONWARNINGS = ignore:Editable installation
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	@# setuptools announces every editable install of a package-dir mapping ("Editable installation. Please be
-	@# careful with folders ..."), an information-only note, not a problem: silenced by its message only
-	PYTHONWARNINGS='ignore:Editable installation' $(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,test]'
+	$(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,test]'
 	touch $@
 
 # Identify the payload of the simulated EC66 end to end (real JSON-RPC protocol on loopback).
