@@ -188,6 +188,8 @@ def test_runs_by_name_solve_with_the_runs_solver_and_report_out_checked(cli_run,
     assert json.loads((run_dir / "manifest.json").read_text())["solver"] == "general"
     rc, out, err = _main(["history", "--robot", str(robot)], capsys)
     assert rc == 0 and run_dir.name in out and str(run_dir.parent) in out
+    rc, out, err = _main(["plan", "--robot", str(robot)], capsys)  # the stored baseline's controller line
+    assert rc == 0 and "Stored baseline: recorded" in out and "serial ;" not in out and "serial not reported" in out
     # a copy of the run recorded with --solver three-step (the YAML says general)
     other = run_dir.parent / (run_dir.name + "-3step")
     shutil.copytree(run_dir, other)
