@@ -286,6 +286,7 @@ def cmd_history(args, con: Console) -> int:
                 "folder's name)")
     ids = {e.id for e in shown}
     con.emit_json({"ok": True, "robot": config.robot.name, "database": str(db),
+                   "runs_dir": str(Path(config.storage.runs_dir).absolute()),
                    "entries": [history.entry_json(e) for e in shown],
                    "change_flags": [dataclasses.asdict(f) | {"text": f.describe()} for f in flags if f.entry_id in ids]})
     return 0
