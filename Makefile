@@ -5,6 +5,9 @@ PY := $(VENV)/bin/python
 
 .PHONY: sim test benchmark clean browser
 
+# setuptools announces every editable install of a package-dir mapping ("Editable installation. Please be
+# careful with folders ..."), an information-only note, not a problem: silenced by its message only
+$(VENV)/.installed: export PYTHONWARNINGS = ignore:Editable installation
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip

@@ -34,8 +34,8 @@ typical use:
   payload-agent run --robot ec66 [--apply]          after each tool change
   payload-agent run --robot ec66 --unattended --apply --json     from a cell controller or cron
 
---robot NAME finds NAME.yaml in ./configs, $XDG_CONFIG_HOME/payload-agent/robots and the folders
-in $PAYLOAD_AGENT_ROBOTS; a path to a YAML file works too. State (baseline, calibration, history)
+--robot NAME finds NAME.yaml in ./configs, $XDG_CONFIG_HOME/payload-agent/robots, the folders
+in $PAYLOAD_AGENT_ROBOTS, then the robot files shipped with the package; a path to a YAML file works too. State (baseline, calibration, history)
 and run folders live in $XDG_STATE_HOME/payload-agent/<robot>/ unless the YAML's storage section
 says otherwise.
 
@@ -100,7 +100,7 @@ def _common(json_ok: bool) -> argparse.ArgumentParser:
 def _robot_arg(p: argparse.ArgumentParser, required: bool = True, what: str = "") -> None:
     p.add_argument("--robot", required=required, metavar="NAME|YAML",
                    help=what or "robot YAML file, or NAME to find NAME.yaml in ./configs, "
-                                "$XDG_CONFIG_HOME/payload-agent/robots or $PAYLOAD_AGENT_ROBOTS")
+                                "$XDG_CONFIG_HOME/payload-agent/robots, $PAYLOAD_AGENT_ROBOTS or the shipped robots")
 
 
 def _session_args(p: argparse.ArgumentParser, report: bool = True) -> None:
@@ -146,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(base)
     _session_args(base, report=False)
 
-    cal = add("calibrate", "fit the drive gains from a run with a known reference payload (moves the robot)")
+    cal = add("calibrate", "fit the drive gains from a run with a known reference payload (moves the robot; "
+                           "on a simulated robot the reference named here is the simulated tool)")
     _robot_arg(cal)
     cal.add_argument("--known-mass", type=float, required=True, metavar="KG", help="reference payload mass, kg")
     cal.add_argument("--known-cog", required=True, metavar="X,Y,Z",
@@ -159,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     hist.add_argument("--limit", type=int, metavar="N", help="only the last N entries")
 
     rep = add("report", "write the HTML report of a recorded run folder (finished or stopped)")
-    rep.add_argument("run_dir", metavar="RUN_DIR", help="the run folder")
+    rep.add_argument("run_dir", metavar="RUN_DIR", help="the run folder: its path, or its name as `history` shows it")
     _robot_arg(rep, required=False, what="robot YAML or NAME to use instead of the config stored in the run "
                                          "(also locates the history shown in the report)")
     rep.add_argument("--out", metavar="PATH", help="where to write the HTML (default RUN_DIR/report.html)")
@@ -182,12 +183,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     solve = add("solve", "re-run the analysis of a recorded run folder into a new result file (never overwrites)",
                 json_ok=True)
-    solve.add_argument("run_dir", metavar="RUN_DIR", help="the run folder (it alone is read: manifest and CSVs)")
+    solve.add_argument("run_dir", metavar="RUN_DIR", help="the run folder, its path or its name as `history` shows it "
+                                                          "(it alone is read: manifest and CSVs)")
     solve.add_argument("--baseline", metavar="RUN_DIR",
                        help="another run folder whose empty-flange phase to subtract instead of the run's own")
     _robot_arg(solve, required=False, what="robot YAML or NAME whose kinematics to use instead of the config "
                                            "stored in the run (needed for --history)")
-    solve.add_argument("--solver", choices=["three-step", "general"], help="override the recorded procedure.solver")
+    solve.add_argument("--solver", choices=["three-step", "general"],
+                       help="override the solver the run used (recorded in its manifest)")
     solve.add_argument("--result", metavar="PATH",
                        help="write the result here (default RUN_DIR/result-solve-<time>.json); never overwritten")
     solve.add_argument("--history", action="store_true",

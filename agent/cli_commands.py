@@ -75,7 +75,8 @@ def _summary(con: Console, config: Config, outcome) -> None:
     from payload_agent.output.checks import failed_summary
     from payload_agent.output.pendant import pendant_values
 
-    con.result(f"Run folder: {Path(outcome.run_dir).absolute()}")
+    if con.verbosity < 0:  # otherwise the session already said it, when it created the folder
+        con.result(f"Run folder: {Path(outcome.run_dir).absolute()}")
     result = getattr(outcome, "result", None)
     if result is None:
         return
@@ -142,7 +143,13 @@ def cmd_calibrate(args, con: Console) -> int:
     if not 0 < args.known_mass < 100:
         raise ConfigError("--known-mass", f"expected the reference payload's mass in kg, got {args.known_mass:g}")
     ref = PayloadSetting(mass_kg=args.known_mass, cog_m=tuple(v / 1000.0 for v in cog))
-    _session(args, con, "calibrate", reference=ref)
+
+    def mount_reference(cell) -> None:  # a simulated robot: the reference named here is what gets mounted
+        cell.change_tool(args.known_mass, tuple(cog))
+        con.say(f"Simulated robot: the reference payload {args.known_mass:g} kg at [{args.known_cog}] mm is the "
+                "simulated tool for this calibration (the YAML's simulation.payload is not used)")
+
+    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference)
     return 0
 
 
@@ -275,8 +282,11 @@ def cmd_history(args, con: Console) -> int:
         con.say(f"No history yet for robot {config.robot.name!r} ({db}).")
     else:
         con.say(history.format_history(shown, flags))
+        con.say(f"Run folders: {Path(config.storage.runs_dir).absolute()} (`solve` and `report` take a run "
+                "folder's name)")
     ids = {e.id for e in shown}
     con.emit_json({"ok": True, "robot": config.robot.name, "database": str(db),
+                   "runs_dir": str(Path(config.storage.runs_dir).absolute()),
                    "entries": [history.entry_json(e) for e in shown],
                    "change_flags": [dataclasses.asdict(f) | {"text": f.describe()} for f in flags if f.entry_id in ids]})
     return 0
@@ -287,23 +297,33 @@ def cmd_report(args, con: Console) -> int:
     from payload_agent.output.report import write_report
     from payload_agent.recording.state import RobotState
 
-    run_dir = _existing_run_dir(args.run_dir, "RUN_DIR")
+    run_dir = _existing_run_dir(args.run_dir, "RUN_DIR", args)
     manifest, config = recorded_config(args, run_dir)
     db = (RobotState.for_config(config).history_db if args.robot
           else state_home() / str(manifest.get("robot", config.robot.name)) / "history.sqlite")
-    path = write_report(run_dir, config, history_db=db if db.exists() else None,
-                        out_path=Path(args.out) if args.out else None)
+    path = write_report(run_dir, config, history_db=db if db.exists() else None, out_path=_report_out(args.out))
     con.result(f"Report: {path}")
     return 0
 
 
-def _existing_run_dir(value: str, what: str) -> Path:
-    path = Path(value)
-    if not path.is_dir():
-        raise ConfigError(what, f"no such run folder: {path}" + (" (it is a file)" if path.exists() else ""))
-    if not (path / "manifest.json").is_file():
-        raise ConfigError(what, f"{path} is not a run folder: it has no manifest.json")
-    return path
+def _report_out(value: str | None) -> Path | None:
+    """``report --out``: a file in a folder that exists (a typo in the folder must not create it)."""
+    if not value:
+        return None
+    out = Path(value)
+    if out.is_dir():
+        raise ConfigError("--out", f"{out} is a folder; give the HTML file's path, e.g. {out / 'report.html'}")
+    if not out.parent.is_dir():
+        raise ConfigError("--out", f"the folder {out.parent} does not exist (create it first, or choose another path)")
+    return out
+
+
+def _existing_run_dir(value: str, what: str, args=None) -> Path:
+    """A run folder given as a path or as a run's name (looked up in the runs folders, --robot's first)."""
+    from payload_agent.recording.lookup import find_run_dir
+
+    extra = [load_robot(args).storage.runs_dir] if getattr(args, "robot", None) else []
+    return find_run_dir(value, what, extra)
 
 
 def recorded_config(args, run_dir: Path) -> tuple[dict, Config]:
@@ -322,12 +342,15 @@ def recorded_config(args, run_dir: Path) -> tuple[dict, Config]:
 def cmd_solve(args, con: Console) -> int:
     from payload_agent.solve import solve_run
 
-    run_dir = _existing_run_dir(args.run_dir, "RUN_DIR")
-    baseline_dir = _existing_run_dir(args.baseline, "--baseline") if args.baseline else None
+    from payload_agent.recording.lookup import recorded_solver
+
+    run_dir = _existing_run_dir(args.run_dir, "RUN_DIR", args)
+    baseline_dir = _existing_run_dir(args.baseline, "--baseline", args) if args.baseline else None
     if args.history and not args.robot:
         raise ConfigError("--history", "needs --robot: the history belongs to a robot's state folder")
     manifest, config = recorded_config(args, run_dir)
-    solved = solve_run(run_dir, manifest, config, solver=args.solver, baseline_dir=baseline_dir,
+    solver = args.solver or recorded_solver(run_dir, manifest)  # the run's own solver, not the YAML's
+    solved = solve_run(run_dir, manifest, config, solver=solver, baseline_dir=baseline_dir,
                        result_path=Path(args.result) if args.result else None)
     con.say(solved.table)
     from payload_agent.output.pendant import driver_type_of, pendant_values

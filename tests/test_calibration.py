@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -192,6 +193,18 @@ def test_mismatch_and_unreadable_refused(sim, tmp_path):
     other_kin = dataclasses.replace(config, robot=dataclasses.replace(config.robot, dh=tuple(rows)))
     with pytest.raises(DataError, match="kinematics"):
         load_calibration(state, other_kin)
+    # the calibration run's folder still there: the DH edit itself is named (the mistake to look at)
+    run = tmp_path / "cal-run"
+    run.mkdir()
+    (run / "manifest.json").write_text(json.dumps({"config": {"robot": {"kinematics": {"dh": [
+        {"a_mm": 1000 * r.a_m, "d_mm": 1000 * r.d_m, "alpha_deg": math.degrees(r.alpha_rad),
+         "offset_deg": math.degrees(r.offset_rad)} for r in config.robot.dh]}}}}))
+    save_calibration(state, dataclasses.replace(cal, run_dir=str(run)))
+    a2 = 1000 * config.robot.dh[1].a_m
+    with pytest.raises(DataError, match=rf"robot\.kinematics\.dh\[1\]\.a_mm {a2:g} then, {a2 + 1:g} now") as info:
+        load_calibration(state, other_kin)
+    assert "dh[0]" not in str(info.value) and "undo it" in str(info.value)
+    save_calibration(state, cal)
     foreign = dataclasses.replace(cal, robot="another-arm")
     save_calibration(state, foreign)
     with pytest.raises(DataError, match="robot 'another-arm'"):

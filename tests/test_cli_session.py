@@ -176,6 +176,52 @@ def test_solve_history_and_report_on_the_recorded_run(cli_run, capsys, monkeypat
     assert rc == 0 and (tmp / "r.html").read_text().startswith("<!DOCTYPE html>")
 
 
+def test_runs_by_name_solve_with_the_runs_solver_and_report_out_checked(cli_run, capsys, monkeypatch):
+    """history names the run folders; solve and report take that name; solve uses the solver the run used
+    (its manifest), not the YAML's; report --out never creates a missing folder; 'Run folder:' is said once."""
+    import shutil
+
+    tmp, robot, rc, stdout, stderr = cli_run
+    assert stderr.count("Run folder:") == 1
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp / "xdg-state"))
+    run_dir = Path(json.loads(stdout)["run_dir"])
+    assert json.loads((run_dir / "manifest.json").read_text())["solver"] == "general"
+    rc, out, err = _main(["history", "--robot", str(robot)], capsys)
+    assert rc == 0 and run_dir.name in out and str(run_dir.parent) in out
+    rc, out, err = _main(["plan", "--robot", str(robot)], capsys)  # the stored baseline's controller line
+    assert rc == 0 and "Stored baseline: recorded" in out and "serial ;" not in out and "serial not reported" in out
+    # a copy of the run recorded with --solver three-step (the YAML says general)
+    other = run_dir.parent / (run_dir.name + "-3step")
+    shutil.copytree(run_dir, other)
+    manifest = json.loads((other / "manifest.json").read_text())
+    (other / "manifest.json").write_text(json.dumps({**manifest, "solver": "three-step"}))
+    rc, out, err = _main(["solve", other.name, "--json"], capsys)  # by name, from anywhere
+    assert rc in (0, 5), err
+    solved = json.loads(out)
+    assert solved["result"]["solve"]["solver"] == "three-step" and Path(solved["result_file"]).parent == other
+    rc, out, err = _main(["solve", "no-such-run", "--json"], capsys)
+    assert rc == 2 and "no-such-run" in err and str(run_dir.parent) in err
+    missing = tmp / "missing-dir"
+    rc, out, err = _main(["report", run_dir.name, "--out", str(missing / "x.html")], capsys)
+    assert rc == 2 and f"the folder {missing} does not exist" in err and not missing.exists()
+    rc, out, err = _main(["report", run_dir.name, "--out", str(tmp / "by-name.html")], capsys)
+    assert rc == 0 and (tmp / "by-name.html").is_file()
+
+
+def test_readme_calibrate_example_works_on_the_simulator(tmp_path, capsys, monkeypatch):
+    """README: `calibrate --known-mass 3.0 --known-cog 0,0,80` on a simulated robot mounts that reference
+    (the YAML's simulated tool weighs something else) and fits the gains: exit 0, the truth is the reference."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+    robot = sim_robot(tmp_path, "calsim")
+    assert yaml.safe_load(robot.read_text())["simulation"]["payload"]["mass_kg"] != 3.0
+    rc, out, err = _main(["calibrate", "--robot", str(robot), "--yes", "--known-mass", "3.0", "--known-cog",
+                          "0,0,80"], capsys)
+    assert rc == 0, err[-3000:]
+    assert "the reference payload 3 kg at [0,0,80] mm is the simulated tool" in out + err
+    gains = json.loads((tmp_path / "xdg-state" / "payload-agent" / "calsim" / "gains.json").read_text())
+    assert gains["reference_mass_kg"] == 3.0 and 2 in gains["fitted_joints"]
+
+
 def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypatch):
     from payload_agent.session.doctor import run_doctor
     from payload_agent.session.simulation import SimulatedCell
@@ -192,6 +238,9 @@ def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypat
     assert checks["identify"].status == "ok" and "EC66" in checks["identify"].detail
     assert checks["state"].status == "ok"
     assert checks["sample stream"].status == "ok" and checks["sample stream"].data["rate_hz"] > 100
+    stream = checks["sample stream"].detail  # two clocks, each labelled: never one number with the other's unit
+    assert stream.startswith("simulated clock: ") and "; wall clock: " in stream and "faster than wall time" in stream
+    assert "serial ?" not in checks["identify"].detail
     assert checks["kinematic cross-check"].status == "ok"
     assert checks["payload setting"].status == "info" and "kg" in checks["payload setting"].detail
     assert checks["stored baseline"].status == "warn" and "no stored" in checks["stored baseline"].detail

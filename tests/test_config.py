@@ -169,3 +169,13 @@ def test_yaml_is_loaded_safely(tmp_path: Path):
     evil.write_text("robot: !!python/object/apply:os.system ['echo hacked']\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(evil)
+
+
+def test_mixed_unit_dh_table_names_the_rows_in_metres(sim_ec66_data):
+    data = tweak(tweak(sim_ec66_data, "robot.kinematics.dh[1].a_mm", 0.418), "robot.kinematics.dh[2].a_mm", 0.398)
+    with pytest.raises(ConfigError) as info:
+        parse_config(data)
+    text = str(info.value)
+    assert info.value.key_path == "robot.kinematics.dh[1].a_mm"
+    assert "robot.kinematics.dh[1].a_mm = 0.418 and robot.kinematics.dh[2].a_mm = 0.398 look like metres" in text
+    assert "write 418, 398" in text

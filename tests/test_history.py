@@ -103,6 +103,7 @@ def test_format_history_table(tmp_path):
     row2 = next(line for line in lines if line.startswith("2 "))
     assert "gripper-A" in row2 and "2.100 ± 0.002" in row2 and "FAILED" in row2 and "yes" in row2 and "! mass" in row2
     assert "2026-11-21 02:00" in row2
+    assert "run folder" in lines[0] and "2026-11-21T02:00:00+00:00" in row2  # the run's name: solve/report take it
     assert "#2 differs from #1" in text
     only_last = history.format_history(all_entries, history.compare_to_previous(all_entries), last=1)
     assert not any(line.startswith("1 ") for line in only_last.splitlines())

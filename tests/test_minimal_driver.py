@@ -1,5 +1,6 @@
 """The driver contract carries a new protocol family end to end: tests/inproc_driver.py, run by the runner."""
 
+import json
 import math
 import threading
 import time
@@ -138,3 +139,28 @@ def test_resume_refuses_a_changed_yaml(sim_ec66_data, tmp_path):
     (run_dir / "manifest.json").write_text('{"status": "incomplete", "config_fingerprint": "0", "phases": {}}')
     with pytest.raises(ConfigError, match="changed"):
         run_identification(config, quiet(resume=run_dir))
+
+
+def test_resume_refusals_name_what_changed(sim_ec66_data, tmp_path):
+    """--resume names the one key that changed, or the robot the run belongs to; not every compared section."""
+    from payload_agent.configuration.config import config_snapshot
+    from payload_agent.session.resume import config_fingerprint, load_resume
+
+    base = tweak(sim_ec66_data, "robot.name", "cell-ec66")
+    config = inproc_config(base, tmp_path, "resumed")
+    run_dir = tmp_path / "runs" / "x"
+    run_dir.mkdir(parents=True)
+
+    def recorded(cfg):
+        (run_dir / "manifest.json").write_text(json.dumps({
+            "status": "incomplete", "robot": cfg.robot.name, "config_source": "cell/resumed.yaml",
+            "config": config_snapshot(cfg), "config_fingerprint": config_fingerprint(cfg), "phases": {}}))
+
+    recorded(inproc_config(tweak(base, "procedure.speed_percent", 5), tmp_path, "resumed"))
+    with pytest.raises(ConfigError) as info:
+        load_resume(config, make_plan(config), run_dir)
+    text = str(info.value)
+    assert "procedure.speed_percent: 5 then, 10 now" in text and "safety" not in text and "effort" not in text
+    recorded(inproc_config(sim_ec66_data, tmp_path, "resumed"))  # robot.name sim-ec66
+    with pytest.raises(ConfigError, match="this run belongs to sim-ec66 .*cell/resumed.yaml.*--robot sim-ec66"):
+        load_resume(config, make_plan(config), run_dir)

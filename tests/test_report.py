@@ -4,6 +4,7 @@ a passed run, a run whose quality checks failed, and a run the supervision stopp
 from __future__ import annotations
 
 import base64
+import html
 import json
 import math
 import os
@@ -230,16 +231,18 @@ def test_report_shows_the_values_for_the_controller_and_the_write_back(report_wi
     out, result = report_with_history
     text = _text(out.read_text())
     m = result["mass_kg"]
-    assert f"Values for the Elite EC controller (tool flange frame): mass {m:.3f} kg" in text
-    assert f"[{result['cog_mm'][0]:.1f}, " in text and "] mm" in text
+    assert f"Values for the Elite EC controller (tool flange frame; Elite pendant: tool payload): mass {m:.3f} kg" in text
+    assert f"centre of gravity X {result['cog_mm'][0]:.1f} mm, Y {result['cog_mm'][1]:.1f} mm" in text
+    assert f'cmd_set_payload {{"tool_num": 0, "m": {m:.3f}, "cog": [{result["cog_mm"][0]:.1f}, ' in html.unescape(text)
     assert "Not written to the controller" in text
-    # recorded through the UR driver: kg and metres; the manifest says it was written and read back
+    # recorded through the UR driver: PolyScope's screen in kg and mm, URScript in metres; written and read back
     run, page = failed_report
     result = json.loads((run / "result.json").read_text())
     text = _text(page)
-    m = result["mass_kg"]
-    assert f"Values for the Universal Robots controller (tool flange frame): mass {m:.3f} kg" in text
-    assert f"[{result['cog_mm'][0] / 1000:.4f}, " in text and re.search(r"\] m\b", text)
+    m, (x, y, z) = result["mass_kg"], result["cog_mm"]
+    assert f"mass {m:.3f} kg, centre of gravity X {x:.1f} mm, Y {y:.1f} mm, Z {z:.1f} mm" in text
+    assert "Values for the Universal Robots controller (tool flange frame; PolyScope" in text
+    assert f"URScript form: set_target_payload({m:.3f}, [{x / 1000:.4f}, {y / 1000:.4f}, {z / 1000:.4f}])" in text
     assert f"Written to the controller and read back: {m:.3f} kg" in text
 
 
@@ -270,6 +273,7 @@ def test_stopped_run_gets_a_report_of_what_was_recorded_and_why(stopped_report):
     text = _text(page)
     assert "Payload identification stopped" in text and "run did not finish" in text
     assert "the sample stream stalled: no sample for 212 ms" in text
+    assert "SupervisionTrip" not in text and "supervision trip: motion stopped" in text  # a sentence, no class name
     assert "acknowledged by the controller" in text and "4 ms after the fault" in text
     manifest = json.loads((stopped_run / "manifest.json").read_text())
     sweeps = manifest["phases"]["loaded"]["sweeps"]
@@ -341,5 +345,10 @@ def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
     out, _ = report_with_history
     px = _screenshot(out, tmp_path / "shot.png")
     assert _n_colours(px) > 200, "the screenshot is nearly uniform: the page did not render"
-    # the plots are drawn: the model's orange and the loaded sweep's blue appear on the page
-    assert _has(px, (0xe0, 0x7b, 0x00)) and _has(px, (0x1f, 0x5f, 0xa8))
+    # the plots are drawn: the model's orange, the loaded sweep's blue and the empty flange's down leg (its own
+    # colour now, not the up leg's grey) appear on the page
+    from payload_agent.output.report_plots import COLORS
+
+    rgb = lambda hex_: tuple(int(hex_[i:i + 2], 16) for i in (1, 3, 5))
+    assert _has(px, rgb(COLORS["model"])) and _has(px, rgb(COLORS["loaded"]))
+    assert COLORS["empty"] != COLORS["empty_down"] and _has(px, rgb(COLORS["empty_down"]), tol=6)

@@ -5,7 +5,8 @@ sheets in mm and degrees). A value in the wrong unit still parses as a number, a
 safety gate then computes with a robot that does not exist. These checks name the file,
 the key and the unit the value most likely is in:
 
-- DH lengths that look like metres (every non-zero length below 5 mm);
+- DH lengths that look like metres (every non-zero length below 5 mm), or some rows in metres
+  among others in mm (non-zero lengths below 2 mm beside lengths of 50 mm and more: each named);
 - ``alpha_deg`` / ``offset_deg`` that look like radians (±π/2, ±π to 0.01);
 - joint limits that look like radians (all within ±2π, or a pair at ±π/2, ±π, ±2π) and
   limits beyond ±360°, which no 6-axis controller has.
@@ -19,6 +20,9 @@ from typing import Sequence
 from payload_agent.errors import ConfigError
 
 MAX_METRE_LIKE_LENGTH_MM = 5.0  # no joint-torque-measurable arm has every DH length below 5 mm
+# a mixed table: a non-zero length below 2 mm beside others of 50 mm and more is a length in metres
+# (an arm's links are 50-1500 mm long, i.e. 0.05-1.5 in metres; no real DH length is a fraction of a mm)
+MIXED_METRE_LIKE_MM, MIXED_TABLE_MIN_MM = 2.0, 50.0
 RADIAN_TOL = 0.01
 MAX_LIMIT_DEG = 360.0
 _RADIAN_ANGLES = (math.pi / 2, math.pi, 3 * math.pi / 2, 2 * math.pi)
@@ -41,6 +45,13 @@ def check_dh(rows: Sequence[tuple[float, float, float, float]], key: str, source
         raise ConfigError(where, f"{value:g} looks like metres: every DH length of this table is below "
                                  f"{MAX_METRE_LIKE_LENGTH_MM:g} mm. The DH table is in millimetres "
                                  f"(write {1000 * value:g})", source)
+    metre_like = [(where, v) for a, where, v in lengths if a < MIXED_METRE_LIKE_MM]
+    if metre_like and max(a for a, _, _ in lengths) >= MIXED_TABLE_MIN_MM:
+        rows = " and ".join(f"{where} = {v:g}" for where, v in metre_like)
+        fix = ", ".join(f"{1000 * v:g}" for _, v in metre_like)
+        raise ConfigError(metre_like[0][0], f"{rows} look{'s' if len(metre_like) == 1 else ''} like metres among "
+                                            f"lengths in millimetres; the DH table is in millimetres (write {fix})",
+                          source)
     for i, (_, _, alpha, offset) in enumerate(rows):
         for name, v in (("alpha_deg", alpha), ("offset_deg", offset)):
             r = _looks_like_radians(v)

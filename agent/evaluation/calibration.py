@@ -28,6 +28,7 @@ refuses it otherwise, rather than silently applying stale gains.
 from __future__ import annotations
 
 import hashlib
+import math
 import json
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -322,11 +323,28 @@ def load_calibration(state: RobotState, config: Config) -> GainCalibration | Non
         problems.append(f"effort.gains_nm_per_unit changed since (was {[round(g, 6) for g in cal.nominal_gains]}, "
                         f"now {list(config.effort.gains_nm_per_unit)})")
     if not problems and cal.nominal_fingerprint != calibration_fingerprint(config):
-        problems.append("the kinematics (DH parameters) changed since")
+        problems.append("the kinematics (DH parameters) changed since" + _dh_changes(cal.run_dir, config)
+                        + " (an edit by mistake: undo it; a deliberate one: calibrate again)")
     if problems:
         raise DataError(f"{path}: the drive-gain calibration of {cal.created_utc} does not match "
                         f"{config.source}: {'; '.join(problems)}. {redo[0].upper()}{redo[1:]}.")
     return cal
+
+
+def _dh_changes(run_dir: str, config: Config) -> str:
+    """``: robot.kinematics.dh[1].a_mm 418 then, -418 now`` from the calibration run's manifest, so that the
+    DH edit itself is named (the mistake to look at), not only the calibration it invalidated; "" if unreadable."""
+    try:
+        then = json.loads((Path(run_dir) / "manifest.json").read_text(encoding="utf-8"))["config"]["robot"][
+            "kinematics"]["dh"]
+        then_rows = [[float(r.get(k, 0.0)) for k in ("a_mm", "d_mm", "alpha_deg", "offset_deg")] for r in then]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return ""
+    now_rows = [[1000 * r.a_m, 1000 * r.d_m, math.degrees(r.alpha_rad), math.degrees(r.offset_rad)]
+                for r in config.robot.dh]
+    changes = [f"robot.kinematics.dh[{i}].{k} {a:g} then, {b:g} now" for i, (ra, rb) in enumerate(zip(then_rows, now_rows))
+               for k, a, b in zip(("a_mm", "d_mm", "alpha_deg", "offset_deg"), ra, rb) if abs(a - b) > 1e-9]
+    return (": " + "; ".join(changes)) if changes else ""
 
 
 def effective_gains(config: Config) -> tuple[np.ndarray, str | None]:

@@ -118,4 +118,8 @@ class ArmGeometry:
         def height(w):
             return round(float(self.kin.flange(self._q(q2, q3, w))[2, 3]), 6)
 
-        return min(candidates, key=lambda w: (-height(w), float(np.sum((w - prefer) ** 2))))
+        best = min(candidates, key=lambda w: (-height(w), float(np.sum((w - prefer) ** 2))))
+        # to 1e-4 degree (2e-6 rad, below any controller's resolution), inside the limits: the solver's last
+        # digits are noise (179.999998 for 180), not geometry
+        lo, hi = np.array(limits, float).T
+        return np.clip(np.radians(np.round(np.degrees(best), 4)), lo, hi)

@@ -1,13 +1,17 @@
 """The identified payload as the operator types it into the controller, and whether it was written.
 
-Every controller has its own units for the payload setting; the value the agent reports in
-kg and mm must be retyped in those, in the controller's frame:
+Two forms per controller, each with its units in its labels:
 
-- Universal Robots (``ur_rtde``): mass in kg, centre of gravity in metres, in the tool flange
-  frame (PolyScope's payload setting, URScript ``set_target_payload``);
-- Elite EC (``elite_ec``): mass in kg, centre of mass in mm, tool flange frame;
-- any other driver: kg and mm in the flange frame of the YAML's DH table (frame 6), unless the
-  driver class declares ``payload_units = ("kg", "m")`` (or ``"mm"``) and ``payload_vendor``.
+- the **pendant form**, in the units the controller's own payload screen shows: mass in kg and
+  the centre of gravity in mm for both PolyScope (UR: Installation > General > Payload on the
+  e-Series, Installation > TCP on CB3) and the Elite pendant (tool payload: kg, mm);
+- the **script form**, what a robot program or an API call takes: URScript
+  ``set_target_payload(m, [x, y, z])`` with the centre of gravity in metres; Elite's JSON-RPC
+  ``cmd_set_payload`` with ``m`` in kg and ``cog`` in mm (docs/sources.md).
+
+Any other driver gets kg and mm in the flange frame of the YAML's DH table (frame 6), unless its
+class declares ``payload_units = ("kg", "m")`` (or ``"mm"``) and ``payload_vendor``. A new
+controller is one ``ControllerForm`` in ``FORMS``.
 
 The agent's centre of mass is in the YAML's flange frame (DH frame 6), which for the shipped
 UR and Elite tables is the controller's tool flange frame.
@@ -18,40 +22,80 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
-# driver type -> (controller name, length unit)
-KNOWN = {"ur_rtde": ("Universal Robots controller", "m"), "elite_ec": ("Elite EC controller", "mm")}
+LENGTH_FACTOR = {"m": 0.001, "mm": 1.0}  # from mm
+LENGTH_DIGITS = {"m": 4, "mm": 1}
+
+
+@dataclass(frozen=True)
+class ControllerForm:
+    """How one controller takes a payload: its pendant screen and its script or API call."""
+
+    controller: str  # "Universal Robots controller"
+    screen: str  # where on the pendant: "PolyScope Installation > General > Payload"
+    screen_unit: str  # length unit the screen shows: "mm" or "m"
+    script_name: str = ""  # "URScript"; "" when there is no script form
+    script: str = ""  # format with {m}, {x}, {y}, {z} (lengths in ``script_unit``)
+    script_unit: str = "m"
+
+
+FORMS: dict[str, ControllerForm] = {
+    "ur_rtde": ControllerForm("Universal Robots controller", "PolyScope: Installation > General > Payload", "mm",
+                              "URScript", "set_target_payload({m}, [{x}, {y}, {z}])", "m"),
+    "elite_ec": ControllerForm("Elite EC controller", "Elite pendant: tool payload", "mm", "JSON-RPC",
+                               'cmd_set_payload {{"tool_num": 0, "m": {m}, "cog": [{x}, {y}, {z}]}}', "mm"),
+}
 
 
 @dataclass(frozen=True)
 class PendantValues:
     controller: str
     mass_kg: float
-    cog: tuple[float, float, float]  # in ``length_unit``
+    cog: tuple[float, float, float]  # in ``length_unit``: what the pendant screen shows
     length_unit: str  # "m" or "mm"
     frame: str
+    screen: str = ""  # where on the pendant
+    script_name: str = ""
+    script: str = ""  # the script or API form, filled in; "" when the controller has none
 
     @property
     def cog_text(self) -> str:
-        digits = 4 if self.length_unit == "m" else 1
-        return ", ".join(f"{v:.{digits}f}" for v in self.cog)
+        return ", ".join(f"{v:.{LENGTH_DIGITS[self.length_unit]}f}" for v in self.cog)
+
+    @property
+    def pendant_text(self) -> str:
+        """``mass 2.031 kg, CoG X 30.3 mm, Y -18.8 mm, Z 60.4 mm``: every field with its unit, as on the screen."""
+        d = LENGTH_DIGITS[self.length_unit]
+        return (f"mass {self.mass_kg:.3f} kg, centre of gravity X {self.cog[0]:.{d}f} {self.length_unit}, "
+                f"Y {self.cog[1]:.{d}f} {self.length_unit}, Z {self.cog[2]:.{d}f} {self.length_unit}")
 
     def describe(self) -> str:
-        return (f"Values for the {self.controller} ({self.frame}): mass {self.mass_kg:.3f} kg, "
-                f"centre of mass [{self.cog_text}] {self.length_unit}")
+        where = f"; {self.screen}" if self.screen else ""
+        text = f"Values for the {self.controller} ({self.frame}{where}): {self.pendant_text}"
+        if self.script:
+            text += f"\n  {self.script_name} form: {self.script}"
+        return text
 
     def to_json(self) -> dict[str, Any]:
         return {"controller": self.controller, "mass_kg": round(self.mass_kg, 6), "cog": list(self.cog),
-                "cog_unit": self.length_unit, "frame": self.frame}
+                "cog_unit": self.length_unit, "frame": self.frame, "screen": self.screen or None,
+                "script": self.script or None}
 
 
 def pendant_values(driver_type: str | None, mass_kg: float, cog_mm: Sequence[float]) -> PendantValues:
-    """The payload in the units the controller of ``driver_type`` expects (see the module docstring)."""
-    name, unit = KNOWN.get(driver_type or "", (None, None))
-    if name is None:
+    """The payload in the units the controller of ``driver_type`` shows (see the module docstring)."""
+    form = FORMS.get(driver_type or "")
+    if form is None:
         name, unit = _declared(driver_type)
-    factor = 0.001 if unit == "m" else 1.0
-    cog = tuple(float(c) * factor for c in cog_mm)
-    return PendantValues(name, float(mass_kg), cog, unit, "tool flange frame")  # type: ignore[arg-type]
+        form = ControllerForm(name, "", unit)
+    unit = form.screen_unit
+    cog = tuple(float(c) * LENGTH_FACTOR[unit] for c in cog_mm)
+    script = ""
+    if form.script:
+        u, d = form.script_unit, LENGTH_DIGITS[form.script_unit]
+        x, y, z = (f"{float(c) * LENGTH_FACTOR[u]:.{d}f}" for c in cog_mm)
+        script = form.script.format(m=f"{float(mass_kg):.3f}", x=x, y=y, z=z)
+    return PendantValues(form.controller, float(mass_kg), cog, unit, "tool flange frame",  # type: ignore[arg-type]
+                         form.screen, form.script_name, script)
 
 
 def _declared(driver_type: str | None) -> tuple[str, str]:

@@ -40,7 +40,7 @@ def format_plan(plan: Plan, durations: Sequence[float]) -> str:
 def plan_json(plan: Plan, durations: Sequence[float]) -> dict[str, Any]:
     moves = []
     for i, (m, d) in enumerate(zip(plan.moves, durations), 1):
-        moves.append({"index": i, **m.to_json(), "expected_s": d if math.isfinite(d) else None})
+        moves.append({"index": i, **m.to_json(), "expected_s": round(d, 3) if math.isfinite(d) else None})
     known = [d for d in durations if math.isfinite(d)]
     return {"procedure": plan.procedure.name, "fingerprint": plan.fingerprint(), "moves": moves,
-            "robot_time_s": sum(known), "approach_known": len(known) == len(durations)}
+            "robot_time_s": round(sum(known), 3), "approach_known": len(known) == len(durations)}

@@ -159,9 +159,10 @@ def _result_page(run_dir: Path, manifest: dict, result: dict, config: Config, hi
         pendant = ('<div class="stopbox">The quality checks failed: do <b>not</b> type these values into the '
                    f'controller. ({H.e(pv.describe())})<br>{H.e(write_back_text(manifest, this_entry))}</div>')
     else:
-        pendant = (f'<div class="pendant">Values for the {H.e(pv.controller)} ({H.e(pv.frame)}): '
-                   f'<b>mass {pv.mass_kg:.3f} kg</b>, <b>centre of mass [{H.e(pv.cog_text)}] {H.e(pv.length_unit)}'
-                   f'</b><br>{H.e(write_back_text(manifest, this_entry))}</div>')
+        where = f"; {pv.screen}" if pv.screen else ""
+        script = f'<br>{H.e(pv.script_name)} form: <code>{H.e(pv.script)}</code>' if pv.script else ""
+        pendant = (f'<div class="pendant">Values for the {H.e(pv.controller)} ({H.e(pv.frame + where)}): '
+                   f'<b>{H.e(pv.pendant_text)}</b>{script}<br>{H.e(write_back_text(manifest, this_entry))}</div>')
     parts = H.head_html(f"Payload report {robot} {H.when_text(manifest)}") + [
         "<header>", f"<h1>Payload identification: {H.e(robot)}</h1>", H.meta_line(manifest, run_dir),
         f'<div class="headline">{headline} {badge}</div>', pendant,
@@ -246,13 +247,15 @@ def _history_part(db: Path, robot: str, current: set[str]) -> tuple[list, P.Figu
 
 def stop_reason(manifest: dict) -> str:
     """Why a run without a result stopped, from its manifest (runner's ``stopped_because``, else the phases)."""
+    from payload_agent.output.stop_text import readable
+
     for key in ("stopped_because", "stop_reason"):
         if manifest.get(key):
-            return str(manifest[key])
+            return readable(str(manifest[key]))
     for ph in ("loaded", "empty"):
         status = str(((manifest.get("phases") or {}).get(ph) or {}).get("status", ""))
         if status.startswith("aborted"):
-            return f"{ph} run {status}"
+            return f"{ph} run aborted: " + readable(status.removeprefix("aborted").lstrip(": "))
     if manifest.get("finished_utc") or manifest.get("status") == "complete":
         return "the run finished, but its analysis wrote no result.json (run `payload-agent solve` on the folder)"
     return "unknown: the run ended without recording why (the process may have been killed)"

@@ -1,10 +1,12 @@
 """The report's figures: effort versus angle per sweep, residuals, the history trend.
 
 matplotlib's object API with the Agg canvas (no pyplot, no global backend switch), so it works
-headless and inside other programs. Legends sit below the axes (never over a title), and
-the history's x axis counts identifications in whole numbers. The model lines are thin and dashed
-over opaque recorded traces in two colours (up blue, down teal), so no trace hides under a model
-line and the model stays visible where it fits the data.
+headless and inside other programs. Legends sit below the axes, never over a title or a data
+point, in a font read at the report's size (10 pt at 100 dpi: 14 px, as the body text). Colours
+pair by direction: up is the blue family, down the teal family; the tool's traces are dark, the
+empty flange's light. The model lines are dashed (up long dashes, down short) in dark orange on a
+white halo, on top, so they stay visible over the traces they fit. The history's x axis counts
+identifications in whole numbers; runs without ``--tool`` are labelled so.
 """
 
 from __future__ import annotations
@@ -24,9 +26,12 @@ from payload_agent.types import SweepKey
 PLOT_POINTS = 250  # residual points per sweep (evenly spaced): the regressor per point is the slow part
 JOINT_SHARE = 0.1  # plot a joint when its model payload torque reaches this share of the sweep's largest
 EMPTY_FIT_DEGREE = 6  # smooth empty-flange effort under the plotted model
-COLORS = {"empty": "#8c8c8c", "loaded": "#1f5fa8", "loaded_down": "#17a398", "model": "#e07b00",
-          "residual": "#1f5fa8"}
-Z_DATA, Z_MODEL = 2, 3  # the model on top, but thin and dashed: the recorded traces show through its gaps
+COLORS = {"empty": "#9ec3e6", "empty_down": "#93d6cc", "loaded": "#1f5fa8", "loaded_down": "#0f7d72",
+          "model": "#c55a00", "residual": "#1f5fa8"}
+LEGEND_PT = 10  # legend and caption-size text in the figures (the report shows them 1:1 at 100 dpi)
+NO_TOOL = "no tool label (run without --tool)"
+Z_DATA, Z_MODEL = 2, 3
+HALO: list = []  # the model line's white outline (filled on first use: matplotlib is imported lazily)  # the model on top, but thin and dashed: the recorded traces show through its gaps
 
 
 @dataclass
@@ -34,6 +39,12 @@ class Figure:
     title: str
     png: bytes
     caption: str = ""
+
+
+def _halo() -> list:
+    from matplotlib import patheffects
+
+    return [patheffects.withStroke(linewidth=3.4, foreground="white")]
 
 
 def png(fig) -> bytes:
@@ -68,7 +79,9 @@ def _empty_at(empty: SweepData, x: np.ndarray, j: int, joints: Sequence[int]) ->
     return out
 
 
-def _legend_below(fig, axes) -> None:
+def _legend_below(fig, axes, ncols: int = 3) -> None:
+    """One legend under the figure. Entries in drawing order, filled column by column: with ``ncols=2`` for
+    up-and-down sweeps the first column holds the up leg's traces and the second the down leg's."""
     handles, labels = [], []
     for ax in axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
@@ -76,7 +89,8 @@ def _legend_below(fig, axes) -> None:
                 handles.append(h)
                 labels.append(lab)
     if handles:
-        fig.legend(handles, labels, loc="outside lower center", ncols=min(3, len(labels)), fontsize=8, frameon=False)
+        fig.legend(handles, labels, loc="outside lower center", ncols=min(ncols, len(labels)), fontsize=LEGEND_PT,
+                   frameon=False)
 
 
 def sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, theta: np.ndarray | None,
@@ -97,12 +111,13 @@ def sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, 
     else:
         joints = sorted({j, 1, 2} & set(all_joints)) if j in (1, 2) else [j]
     joints = joints[:3]
-    fig = MplFigure(figsize=(10.5, 3.4), dpi=100, layout="constrained")
+    fig = MplFigure(figsize=(10.5, 4.0), dpi=100, layout="constrained")
     axes = fig.subplots(1, len(joints), squeeze=False)[0]
     two_way = len(legs) > 1
     for n, (key, loaded, empty) in enumerate(legs):
         tag = f" ({key.direction})" if two_way else ""
-        colour = COLORS["loaded_down"] if key.direction == "down" and two_way else COLORS["loaded"]
+        down = key.direction == "down" and two_way
+        colour = COLORS["loaded_down"] if down else COLORS["loaded"]
         model_x = model_y = None
         if theta is not None and empty is not None:
             try:
@@ -118,22 +133,22 @@ def sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, 
                 model_y = base[ok] + model_torque(kin, q_w[ok], theta, joints)
         for ax, c in zip(axes, joints):
             if empty is not None:
-                ax.plot(np.degrees(empty.q[:, j]), empty.effort_nm[:, c], color=COLORS["empty"], lw=0.6,
-                        alpha=0.7, zorder=Z_DATA - 1, label="empty flange" + tag)
+                ax.plot(np.degrees(empty.q[:, j]), empty.effort_nm[:, c], color=COLORS["empty_down" if down else "empty"],
+                        lw=1.0, zorder=Z_DATA - 1, label="empty flange" + tag)
             ax.plot(np.degrees(loaded.q[:, j]), loaded.effort_nm[:, c], color=colour, lw=0.8,
                     zorder=Z_DATA, label=label + tag)
             if model_y is not None and len(model_x):
-                ax.plot(model_x, model_y[:, joints.index(c)], color=COLORS["model"], lw=1.1,
-                        dashes=(5, 4) if n == 0 else (1.5, 3), zorder=Z_MODEL,
+                ax.plot(model_x, model_y[:, joints.index(c)], color=COLORS["model"], lw=1.8,
+                        dashes=(6, 3) if n == 0 else (2, 2), zorder=Z_MODEL, path_effects=_halo(),
                         label=f"empty (smoothed) + model ({theta_from}){tag}")
     for ax, c in zip(axes, joints):
-        ax.set_title(f"joint {c + 1}", fontsize=10)
+        ax.set_title(f"joint {c + 1}", fontsize=11)
         ax.set_xlabel(f"joint {key0.joint} angle [deg]")
         ax.set_ylabel("effort [N·m]")
         ax.grid(alpha=0.3)
-    _legend_below(fig, axes)
+    _legend_below(fig, axes, ncols=2 if two_way else 3)
     name = key0.name.rsplit("-", 1)[0] + (" up and down" if two_way else f" {key0.direction}")
-    fig.suptitle(f"sweep {name} ({key0.speed_percent:g} % speed){status}", fontsize=11, x=0.02, ha="left")
+    fig.suptitle(f"sweep {name} ({key0.speed_percent:g} % speed){status}", fontsize=12, x=0.02, ha="left")
     if theta is not None:
         caption = ("Raw effort × gain over the whole move (standstill, ramps and constant speed). The model is the "
                    f"empty-flange effort smoothed by a degree-{EMPTY_FIT_DEGREE} polynomial in the angle plus Y(q)·θ̂, "
@@ -161,7 +176,7 @@ def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Swe
     rms_reported = ((result.get("estimates") or {}).get(theta_from) or {}).get("residual_rms_nm") or {}
     if not sweeps:
         return None
-    fig = MplFigure(figsize=(10.5, 2.6 * math.ceil(len(sweeps) / 2)), dpi=100, layout="constrained")
+    fig = MplFigure(figsize=(10.5, 3.3 * math.ceil(len(sweeps) / 2)), dpi=100, layout="constrained")
     axes = fig.subplots(math.ceil(len(sweeps) / 2), 2, squeeze=False).ravel()
     cmap = ["#1f5fa8", "#e07b00", "#2a9d3c", "#c0392b", "#7b4fa0"]
     for ax, d in zip(axes, sweeps):
@@ -174,13 +189,15 @@ def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, Swe
                 continue
             r = d.dtau[pick, jj] - Y[:, ci, :] @ theta
             rms = rms_reported.get(f"{d.key.name}/j{jj + 1}", float(np.sqrt(np.mean(r ** 2))))
-            ax.plot(x, r, ".", ms=2.0, color=cmap[ci % len(cmap)], alpha=0.7, label=f"j{jj + 1} (RMS {rms:.3f} N·m)")
+            ax.plot(x, r, ".", ms=2.5, color=cmap[ci % len(cmap)], alpha=0.7, label=f"j{jj + 1} RMS {rms:.3f} N·m")
         ax.axhline(0.0, color="black", lw=0.8)
-        ax.set_title(f"{d.key.name}", fontsize=10)
+        ax.set_title(f"{d.key.name}", fontsize=11)
         ax.set_xlabel(f"joint {d.key.joint} angle [deg]")
         ax.set_ylabel("Δτ − Y·θ̂ [N·m]")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, markerscale=6, loc="upper right", ncol=2)
+        # below the axes, not over the points it describes
+        ax.legend(fontsize=LEGEND_PT - 1, markerscale=5, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=3,
+                  frameon=False, handletextpad=0.2, columnspacing=1.0)
     for ax in axes[len(sweeps):]:
         ax.set_visible(False)
     caption = (f"Residual of the loaded-minus-empty torque after the {theta_from} model, on the constant-speed "
@@ -195,19 +212,19 @@ def history_figure(past: list, current_run_dirs: set[str]) -> Figure:
     from matplotlib.figure import Figure as MplFigure
     from matplotlib.ticker import MaxNLocator
 
-    fig = MplFigure(figsize=(10.5, 4.6), dpi=100, layout="constrained")
+    fig = MplFigure(figsize=(10.5, 5.0), dpi=100, layout="constrained")
     axes = fig.subplots(2, 2, sharex=True).ravel()
     idx = np.arange(1, len(past) + 1)
-    tools = sorted({e.tool or "(no label)" for e in past})
+    tools = sorted({e.tool or NO_TOOL for e in past}, key=lambda t: (t == NO_TOOL, t))
     markers = "osD^v<>"
     for ai, (ax, label) in enumerate(zip(axes, ["mass [kg]", "cog x [mm]", "cog y [mm]", "cog z [mm]"])):
         for ti, tool in enumerate(tools):
-            sel = [i for i, e in enumerate(past) if (e.tool or "(no label)") == tool]
+            sel = [i for i, e in enumerate(past) if (e.tool or NO_TOOL) == tool]
             vals = [past[i].mass_kg if ai == 0 else past[i].cog_mm[ai - 1] for i in sel]
             errs = [(past[i].mass_ci95_kg if ai == 0 else (past[i].cog_ci95_mm or (np.nan,) * 3)[ai - 1]) or np.nan
                     for i in sel]
             ax.errorbar(idx[sel], vals, yerr=np.nan_to_num(np.asarray(errs, float)), fmt=markers[ti % len(markers)],
-                        ms=4, capsize=2, lw=1, label=tool)
+                        ms=5, capsize=2, lw=1, label=tool if tool == NO_TOOL else f"tool {tool}")
         cur = [i for i, e in enumerate(past) if e.run_dir in current_run_dirs]
         if cur:
             i = cur[-1]
@@ -218,8 +235,11 @@ def history_figure(past: list, current_run_dirs: set[str]) -> Figure:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     for ax in axes[2:]:
         ax.set_xlabel("identification # (oldest first)")
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncols=min(6, len(labels)), fontsize=8, frameon=False)
+    handles, labels = axes[0].get_legend_handles_labels()  # markers (lines) come before error bars: reorder
+    order = sorted(range(len(labels)), key=lambda i: labels[i] == "this run")
+    handles, labels = [handles[i] for i in order], [labels[i] for i in order]
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(4, len(labels)), fontsize=LEGEND_PT,
+               frameon=False)
     caption = ("Every identification stored for this robot; bars are 95 % intervals. A change flag means the "
                "result moved by more than the combined 95 % interval since the previous result for the same tool.")
     return Figure("History", png(fig), caption)

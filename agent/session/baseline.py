@@ -191,7 +191,7 @@ def status_line(state: RobotState, config: Config, plan: Plan) -> str:
     if reasons:
         return "Stored baseline: no longer matches (" + "; ".join(reasons) + ")"
     return (f"Stored baseline: recorded {stored.recorded_utc} on {stored.controller.get('model', '?')} "
-            f"serial {stored.controller.get('serial', '?')}; a run records only the loaded run")
+            f"serial {stored.controller.get('serial') or 'not reported'}; a run records only the loaded run")
 
 
 def copy_into_run(state: RobotState, info: BaselineInfo, run_dir: Path) -> dict[str, Any]:

@@ -151,7 +151,7 @@ def _connected_checks(config: Config, driver, report: DoctorReport, window_s: fl
         report.checks.append(Check("identify", FAIL, f"the controller did not identify itself: {exc}"))
         return
     report.checks.append(Check("identify", OK, f"{info.vendor} {info.model}, firmware {info.firmware}, "
-                               f"serial {info.serial or '?'}", {"vendor": info.vendor, "model": info.model,
+                               f"serial {info.serial or 'not reported'}", {"vendor": info.vendor, "model": info.model,
                                                                "firmware": info.firmware, "serial": info.serial}))
     try:
         st = driver.state()
@@ -200,21 +200,25 @@ def _stream_check(driver, report: DoctorReport, window_s: float, config: Config)
     wall_rate = (len(t_wall) - 1) / (t_wall[-1] - t_wall[0])
     wall_gap = float(np.max(np.diff(t_wall)))
     simulated = config.simulation is not None and np.all(np.isfinite(t_ctrl))
+    if simulated and driver.sampling_clock == "agent":  # the agent paces the samples in wall time:
+        nominal /= config.simulation.time_scale  # fewer per simulated second
+    nom = f"nominal {nominal:.0f} Hz" if math.isfinite(nominal) else "nominal rate unknown"
     if simulated:  # the simulated controller's own clock: what a run at its time scale sees
-        if driver.sampling_clock == "agent":  # the agent paces the samples in wall time: fewer per simulated s
-            nominal /= config.simulation.time_scale
         rate = (len(t_ctrl) - 1) / max(t_ctrl[-1] - t_ctrl[0], 1e-9)
         gap = float(np.max(np.diff(t_ctrl)))
         limit = driver.gap_limit_s  # the supervision's limit (sims set their own: they share a loaded CPU)
-        where = (f"{rate:.1f} Hz and largest gap {1000 * gap:.1f} ms in simulated time (wall: {wall_rate:.0f} Hz, "
-                 f"largest gap {1000 * wall_gap:.0f} ms at time_scale {config.simulation.time_scale:g})")
+        ts = config.simulation.time_scale
+        text = (f"simulated clock: {rate:.1f} Hz ({nom}), largest gap {1000 * gap:.1f} ms "
+                f"(supervision limit {1000 * limit:.0f} ms); wall clock: {len(t_wall)} samples in {window_s:g} s = "
+                f"{wall_rate:.0f} Hz, largest gap {1000 * wall_gap:.0f} ms (the simulation runs {ts:g}× faster "
+                "than wall time)")
     else:
         rate, gap, limit = wall_rate, wall_gap, driver.gap_limit_s
-        where = f"{rate:.1f} Hz, largest gap {1000 * gap:.1f} ms (supervision limit {1000 * limit:.0f} ms)"
+        text = (f"{len(t_wall)} samples in {window_s:g} s: {rate:.1f} Hz ({nom}), largest gap "
+                f"{1000 * gap:.1f} ms (supervision limit {1000 * limit:.0f} ms)")
     ok = (not math.isfinite(nominal) or rate >= MIN_RATE_SHARE * nominal) and gap <= limit
     report.checks.append(Check(
-        "sample stream", OK if ok else FAIL,
-        f"{len(t_wall)} samples in {window_s:g} s: {where}; nominal {nominal:.0f} Hz",
+        "sample stream", OK if ok else FAIL, text,
         {"samples": int(len(t_wall)), "rate_hz": round(rate, 2), "wall_rate_hz": round(wall_rate, 2),
          "nominal_hz": None if not math.isfinite(nominal) else round(nominal, 2),
          "largest_gap_ms": round(1000 * gap, 2), "simulated_time": bool(simulated)}))

@@ -23,6 +23,7 @@ from payload_agent.errors import (CommunicationError, MotionAbortedError, Payloa
 from payload_agent.motion.crosscheck import compare_pose
 from payload_agent.motion.planner import Plan
 from payload_agent.motion.safety import SafetyGate
+from payload_agent.output.stop_text import stop_sentence
 from payload_agent.recording.recorder import RunRecorder
 
 SAMPLE_WAIT_S = 5.0
@@ -145,7 +146,7 @@ class PhaseRunner:
             report = getattr(exc, "stop_report", None) or self.driver.last_stop_report
             if report is not None:
                 self.recorder.manifest["phases"][name]["stop"] = report.to_json()
-            self.recorder.end_phase(f"aborted: {type(exc).__name__}: {exc}")
+            self.recorder.end_phase(f"aborted: {stop_sentence(exc)}")
             if isinstance(exc, KeyboardInterrupt):
                 how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted by the operator (Ctrl-C)"
                 raise MotionAbortedError(f"{how}; the robot was stopped, recorded data kept in "

@@ -46,11 +46,18 @@ def load_resume(config: Config, plan: Plan, run_dir: Path) -> ResumeState:
     manifest = load_manifest(run_dir)
     if manifest.get("status") == "complete":
         raise ConfigError("--resume", f"{run_dir} is complete; nothing to resume")
+    recorded = manifest.get("robot")
+    if recorded and recorded != config.robot.name:
+        raise ConfigError("--resume", f"this run belongs to {recorded} (recorded with "
+                                      f"{manifest.get('config_source', 'its own YAML')}), not to {config.robot.name}: "
+                                      f"resume it with --robot {recorded}")
     if manifest.get("config_fingerprint") != config_fingerprint(config):
-        raise ConfigError("--resume", f"the robot YAML changed since {run_dir} was recorded "
-                                      f"(sections {', '.join(FINGERPRINT_SECTIONS)}); start a new run instead")
+        raise ConfigError("--resume", f"the robot YAML changed since {run_dir} was recorded: "
+                                      f"{changed_keys(manifest.get('config') or {}, config.raw)}; "
+                                      "undo that change, or start a new run")
     if manifest.get("plan_fingerprint") != plan.fingerprint():
-        raise ConfigError("--resume", f"the plan changed since {run_dir} was recorded; start a new run instead")
+        raise ConfigError("--resume", f"the plan changed since {run_dir} was recorded although the YAML did not "
+                                      f"(the procedure file {plan.procedure.name!r} changed?); start a new run instead")
     all_sweeps = {m.sweep.name for m in plan.sweeps}
     phases = []
     for phase, mounted in manifest.get("phases_planned") or []:
@@ -65,3 +72,21 @@ def load_resume(config: Config, plan: Plan, run_dir: Path) -> ResumeState:
     stored = BaselineInfo.from_json(base) if base else None
     return ResumeState(run_dir, manifest, manifest.get("mode", "identify"), phases,
                        bool(manifest.get("store_empty")), stored)
+
+
+def changed_keys(then: dict, now: dict) -> str:
+    """Which keys of the compared sections differ between the recorded YAML and this one, e.g.
+    "procedure.speed_percent: 10 then, 20 now" (a whole section when it appeared or went)."""
+    out = []
+    for section in FINGERPRINT_SECTIONS:
+        a, b = then.get(section), now.get(section)
+        if Config.fingerprint_of(a) == Config.fingerprint_of(b):
+            continue
+        if not (isinstance(a, dict) and isinstance(b, dict)):
+            out.append(f"section {section}")
+            continue
+        for key in sorted(set(a) | set(b), key=str):
+            if Config.fingerprint_of(a.get(key)) != Config.fingerprint_of(b.get(key)):
+                short = lambda v: "absent" if v is None else (repr(v) if len(repr(v)) <= 40 else "(changed)")
+                out.append(f"{section}.{key}: {short(a.get(key))} then, {short(b.get(key))} now")
+    return "; ".join(out) or "sections " + ", ".join(FINGERPRINT_SECTIONS)

@@ -28,7 +28,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
-                                  QualityGateError, RobotNotReadyError, SafetyError, Terminated)
+                                  QualityGateError, RobotNotReadyError, SafetyError)
 from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.recording.recorder import RunRecorder
@@ -39,6 +39,7 @@ from payload_agent.output.plan_table import format_plan
 from payload_agent.session.finish import RunOutcome, finish, write_run_report
 from payload_agent.session.connection import build_driver, simulated_cell
 from payload_agent.session.manifest import RunManifest, new_run_dir
+from payload_agent.output.stop_text import stop_sentence
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
 from payload_agent.session.resume import ResumeState, config_fingerprint, load_resume
 from payload_agent.types import PayloadSetting
@@ -248,7 +249,8 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
                                                                   **stored_info.to_json()},
                       opts.reference, cell.truth_json if cell else None,
                       None if pose_check is None else pose_check.to_json()).to_json(),
-        "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty})
+        "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty,
+        "solver": opts.solver or config.procedure.solver})  # `solve` redoes the run with the run's own solver
     if stored_info is not None:  # the run folder keeps its own copy: self-contained
         recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
         recorder.write_manifest()
@@ -258,7 +260,7 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
 def _mark_stopped(config: Config, recorder: RunRecorder, exc: BaseException, opts: RunOptions, out) -> None:
     """An aborted run: the manifest says why and how the arm was stopped; a report shows what was recorded."""
     report = getattr(exc, "stop_report", None)
-    why = "terminated (SIGTERM)" if isinstance(exc, Terminated) else f"{type(exc).__name__}: {exc}"
+    why = stop_sentence(exc)  # a sentence, no exception class names (output/stop_text.py)
     recorder.update(status="incomplete", stopped_because=why, stop=None if report is None else report.to_json())
     try:
         exc.run_dir = recorder.run_dir
