@@ -25,7 +25,7 @@ from payload_agent.solvers.results import RunResult
 
 def run_session(config: Config, options: RunOptions) -> RunOutcome:
     """One session: every check `plan` makes, then the run. The CLI's run, baseline and calibrate use this."""
-    preflight(config, calibration=options.mode == "identify").require()
+    preflight(config, calibration=options.mode == "identify", apply=options.apply and options.mode == "identify").require()
     return run_identification(config, options)
 
 

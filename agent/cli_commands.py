@@ -57,8 +57,8 @@ def _session(args, con: Console, mode: str, **extra):
     from payload_agent.api import run_session
 
     config = load_robot(args)
-    preflight(config, calibration=mode == "identify").require()  # what `plan` checks, before anything starts
-    con.say(describe_locations(config))
+    preflight(config, calibration=mode == "identify", apply=bool(extra.get("apply")) and mode == "identify").require()
+    con.say(describe_locations(config))  # run_session checks it all again (the API's entry) before anything starts
     try:
         outcome = run_session(config, _run_options(args, con, mode, **extra))
     except QualityGateError as exc:
@@ -158,7 +158,10 @@ def cmd_watch(args, con: Console) -> int:
     from payload_agent.session.runner import RunOptions, run_identification
     from payload_agent.session.watch import watch
 
+    from payload_agent.session.preflight import preflight
+
     config = load_robot(args)
+    preflight(config, watch=True).require()  # every run it starts applies: refuse now what could never succeed
     cell = None
     if config.simulation is not None:  # one simulated cell for the whole watch: its inputs can be set
         from payload_agent.session.simulation import SimulatedCell

@@ -47,6 +47,12 @@ class RobotNotReadyError(PayloadAgentError):
     exit_code = 3
 
 
+class RobotBusyError(RobotNotReadyError):
+    """Another payload-agent session holds this robot's session lock (one session per robot)."""
+
+    exit_code = 3
+
+
 class BaselineError(RobotNotReadyError):
     """No stored empty-flange baseline fits this run (missing, other robot, changed procedure, too old)."""
 

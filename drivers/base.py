@@ -28,12 +28,12 @@ import abc
 import math
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
 from payload_agent.configuration.options import option, parse_options
+from payload_agent.drivers.settings import DriverOptions, MotionLimits, Supervision
 from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, MotionNotFinished,
                                   MotionStopped, PayloadAgentError, SupervisionTrip, UnsupportedCapability)
 from payload_agent.types import (ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample, StopReport,
@@ -48,34 +48,6 @@ MIN_GAP_LIMIT_S = 0.05  # the watchdog never trips on less than this (or 5 sampl
 AT_TARGET_RAD = math.radians(0.05)  # "the arm is at the target" for the never-finished check
 WATCHDOG_TICK_S = 0.005
 READ_TIMEOUT_S = 0.05  # how long one _read_sample call may block
-
-
-@dataclass(frozen=True, kw_only=True)
-class DriverOptions:
-    """Options every driver has; each driver subclasses this with its own fields."""
-
-    type: str = option(help="the driver name (registry key)")
-
-
-@dataclass(frozen=True)
-class MotionLimits:
-    """What a driver needs from the robot section to command PTP moves."""
-
-    max_joint_speed_rad_s: float
-    max_joint_accel_rad_s2: float
-    n_joints: int = 6
-
-
-@dataclass(frozen=True)
-class Supervision:
-    """Watchdog settings (the robot YAML's ``safety`` section)."""
-
-    max_stream_gap_s: float | None = None  # None: max(5 sample periods, 50 ms)
-    stop_ack_timeout_s: float = 2.0
-    # a driver that polls its controller during a move (command_ok()) trips when no reply came for this long
-    max_reply_wait_s: float = 0.3
-    # the arm has stood at the move's target this long and the controller still has not reported it finished
-    finish_grace_s: float = 0.5
 
 
 class Driver(abc.ABC):
@@ -118,6 +90,11 @@ class Driver(abc.ABC):
         self._tripped = threading.Event()
         self._trip_report: StopReport | None = None
         self._connected = False
+        # a move this session sent may still be running: set when a move goes out, cleared when the controller
+        # reports it finished or acknowledges our stop. stop() acts only while it is set, so a session never
+        # stops motion it did not command (another session's, the pendant's program).
+        self._commanded = False
+        self._stop_requested = threading.Event()  # stop() during our move: the move's wait ends with MotionStopped
 
     # -- construction ------------------------------------------------------------------------
     @classmethod
@@ -323,6 +300,8 @@ class Driver(abc.ABC):
         self._target, self._at_target_since, self._last_command_ok = target, None, None
         self._armed_since = time.monotonic()
         self._armed = True
+        self._commanded = True
+        self._stop_requested.clear()
         try:
             self._move_joints(target, float(speed_rad_s), float(accel_rad_s2), float(timeout_s))
         except (SupervisionTrip, MotionNotFinished, MotionStopped):
@@ -340,6 +319,12 @@ class Driver(abc.ABC):
             self._armed = False
         if self._tripped.is_set():
             raise self._trip_error()
+        self._commanded = False  # the controller reported our move finished at its target
+
+    @property
+    def motion_commanded(self) -> bool:
+        """Whether a move this session commanded may still be running (what ``stop()`` would stop)."""
+        return self._commanded
 
     def command_ok(self) -> None:
         """A driver that polls its controller during a move calls this after every good reply.
@@ -350,9 +335,12 @@ class Driver(abc.ABC):
         self._last_command_ok = time.monotonic()
 
     def check_supervision(self) -> None:
-        """Raise SupervisionTrip if the watchdog has stopped the arm (drivers call this while waiting)."""
+        """Raise SupervisionTrip if the watchdog has stopped the arm, MotionStopped if this session's stop()
+        did (drivers call this while waiting)."""
         if self._tripped.is_set():
             raise self._trip_error()
+        if self._stop_requested.is_set() and self._armed:
+            raise MotionStopped("the move was stopped on request by this session")
 
     @property
     def last_stop_report(self) -> StopReport | None:
@@ -433,21 +421,33 @@ class Driver(abc.ABC):
                 if not ack:
                     time.sleep(0.05)
             self._trip_report = StopReport(reason, t_fault, sent_t, ack, via, attempts)
+            if ack:
+                self._commanded = False
             self._tripped.set()
 
-    def stop(self) -> None:
-        """Halt motion now. Best effort: never raises."""
+    def stop(self) -> bool:
+        """Halt the motion this session commanded, now. Best effort: never raises.
+
+        Sends nothing when no move of ours may be running (none sent, or the last one finished or was
+        stopped with an acknowledgement): the arm may then be moving for someone else, a second session or
+        the pendant's program, and that is not ours to stop. Returns whether a stop was sent.
+        """
+        if not self._commanded:
+            return False
+        self._stop_requested.set()
         self._last_command_ok = None  # the driver is handling the abort itself: no reply watchdog on its stop
         try:
             if self._connected and self._command_alive() and self._stop_command():
-                return
+                self._commanded = False
+                return True
         except Exception:
             pass
         try:
-            if self._connected:
-                self._stop_fresh()
+            if self._connected and self._stop_fresh():
+                self._commanded = False
         except Exception:
             pass
+        return True
 
     # -- kinematic cross-check ----------------------------------------------------------------
     def flange_pose(self) -> FlangePose | None:
@@ -455,6 +455,15 @@ class Driver(abc.ABC):
         return None
 
     # -- optional capabilities ----------------------------------------------------------------
+    OPTIONAL_CAPABILITIES: ClassVar[tuple[str, ...]] = ("read_payload", "write_payload", "read_digital_input",
+                                                        "read_trigger")
+
+    def capabilities(self) -> frozenset[str]:
+        """The optional capabilities this driver offers with these options, known before connecting, so a
+        session that needs one (``--apply``, a watch trigger) is refused before its first move. A driver
+        whose options decide (a register map) narrows this; the default is the methods it implements."""
+        return frozenset(n for n in self.OPTIONAL_CAPABILITIES if getattr(type(self), n) is not getattr(Driver, n))
+
     def read_payload(self) -> PayloadSetting:
         raise UnsupportedCapability(f"driver {self.name!r} cannot read the payload setting")
 

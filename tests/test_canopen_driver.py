@@ -342,17 +342,32 @@ def test_never_finishing_move_times_out_and_stops(rig):
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")  # python-can's receive thread
 def test_quick_stop_over_a_new_bus_when_the_old_one_is_gone(rig):
+    """Our move under way and the driver's bus object gone (adapter unplugged and back): the supervision
+    quick-stops every drive over a new bus. A stop after our move had finished sends nothing at all."""
     drv, fake = rig
     drv.start_stream(lambda s: None)
     drv.wait_sample(10.0)  # the driver refuses to move before its first sample
     drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
-    t0 = time.monotonic()
-    drv.network.bus.shutdown()  # the driver's bus object is gone (adapter unplugged and back)
-    deadline = time.monotonic() + 2.0
-    while drv._command_alive() and time.monotonic() < deadline:  # its threads notice at their next frame
+    t_done = time.monotonic()
+    assert drv.stop() is False and stops_after(fake, t_done) == set()  # nothing of ours runs: nothing is sent
+    ended: list[BaseException] = []
+
+    def move_back() -> None:
+        try:
+            drv.move_joints(START, SLOW, ACCEL, 60.0)
+        except BaseException as exc:  # noqa: BLE001 - asserted below
+            ended.append(exc)
+
+    mover = threading.Thread(target=move_back, daemon=True)
+    mover.start()
+    deadline = time.monotonic() + 10.0
+    while float(np.max(np.abs(np.asarray(drv.latest_sample.q) - TARGET))) < math.radians(0.3):
+        assert time.monotonic() < deadline, "the move back did not start"
         time.sleep(0.01)
-    assert not drv._command_alive()
-    drv.stop()
+    t0 = time.monotonic()
+    drv.network.bus.shutdown()  # the driver's bus object is gone mid-move
+    mover.join(15.0)
+    assert not mover.is_alive() and len(ended) == 1 and isinstance(ended[0], SupervisionTrip), ended
     assert stops_after(fake, t0) == {1, 2, 3, 4, 5, 6}
     assert all(d.state in ("QUICK STOP ACTIVE", "SWITCH ON DISABLED") for d in fake.drives)
 

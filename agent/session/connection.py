@@ -9,6 +9,8 @@ socket opens. ``open_controller`` starts the simulated controller when the YAML 
 from __future__ import annotations
 
 import contextlib
+import math
+import time
 from typing import Iterator
 
 import numpy as np
@@ -19,6 +21,8 @@ from payload_agent.drivers.registry import make_driver
 from payload_agent.errors import ConfigError
 
 SAMPLE_WAIT_S = 5.0
+STILL_WINDOW_S = 0.3  # the arm must stand this long (controller time where it stamps samples) before we start
+STILL_TOLERANCE_RAD = math.radians(0.1)  # far above encoder noise, far below what any motion covers in the window
 
 
 def motion_limits(config: Config) -> MotionLimits:
@@ -56,6 +60,35 @@ def simulated_cell(config: Config, cell=None) -> Iterator[object | None]:
         yield own
     finally:
         own.close()
+
+
+def motion_under_way(driver: Driver, state) -> str | None:
+    """Why a new session must not start because the arm is moving for someone else, or None if it stands.
+
+    The controller's own word (``state.moving``) is not enough: a Modbus handshake only knows its own
+    program's motion, a drive its own setpoint. The stream tells for every driver: the joint angles may not
+    change over ``STILL_WINDOW_S``. Nothing is sent to the controller either way.
+    """
+    if state.moving:
+        return "the robot is moving (the controller reports a motion under way)"
+    first = driver.wait_sample(SAMPLE_WAIT_S)
+    deadline = time.monotonic() + SAMPLE_WAIT_S + STILL_WINDOW_S
+    last = first
+    while _elapsed(first, last) < STILL_WINDOW_S:
+        if time.monotonic() > deadline:
+            break  # a slow stream: judge on what arrived
+        last = driver.wait_sample(SAMPLE_WAIT_S, after=last.t_recv)
+    moved = max(abs(b - a) for a, b in zip(first.q, last.q))
+    if moved > STILL_TOLERANCE_RAD:
+        return (f"the robot is moving: its joints turned {math.degrees(moved):.2f}° in "
+                f"{_elapsed(first, last):.2f} s with no command from this session")
+    return None
+
+
+def _elapsed(first, last) -> float:
+    if first.t_ctrl is not None and last.t_ctrl is not None:
+        return last.t_ctrl - first.t_ctrl
+    return last.t_recv - first.t_recv
 
 
 def read_current_q(config: Config) -> np.ndarray:

@@ -3,10 +3,11 @@
 In order, each a line of the report (ok / FAIL / warn / info):
 
 1. the configuration, as ``plan`` checks it (``preflight``: keys, units, driver section, plan,
-   safety envelope, stored calibration);
+   safety envelope, stored calibration), and whether another session holds the robot's lock;
 2. connect and identify the controller (vendor, model, firmware, serial); an unreachable
    controller names the driver, host and ports;
-3. its state: motion allowed or why not (e-stop, protective stop, mode), in the driver's words;
+3. its state: motion allowed or why not (e-stop, protective stop, mode, the arm moving for someone
+   else), in the driver's words, by the same rule as ``run``;
 4. the sample stream over ``STREAM_WINDOW_S`` of wall time: samples, rate against the driver's
    nominal rate, largest gap against the supervision's limit;
 5. the kinematic cross-check: the YAML's forward kinematics at the current angles against
@@ -23,6 +24,7 @@ motion: the driver's ``move_joints`` is never called.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -36,6 +38,8 @@ from payload_agent.configuration.config import Config
 from payload_agent.errors import (BaselineError, CommunicationError, ConfigError, DataError, PayloadAgentError,
                                   RobotNotReadyError)
 from payload_agent.recording.state import RobotState
+from payload_agent.session.connection import motion_under_way
+from payload_agent.session.robot_lock import current_holder
 
 STREAM_WINDOW_S = 2.0
 MIN_RATE_SHARE = 0.8  # the measured rate must reach this share of the driver's nominal rate
@@ -121,6 +125,11 @@ def run_doctor(config: Config, *, cell: Any = None, stream_window_s: float = STR
     if pre.ok:
         report.checks.append(Check("configuration", OK, "robot YAML, driver section, plan and safety envelope valid"
                                    + (f"; {'; '.join(pre.notes)}" if pre.notes else "")))
+    holder = current_holder(RobotState.for_config(config))
+    report.checks.append(Check("session", FAIL if holder else OK,
+                               f"another payload-agent session holds this robot: {holder.describe()}" if holder
+                               else "no other payload-agent session holds this robot",
+                               {"holder": holder.to_json() if holder else None}))
     if any(p.key_path.startswith(("driver", "effort", "simulation")) for p in pre.problems):
         return report  # no driver to connect with
     # with other configuration problems, still connect: the cross-check may name the cause (a DH sign...)
@@ -155,6 +164,9 @@ def _connected_checks(config: Config, driver, report: DoctorReport, window_s: fl
                                                                "firmware": info.firmware, "serial": info.serial}))
     try:
         st = driver.state()
+        busy = motion_under_way(driver, st) if st.motion_allowed else None  # the same rule as `run`
+        if busy:
+            st = dataclasses.replace(st, motion_allowed=False, reason=busy)
         status = OK if st.motion_allowed else FAIL
         text = ("motion allowed" if st.motion_allowed else f"motion NOT allowed: {st.reason}") + (
             f" ({st.detail})" if st.detail else "")

@@ -156,6 +156,7 @@ class PhaseRunner:
         self.recorder.end_phase("complete")
 
     def stop_robot(self) -> None:
+        """Stop the move this session commanded, if one may still run (the driver sends nothing otherwise)."""
         try:
             self.driver.stop()
         except Exception:

@@ -81,11 +81,31 @@ def sweep_envelope_problems(config: Config, plan: Plan) -> list[ConfigError]:
     return out
 
 
-def preflight(config: Config, *, calibration: bool = True) -> Preflight:
+def capability_problems(config: Config, capabilities: frozenset[str], *, apply: bool, watch: bool) -> list[ConfigError]:
+    """What the session's options need from the driver and it cannot do: known before the first move."""
+    name = config.driver_type
+    out = []
+    if (apply or watch) and "write_payload" not in capabilities:
+        what = "--apply" if apply else "watch (every run it starts writes the result)"
+        out.append(ConfigError("--apply" if apply else "watch", f"driver {name!r} cannot write the payload setting "
+                               f"with this configuration, so {what} could never succeed; nothing would be written "
+                               "after the whole run. Run without --apply and type the result at the controller",
+                               config.source))
+    trigger = config.watch.trigger if (watch and config.watch is not None) else None
+    need = {"digital_input": "read_digital_input", "register": "read_trigger"}.get(trigger or "")
+    if need and need not in capabilities:
+        out.append(ConfigError("watch.trigger", f"a {trigger} trigger needs the driver to read "
+                               f"{'digital inputs' if trigger == 'digital_input' else 'a tool-change register'}, "
+                               f"which driver {name!r} cannot with this configuration; use type: file",
+                               config.source))
+    return out
+
+
+def preflight(config: Config, *, calibration: bool = True, apply: bool = False, watch: bool = False) -> Preflight:
     """Every check ``run`` makes before connecting; never connects, never moves.
 
     ``calibration``: also refuse a stored drive-gain calibration that no longer fits (``doctor``
-    reports that one on its own line instead).
+    reports that one on its own line instead). ``apply`` / ``watch``: the capabilities those need.
     """
     from payload_agent.session.connection import build_driver
 
@@ -95,7 +115,11 @@ def preflight(config: Config, *, calibration: bool = True) -> Preflight:
     except PayloadAgentError as exc:
         result.problems.append(_as_config_error(exc, "procedure", config.source))
     try:
-        build_driver(config)
+        capabilities = build_driver(config).capabilities()
+        result.problems += capability_problems(config, capabilities, apply=apply, watch=watch)
+        if "write_payload" not in capabilities:
+            result.notes.append(f"driver {config.driver_type!r} cannot write the payload setting: results are "
+                                "typed in at the controller (--apply is refused before any motion)")
     except PayloadAgentError as exc:
         result.problems.append(_as_config_error(exc, "driver", config.source))
     if config.simulation is not None:

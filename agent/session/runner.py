@@ -37,7 +37,8 @@ from payload_agent.session import baseline as baselines
 from payload_agent.output.console import attach_run_log, detach_run_log
 from payload_agent.output.plan_table import format_plan
 from payload_agent.session.finish import RunOutcome, finish, write_run_report
-from payload_agent.session.connection import build_driver, simulated_cell
+from payload_agent.session.robot_lock import robot_lock
+from payload_agent.session.connection import build_driver, motion_under_way, simulated_cell
 from payload_agent.session.manifest import RunManifest, new_run_dir
 from payload_agent.output.stop_text import stop_sentence
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
@@ -111,7 +112,9 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
     if opts.resume is not None:
         resume = load_resume(config, plan, opts.resume)
         opts = dataclasses.replace(opts, mode=resume.mode)
-    with simulated_cell(config, opts.cell) as cell:
+    command = {"identify": "run", "baseline": "baseline", "calibrate": "calibrate"}[opts.mode]
+    with robot_lock(RobotState.for_config(config), command + (" --resume" if resume else ""), config.robot.name,
+                    opts.out), simulated_cell(config, opts.cell) as cell:  # one session per robot, before connecting
         driver = build_driver(config, cell.options if cell else None)
         if cell is not None:
             if opts.on_cell is not None:
@@ -176,9 +179,9 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
         outcome.timings = {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion}
         recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
     except BaseException as exc:
-        driver.stop()
+        stop_sent = driver.stop()  # only motion this session commanded; a refusal before our first move sends nothing
         if recorder is not None:
-            _mark_stopped(config, recorder, exc, opts, out)
+            _mark_stopped(config, recorder, exc, opts, out, stop_sent)
         raise
     finally:
         driver.close()
@@ -204,6 +207,11 @@ def _check_controller(config: Config, opts: RunOptions, driver: Driver):
         + (f" ({ctl_state.detail})" if ctl_state.detail else ""))
     if not ctl_state.motion_allowed:  # refuse before the plan is shown, not at the first move
         raise RobotNotReadyError(f"the robot is not ready: {ctl_state.reason}")
+    busy = motion_under_way(driver, ctl_state)
+    if busy:  # another session or the pendant's program: left alone, nothing is sent
+        raise RobotNotReadyError(f"the robot is not ready: {busy}. Wait until it stands still (another session, "
+                                 "a cell controller or the pendant's program may be running); this session sent "
+                                 "nothing to the controller")
     if opts.mode == "identify":
         from payload_agent.evaluation.calibration import effective_gains
 
@@ -257,11 +265,14 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
     return recorder
 
 
-def _mark_stopped(config: Config, recorder: RunRecorder, exc: BaseException, opts: RunOptions, out) -> None:
-    """An aborted run: the manifest says why and how the arm was stopped; a report shows what was recorded."""
+def _mark_stopped(config: Config, recorder: RunRecorder, exc: BaseException, opts: RunOptions, out,
+                  stop_sent: bool) -> None:
+    """An aborted run: the manifest says why, how the arm was stopped and whether this session sent a stop
+    (only for motion it commanded); a report shows what was recorded."""
     report = getattr(exc, "stop_report", None)
     why = stop_sentence(exc)  # a sentence, no exception class names (output/stop_text.py)
-    recorder.update(status="incomplete", stopped_because=why, stop=None if report is None else report.to_json())
+    recorder.update(status="incomplete", stopped_because=why, stop=None if report is None else report.to_json(),
+                    session_stop_sent=stop_sent or (report is not None and report.stop_sent_t is not None))
     try:
         exc.run_dir = recorder.run_dir
     except AttributeError:

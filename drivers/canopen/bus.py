@@ -43,6 +43,26 @@ def bus_arguments(opts: CANopenOptions) -> dict:
     return {"interface": opts.interface, "channel": channel, "bitrate": opts.bitrate}
 
 
+def another_master(network, window_s: float) -> str | None:
+    """Listen, sending nothing, for a SYNC from someone else: another master (a second session, the cell's
+    controller) drives these drives now, and a second master's NMT, SDO or power-stage commands would stop
+    or upset its motion. Returns what was heard, or None when the bus carried no SYNC for ``window_s``."""
+    heard: list[float] = []
+    callback = lambda can_id, data, timestamp: heard.append(time.monotonic())  # noqa: E731
+    network.subscribe(SYNC_COB, callback)
+    try:
+        deadline = time.monotonic() + window_s
+        while not heard and time.monotonic() < deadline:
+            time.sleep(0.005)
+    finally:
+        network.unsubscribe(SYNC_COB, callback)
+    if not heard:
+        return None
+    return (f"another CANopen master is active on the bus: SYNC frames (COB-ID 0x{SYNC_COB:03X}) arrive from "
+            "someone else. Wait until that session or controller has finished and released the drives; this "
+            "session sent nothing on the bus")
+
+
 def open_bus(opts: CANopenOptions) -> can.BusABC:
     """A python-can bus for the YAML's interface and channel; CommunicationError says which failed."""
     try:

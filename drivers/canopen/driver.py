@@ -40,7 +40,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from payload_agent.drivers.base import Driver, MotionLimits, Supervision
 from payload_agent.drivers.canopen import device, motion
 from payload_agent.drivers.canopen import objects as obj
-from payload_agent.drivers.canopen.bus import SyncProducer, open_bus
+from payload_agent.drivers.canopen.bus import SyncProducer, another_master, open_bus
 from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
                                                   QUICK_STOP_ACTIVE, SW_TARGET_REACHED, describe_code, state_of)
 from payload_agent.drivers.canopen.monitor import DriveMonitor
@@ -56,6 +56,7 @@ log = logging.getLogger(__name__)
 
 CIA402_PROFILE = 402  # 0x1000 device type, low 16 bits
 FIRST_TPDO_WAIT_S = 1.0
+MASTER_LISTEN_S = 0.3  # listen this long for another master's SYNC before sending anything on the bus
 NOTIFIER_CYCLE_S = 0.1  # python-can's receive thread wakes this often when idle: close() waits at most this
 
 
@@ -80,6 +81,7 @@ class CANopenDriver(Driver):
         self.tpdo = TpdoCollector(self.n)
         self.effort_per_permille = [1.0] * self.n
         self.enabled = False
+        self._took_bus = False  # this session has sent NMT/SDO commands: it releases the drives at close
         self.fault_codes: dict[int, int] = {}  # joint -> 0x603F of drives found in FAULT at connect
         self.cleared_faults: list[str] = []  # notes for state().detail: faults reset at connect, missing objects
         self.sdo_watch: SdoWatch | None = None
@@ -140,12 +142,17 @@ class CANopenDriver(Driver):
         self.monitor.sdo_reply_limit_s = self.supervision.max_reply_wait_s
         self.tpdo = TpdoCollector(self.n)
         self.enabled = False
+        self._took_bus = False
         self.profile_cache.clear()
         self.commanded = [None] * self.n
         self.network = canopen.Network(open_bus(opts))
         self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         try:
             self.network.connect()
+            busy = another_master(self.network, max(MASTER_LISTEN_S, 3.0 / opts.sync_rate_hz))
+            if busy:
+                raise RobotNotReadyError(busy)
+            self._took_bus = True  # from here on this session commands the drives (and releases them at close)
             self.nodes = []
             for j, nid in enumerate(opts.node_ids):
                 node = canopen.RemoteNode(nid, obj.cia402_dictionary())
@@ -250,6 +257,15 @@ class CANopenDriver(Driver):
             self.sdo_watch = None
         self.enabled = False
         self.monitor.expect_enabled = [False] * self.n
+        took, self._took_bus = self._took_bus, False
+        if not took:  # refused before commanding anything: leave the drives and the other master alone
+            if self.network is not None:
+                try:
+                    self.network.disconnect()
+                except Exception:
+                    pass
+                self.network = None
+            return
         if self.network is not None and self.network.bus is not None:
             for j in range(len(self.nodes)):  # power stages off, brakes on
                 try:

@@ -388,6 +388,12 @@ class ModbusDriver(Driver):
                                      f"{ {n: a.tolist() for n, a in si.items()} }")
         return FlangePose(tuple(float(x) for x in p), tuple(tuple(float(x) for x in row) for row in R))
 
+    def capabilities(self) -> frozenset[str]:
+        needs = {"read_payload": ("payload_readback_mass", "payload_readback_cog"),
+                 "write_payload": ("payload_mass", "payload_cog", "cmd_kind"),
+                 "read_digital_input": ("digital_inputs",), "read_trigger": ("tool_change",)}
+        return frozenset(c for c in super().capabilities() if self.map.has_all(*needs[c]))
+
     def read_payload(self) -> PayloadSetting:
         if not self.map.has_all("payload_readback_mass", "payload_readback_cog"):
             raise UnsupportedCapability("the register map has no payload_readback_mass/_cog: the payload cannot "

@@ -365,9 +365,9 @@ class URRTDEDriver(URCapabilities, Driver):
         """The dashboard's ``stop`` on a new connection: independent of RTDE and of the script's state."""
         return dashboard_stop(self.host, min(self.options.connect_timeout_s, DASHBOARD_STOP_TIMEOUT_S))
 
-    def stop(self) -> None:
-        self._abort.set()
-        super().stop()
+    def stop(self) -> bool:
+        self._abort.set()  # ends our own move loop, if one is waiting
+        return super().stop()
 
     def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s

@@ -1,0 +1,36 @@
+"""The settings every driver takes: its options' common base, the robot's motion limits and the
+supervision's limits. Plain data, so the configuration can build them without a client library."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from payload_agent.configuration.options import option
+
+
+@dataclass(frozen=True, kw_only=True)
+class DriverOptions:
+    """Options every driver has; each driver subclasses this with its own fields."""
+
+    type: str = option(help="the driver name (registry key)")
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """What a driver needs from the robot section to command PTP moves."""
+
+    max_joint_speed_rad_s: float
+    max_joint_accel_rad_s2: float
+    n_joints: int = 6
+
+
+@dataclass(frozen=True)
+class Supervision:
+    """Watchdog settings (the robot YAML's ``safety`` section)."""
+
+    max_stream_gap_s: float | None = None  # None: max(5 sample periods, 50 ms)
+    stop_ack_timeout_s: float = 2.0
+    # a driver that polls its controller during a move (command_ok()) trips when no reply came for this long
+    max_reply_wait_s: float = 0.3
+    # the arm has stood at the move's target this long and the controller still has not reported it finished
+    finish_grace_s: float = 0.5
