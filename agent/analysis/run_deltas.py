@@ -78,22 +78,27 @@ def check_segmentation(run_dir: Path, phase: str = "empty") -> dict[str, Window]
     Raises DataError listing every sweep that failed (and if the phase has no complete sweep or
     a planned sweep is missing from it).
     """
+    windows, failed = segment_phase(run_dir, phase)
+    if failed:
+        raise DataError(f"{run_dir}: the {phase} phase cannot be segmented:\n  - " + "\n  - ".join(failed.values()))
+    return windows
+
+
+def segment_phase(run_dir: Path, phase: str) -> tuple[dict[str, Window], dict[str, str]]:
+    """(verified window by sweep name, problem by sweep name) for one phase of a run folder; a planned
+    sweep not recorded complete is a problem too. The session checks the empty run with this right after
+    recording it, so a bad sweep is redone before the tool is mounted."""
     run_dir = Path(run_dir)
     manifest = load_manifest(run_dir)
     sweeps = load_phase(run_dir, phase, np.ones(6), manifest)  # angles only: the gains do not matter
-    if not sweeps:
-        raise DataError(f"{run_dir}: the {phase!r} phase has no complete sweep")
     commands = commands_of(manifest, str(run_dir))
-    problems = []
+    if not sweeps and not commands:
+        raise DataError(f"{run_dir}: the {phase!r} phase has no complete sweep")
+    failed = {k.name: f"{k.name}: planned but not recorded complete" for k in commands if k not in sweeps}
     windows: dict[str, Window] = {}
-    missing = [k.name for k in commands if k not in sweeps]
-    if missing:
-        problems.append(f"planned sweeps not recorded complete: {', '.join(sorted(missing))}")
     for key, sweep in sweeps.items():
         try:
             windows[key.name] = window_of(sweep, commands.get(key))
         except DataError as exc:
-            problems.append(str(exc))
-    if problems:
-        raise DataError(f"{run_dir}: the {phase} phase cannot be segmented:\n  - " + "\n  - ".join(problems))
-    return windows
+            failed[key.name] = str(exc)
+    return windows, failed

@@ -73,6 +73,17 @@ class RunRecorder:
             self.manifest["phases"][name] = {"started_utc": utc_now(), "sweeps": [], **info}
         self.write_manifest()
 
+    def set_aside(self, phase: str, problems: dict[str, str]) -> None:
+        """Mark these sweeps of a phase as not usable, so that a resumed phase records them again; the
+        manifest's ``redone`` list says why, and their data stays on disk as ``<file>.incomplete``."""
+        entries = self.manifest["phases"][phase]
+        for entry in entries.get("sweeps", []):
+            if entry.get("name") in problems and entry.get("status") == "complete":
+                entry["status"] = "unsegmentable"
+                entries.setdefault("redone", []).append({"name": entry["name"], "file": entry["file"] + ".incomplete",
+                                                         "problem": problems[entry["name"]]})
+        self.write_manifest()
+
     def end_phase(self, status: str) -> None:
         if self._phase is not None:
             self.manifest["phases"][self._phase].update(ended_utc=utc_now(), status=status)

@@ -27,10 +27,11 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
-from payload_agent.errors import (BaselineError, CommunicationError, MotionAbortedError, PayloadAgentError,
+from payload_agent.errors import (BaselineError, CommunicationError, DataError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, RobotNotReadyError, SafetyError)
 from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
 from payload_agent.motion.safety import SafetyGate
+from payload_agent.analysis.run_deltas import segment_phase
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
 from payload_agent.session import baseline as baselines
@@ -162,6 +163,8 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
             if i > 0:
                 _prepare_tool(phase, mounted, cell, opts, out, changing)
             phase_runner.run_phase(phase, phase_plan, resume=resume is not None)
+            if phase == "empty":  # checked while the tool is still off: a bad sweep is redone now
+                _check_empty_run(config, plan, recorder, phase_runner, opts.retry_sweeps, out)
         if phase_runner.progress is not None:
             phase_runner.progress.close()
         driver.stop_stream()
@@ -329,6 +332,27 @@ def _make_progress(opts: RunOptions, config: Config, plan: Plan, durations: list
         return None
     scale = config.simulation.time_scale if config.simulation is not None else 1.0
     return Progress(stream, plan, durations, enabled=True, phases=phases, time_scale=scale)
+
+
+def _check_empty_run(config: Config, plan: Plan, recorder: RunRecorder, phase_runner: PhaseRunner, retries: int,
+                     out) -> None:
+    """Segment the empty run right after it is recorded, before the operator mounts the tool. A sweep
+    without a verified constant-speed window is redone now (within ``--retry-sweeps``), not found after
+    the loaded run; past the budget the session stops here, before any loaded motion."""
+    every = {m.sweep.name for m in plan.moves if m.sweep is not None}
+    for attempt in range(retries + 1):
+        _, failed = segment_phase(recorder.run_dir, "empty")
+        if not failed:
+            return
+        problems = "\n  - ".join(failed.values())
+        if attempt == retries:
+            raise DataError(f"the empty-flange run cannot be segmented, so no loaded run was started:\n  - {problems}"
+                            f"\nData kept in {recorder.run_dir}. Pass --retry-sweeps N to redo such sweeps at once, "
+                            "or look at the sweeps in the report")
+        out(f"  [empty] {', '.join(sorted(failed))} cannot be segmented; redoing before the tool is mounted "
+            f"({retries - attempt - 1} retries left):\n  - {problems}")
+        recorder.set_aside("empty", failed)
+        phase_runner.run_phase("empty", remaining_plan(config, plan, every - set(failed)), resume=True)
 
 
 def _prepare_tool(phase: str, mounted: bool, cell, opts: RunOptions, out, changing: bool) -> None:
