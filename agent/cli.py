@@ -216,8 +216,11 @@ def main(argv: list[str] | None = None) -> int:
         return COMMANDS[args.command](args, con)
     except PayloadAgentError as exc:
         con.error(f"payload-agent: error: {exc}")
+        partial = _partial(exc, getattr(args, "robot", None))
+        if partial.get("continue_with"):
+            con.error(f"Continue it with: {partial['continue_with']}")
         con.emit_json({"ok": False, "error": str(exc), "error_type": type(exc).__name__,
-                       "exit_code": exc.exit_code, **_partial(exc)})
+                       "exit_code": exc.exit_code, **partial})
         return exc.exit_code
     except Terminated:
         con.error("payload-agent: terminated (SIGTERM); nothing was moving")
@@ -242,8 +245,9 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
-def _partial(exc: BaseException) -> dict:
-    """What a failed command still produced (a run's outcome on a failed quality gate, a run folder)."""
+def _partial(exc: BaseException, robot: str | None = None) -> dict:
+    """What a failed command still produced (a run's outcome on a failed quality gate, a run folder) and the
+    command that continues that run folder."""
     out = {}
     outcome = getattr(exc, "outcome", None)
     if outcome is not None:
@@ -252,7 +256,10 @@ def _partial(exc: BaseException) -> dict:
         out["outcome"] = outcome_json(outcome)
     run_dir = getattr(exc, "run_dir", None)
     if run_dir is not None:
+        from payload_agent.session.resume import continue_command
+
         out["run_dir"] = str(Path(run_dir))
+        out["continue_with"] = continue_command(Path(run_dir), robot)
     return out
 
 

@@ -25,9 +25,9 @@ from payload_agent.configuration.config import Config
 from payload_agent.configuration.recorded import recorded_effort
 from payload_agent.errors import ConfigError, DataError
 from payload_agent.recording.rundata import check_manifest, load_manifest
+from payload_agent.evaluation.calibration import RUN_CALIBRATION
 from payload_agent.solvers.results import RunResult, format_table
 
-RUN_CALIBRATION = "calibration.json"  # the drive-gain calibration a run was recorded with (optional)
 
 
 @dataclass
@@ -50,25 +50,21 @@ class Solved:
         return history.record(RobotState.for_config(config).ensure().history_db, entry)
 
 
-def run_gains(run_dir: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, str]:
-    """The gains that convert this run's effort columns to N·m, and a sentence saying where they come from."""
+def run_gains(run_dir: Path, manifest: dict[str, Any]) -> tuple[np.ndarray | None, str]:
+    """The run's nominal gains (None when it was recorded with a calibration, which the analysis reads from the
+    folder itself) and a sentence saying where the gains come from."""
+    from payload_agent.evaluation.calibration import run_calibration
+
     source = str(run_dir / "manifest.json")
     effort = recorded_effort(manifest, manifest.get("config") or {}, source)
-    cal_path = run_dir / RUN_CALIBRATION
-    if cal_path.exists():
-        from payload_agent.evaluation.calibration import GainCalibration
-
-        try:
-            cal = GainCalibration.from_json(json.loads(cal_path.read_text(encoding="utf-8")))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise DataError(f"{cal_path}: cannot read the run's drive-gain calibration ({exc})") from None
+    cal = run_calibration(run_dir)
+    if cal is not None:
         if cal.effort_unit != effort.unit:
-            raise DataError(f"{cal_path}: calibrated for effort unit {cal.effort_unit!r}, the run recorded "
-                            f"{effort.unit!r}")
+            raise DataError(f"{run_dir / RUN_CALIBRATION}: calibrated for effort unit {cal.effort_unit!r}, the run "
+                            f"recorded {effort.unit!r}")
         joints = ", ".join(str(j + 1) for j in cal.fitted_joints)
-        return (np.asarray(cal.gains_nm_per_unit, float),
-                f"the calibration recorded with the run ({cal_path.name} of {cal.created_utc[:10]}, joints {joints} "
-                f"fitted; effort in {effort.unit})")
+        return None, (f"the calibration recorded with the run ({RUN_CALIBRATION} of {cal.created_utc[:10]}, joints "
+                      f"{joints} fitted; effort in {effort.unit})")
     return (np.asarray(effort.gains_nm_per_unit, float),
             f"the run's gains_nm_per_unit {list(effort.gains_nm_per_unit)} (effort in {effort.unit}; nominal, "
             "their error is not in the reported uncertainty)")
@@ -111,11 +107,13 @@ def solve_run(run_dir: Path, manifest: dict[str, Any], config: Config, *, solver
             f" (copied from the stored baseline {origin.get('dir', '?')} of {origin.get('recorded_utc', '?')})"
             if isinstance(origin, dict) else "")
     result = analyse_run(config, run_dir, solver, baseline_dir, gains=gains)
-    result.extra["gains_source"] = gains_text
+    if gains is not None:
+        result.extra["gains_source"] = gains_text
     result.extra["solve"] = {
         "solved_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "software_version": __version__,
         "baseline_dir": None if baseline_dir is None else str(baseline_dir), "baseline": baseline_text,
-        "solver": result.primary.solver, "gains_nm_per_unit": [float(g) for g in gains], "gains_source": gains_text,
+        "solver": result.primary.solver, "gains_nm_per_unit": result.extra["gains_nm_per_unit"],
+        "gains_source": gains_text,
         "config": config.source}
     with open(path, "x", encoding="utf-8") as fh:  # exclusive: never replaces a file
         json.dump(result.to_json(), fh, indent=2)

@@ -1,18 +1,26 @@
-"""The empty run is segmented right after it is recorded, before the tool is mounted (issue 19).
+"""Two things a session owes its run folder (issue 19), shown on one simulated EC66 session:
 
-A sweep of the empty run is broken on purpose (its recorded angles frozen, as a stuck encoder value
-would leave them: no constant-speed window can be found). The session must find that before the
-simulated tool change, redo that sweep within --retry-sweeps, and then identify the payload it was
-not told, from the redone sweep."""
+- The empty run is segmented right after it is recorded, before the tool is mounted. A sweep of it is
+  broken on purpose (its recorded angles frozen, as a stuck encoder value would leave them: no
+  constant-speed window can be found). The session must find that before the simulated tool change,
+  redo that sweep within --retry-sweeps, and identify the payload it was not told from the redone sweep.
+- The folder holds everything its analysis used from the start: with a drive-gain calibration in
+  force, `solve` on the folder gives the live result to the last digit.
+"""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
 
+from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
+from payload_agent.evaluation.calibration import GainCalibration, calibration_fingerprint, save_calibration
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.rundata import load_manifest
+from payload_agent.recording.state import RobotState
 from payload_agent.session.runner import RunOptions, run_identification
 
 from conftest import tweak
@@ -22,11 +30,18 @@ pytest.importorskip("mujoco")
 BROKEN = "b-j2-up"
 
 
-def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted(sim_ec66_data, monkeypatch, tmp_path):
+def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_repeats_the_live_result(
+        sim_ec66_data, monkeypatch, tmp_path, capsys):
     data = tweak(sim_ec66_data, "robot.name", "empty-check")
     data = tweak(data, "storage", {"state_dir": str(tmp_path / "state"), "runs_dir": str(tmp_path / "runs")})
     data = tweak(data, "simulation.payload", {"mass_kg": 1.7, "cog_mm": [25.0, -15.0, 70.0]})
     config = parse_config(data, "empty-check.yaml")
+    nominal = np.asarray(config.effort.gains_nm_per_unit, float)
+    scale = np.array([1.0, 1.004, 0.997, 1.0, 1.0, 1.0])
+    save_calibration(RobotState.for_config(config), GainCalibration(
+        tuple(nominal * scale), (1, 2), tuple(scale), (0.0, 0.002, 0.002, 0.0, 0.0, 0.0), 3.0, (0.0, 0.02, 0.08),
+        config.robot.name, config.effort.unit, calibration_fingerprint(config), "runs/reference",
+        "2026-11-20T10:00:00+00:00"))
     frozen: dict[str, object] = {}
     real_sink = RunRecorder.sink
 
@@ -54,3 +69,20 @@ def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted(sim_ec66_data
     est = outcome.result.primary
     assert abs(est.mass_kg - 1.7) < 0.05
     assert np.max(np.abs(np.asarray(est.cog_mm) - [25.0, -15.0, 70.0])) < 5.0
+
+    live = json.loads((outcome.run_dir / "result.json").read_text())
+    assert "recorded with the run" in live["gains_source"]
+    assert (outcome.run_dir / "calibration.json").exists()
+    capsys.readouterr()
+    main(["solve", str(outcome.run_dir), "--json"])
+    solved = json.loads(capsys.readouterr().out)["result"]
+    for key in ("mass_kg", "cog_mm", "mass_std_kg", "cog_std_mm", "covariance_theta_si", "gains_nm_per_unit",
+                "gains_rel_std", "estimates", "quality"):
+        assert key in live and solved[key] == live[key], key
+    from payload_agent.session.resume import continue_command
+
+    assert continue_command(outcome.run_dir, "empty-check.yaml") == f"payload-agent solve {outcome.run_dir}"
+    manifest["status"] = "incomplete"  # as a stopped session leaves it
+    (outcome.run_dir / "manifest.json").write_text(json.dumps(manifest))
+    assert continue_command(outcome.run_dir, "empty-check.yaml") == \
+        f"payload-agent run --robot empty-check.yaml --resume {outcome.run_dir}"

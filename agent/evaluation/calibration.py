@@ -347,6 +347,20 @@ def _dh_changes(run_dir: str, config: Config) -> str:
     return (": " + "; ".join(changes)) if changes else ""
 
 
+RUN_CALIBRATION = "calibration.json"  # the copy of the calibration a run was recorded with, in its folder
+
+
+def run_calibration(run_dir: Path) -> GainCalibration | None:
+    """The drive-gain calibration a run folder was recorded with (copied in when the run began), or None."""
+    path = Path(run_dir) / RUN_CALIBRATION
+    if not path.exists():
+        return None
+    try:
+        return GainCalibration.from_json(json.loads(path.read_text(encoding="utf-8")))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path}: cannot read the run's drive-gain calibration ({exc})") from None
+
+
 def effective_gains(config: Config) -> tuple[np.ndarray, str | None]:
     """The gains the analysis should use (calibrated if a valid calibration exists) and a note saying so."""
     state = RobotState.for_config(config)

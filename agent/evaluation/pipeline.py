@@ -12,7 +12,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from payload_agent.evaluation import quality, systematics
-from payload_agent.evaluation.calibration import effective_calibration, effective_gains
+from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
+                                                  run_calibration)
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.analysis.run_deltas import check_segmentation, deltas_for, phases_for
 from payload_agent.configuration.config import Config
@@ -80,8 +81,10 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
                 gains: Sequence[float] | None = None) -> RunResult:
     """Segment, subtract, combine, solve and check one run folder; the result is returned, not written.
 
-    Drive gains: ``gains`` if given, else the robot's valid calibration (``state/<robot>/gains.json``)
-    if there is one, else the config's nominal gains. Which were used goes into the result
+    Drive gains: the calibration recorded with the run (``RUN_DIR/calibration.json``, copied in when the
+    run began, so the live run, ``solve`` and ``--resume`` agree) if there is one, else ``gains`` if given
+    (``solve``: the manifest's), else the robot's valid calibration (``state/<robot>/gains.json``; for
+    folders written by other tools) if there is one, else the config's nominal gains. Which were used goes into the result
     (``gains_nm_per_unit``, ``gains_source``) and the primary estimate's notes. With a
     calibration, its per-joint uncertainty is part of the general solver's covariance; with
     nominal gains the reported uncertainty cannot include the gain error, and a note says so.
@@ -92,21 +95,28 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     general solver's covariance and into the quality gate's pose comparison.
     """
     gain_rel_std = gain_reference = None
-    if gains is not None:
-        gains_arr, source = np.asarray(gains, float), "given by the caller"
-        note = None
+    cal = run_calibration(run_dir)  # the copy the session made when the run began: solve uses the same
+    if cal is not None:
+        gains_arr = np.asarray(cal.gains_nm_per_unit, float)
+        note = (f"drive gains from the calibration of {cal.created_utc[:10]} recorded with the run "
+                f"({RUN_CALIBRATION}, reference {cal.reference_mass_kg:.3f} kg; joints "
+                f"{', '.join(str(j + 1) for j in cal.fitted_joints)} fitted, others nominal)")
+    elif gains is not None:
+        gains_arr, note = np.asarray(gains, float), None
     else:
         gains_arr, note = effective_gains(config)
         cal = effective_calibration(config) if note is not None else None
-        if cal is not None:
-            gain_rel_std = cal.gain_rel_std()
-            m_ref = cal.reference_mass_kg
-            gain_reference = ([m_ref, *(m_ref * np.asarray(cal.reference_cog_m))], cal.fitted_joints)
-            source = note
-        else:
-            source = "nominal (effort.gains_nm_per_unit of the config)"
-            note = ("drive gains are nominal: the reported uncertainty does not include their error (a few % "
-                    "on most arms); run `payload-agent calibrate` with a known reference payload")
+    if cal is not None:
+        gain_rel_std = cal.gain_rel_std()
+        m_ref = cal.reference_mass_kg
+        gain_reference = ([m_ref, *(m_ref * np.asarray(cal.reference_cog_m))], cal.fitted_joints)
+        source = note
+    elif gains is not None:
+        source = "given by the caller"
+    else:
+        source = "nominal (effort.gains_nm_per_unit of the config)"
+        note = ("drive gains are nominal: the reported uncertainty does not include their error (a few % "
+                "on most arms); run `payload-agent calibrate` with a known reference payload")
     notes: list[str] = []
     loaded, empty, commands = phases_for(run_dir, gains_arr, baseline_dir, notes=notes)
     decl = config.robot.joints

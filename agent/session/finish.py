@@ -6,7 +6,6 @@ the controller is written to only when the quality checks passed and the operato
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,7 +48,6 @@ def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir
             f"J{j + 1} {calibration.scale[j]:.4f} ± {1.96 * calibration.scale_std[j]:.4f}"
             for j in calibration.fitted_joints) + f"; stored in {path}")
     result = analyse(config, run_dir, solver=opts.solver)
-    _copy_calibration(config, state, run_dir, result)
     if opts.result_path is not None:
         result.write(opts.result_path)
     out(format_table(result, truth))
@@ -119,10 +117,3 @@ def _record_write(run_dir: Path, record: dict[str, Any]) -> None:
     from payload_agent.recording.recorder import RunRecorder
 
     RunRecorder.reopen(run_dir).update(payload_write=record)
-
-
-def _copy_calibration(config: Config, state: RobotState, run_dir: Path, result: RunResult) -> None:
-    """A run analysed with a drive-gain calibration keeps a copy, so that `solve` needs only the run folder."""
-    if str(result.extra.get("gains_source", "nominal")).startswith("nominal") or not state.gains_path.exists():
-        return
-    shutil.copyfile(state.gains_path, Path(run_dir) / "calibration.json")

@@ -7,11 +7,12 @@ that did not finish are recorded again, into the same folder.
 
 from __future__ import annotations
 
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
 from payload_agent.configuration.config import Config
-from payload_agent.errors import ConfigError, RobotNotReadyError
+from payload_agent.errors import ConfigError, PayloadAgentError, RobotNotReadyError
 from payload_agent.motion.planner import Plan
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.baseline import BaselineInfo, controller_identity
@@ -90,3 +91,18 @@ def changed_keys(then: dict, now: dict) -> str:
                 short = lambda v: "absent" if v is None else (repr(v) if len(repr(v)) <= 40 else "(changed)")
                 out.append(f"{section}.{key}: {short(a.get(key))} then, {short(b.get(key))} now")
     return "; ".join(out) or "sections " + ", ".join(FINGERPRINT_SECTIONS)
+
+
+def continue_command(run_dir: Path, robot: str | None) -> str | None:
+    """The command that continues a run folder a session left behind: `run --resume` while sweeps are
+    missing, `solve` when everything was recorded and only the analysis failed; None if nothing is left."""
+    try:
+        manifest = load_manifest(Path(run_dir))
+    except PayloadAgentError:
+        return None
+    robot_arg = f" --robot {shlex.quote(robot)}" if robot else ""
+    if manifest.get("status") == "incomplete":
+        return f"payload-agent run{robot_arg} --resume {shlex.quote(str(run_dir))}"
+    if manifest.get("status") == "complete" and manifest.get("mode") != "baseline":
+        return f"payload-agent solve {shlex.quote(str(run_dir))}"
+    return None

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shutil
 import time
 from dataclasses import dataclass
 from datetime import datetime
@@ -32,6 +33,7 @@ from payload_agent.errors import (BaselineError, CommunicationError, DataError, 
 from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
+from payload_agent.evaluation.calibration import RUN_CALIBRATION, effective_calibration
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
 from payload_agent.session import baseline as baselines
@@ -265,6 +267,8 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
     if stored_info is not None:  # the run folder keeps its own copy: self-contained
         recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
         recorder.write_manifest()
+    if opts.mode != "baseline" and effective_calibration(config) is not None:  # what its analysis will use, from
+        shutil.copyfile(state.gains_path, recorder.run_dir / RUN_CALIBRATION)  # the start: solve and --resume agree
     return recorder
 
 
@@ -345,13 +349,13 @@ def _check_empty_run(config: Config, plan: Plan, recorder: RunRecorder, phase_ru
         if not failed:
             return
         problems = "\n  - ".join(failed.values())
+        recorder.set_aside("empty", failed)  # not complete: `run --resume` records them again
         if attempt == retries:
             raise DataError(f"the empty-flange run cannot be segmented, so no loaded run was started:\n  - {problems}"
                             f"\nData kept in {recorder.run_dir}. Pass --retry-sweeps N to redo such sweeps at once, "
                             "or look at the sweeps in the report")
         out(f"  [empty] {', '.join(sorted(failed))} cannot be segmented; redoing before the tool is mounted "
             f"({retries - attempt - 1} retries left):\n  - {problems}")
-        recorder.set_aside("empty", failed)
         phase_runner.run_phase("empty", remaining_plan(config, plan, every - set(failed)), resume=True)
 
 
