@@ -158,6 +158,8 @@ def _connected_checks(config: Config, driver, report: DoctorReport, window_s: fl
         info = driver.identify()
     except PayloadAgentError as exc:
         report.checks.append(Check("identify", FAIL, f"the controller did not identify itself: {exc}"))
+        if isinstance(exc, CommunicationError):  # it accepts but does not speak the protocol: as `run`, exit 6
+            report.reachable = False
         return
     report.checks.append(Check("identify", OK, f"{info.vendor} {info.model}, firmware {info.firmware}, "
                                f"serial {info.serial or 'not reported'}", {"vendor": info.vendor, "model": info.model,
@@ -175,6 +177,8 @@ def _connected_checks(config: Config, driver, report: DoctorReport, window_s: fl
                                                             "detail": st.detail}))
     except PayloadAgentError as exc:
         report.checks.append(Check("state", FAIL, f"cannot read the controller state: {exc}"))
+        if isinstance(exc, CommunicationError):
+            report.reachable = False
     q = _stream_check(driver, report, window_s, config)
     if q is not None:
         _pose_check(config, driver, q, report)
