@@ -132,7 +132,9 @@ class Driver(abc.ABC):
         """
 
     @abc.abstractmethod
-    def identify(self) -> ControllerInfo: ...
+    def identify(self) -> ControllerInfo:
+        """What the controller reports of itself (vendor, model, firmware, serial where it has them); never
+        where it is reached (an address or port changes, the robot does not)."""
 
     @abc.abstractmethod
     def state(self) -> ControllerState: ...

@@ -13,6 +13,9 @@ class DriverOptions:
     """Options every driver has; each driver subclasses this with its own fields."""
 
     type: str = option(help="the driver name (registry key)")
+    serial: str | None = option(None, help="the controller's serial number as its type plate shows it: identifies "
+                                           "the robot (stored baseline) where the controller does not report one, "
+                                           "and must match where it does")
 
 
 @dataclass(frozen=True)

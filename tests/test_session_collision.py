@@ -93,3 +93,53 @@ def test_a_driver_that_commanded_nothing_sends_no_stop():
             assert [e for e in cell.controller.events if e.kind == "stop"] == []
         finally:
             driver.close()
+
+
+def test_the_modbus_robot_keeps_its_identity_on_a_new_port():
+    """A register map reports no serial: the YAML's driver.serial is the robot's, never host:port, so a stored
+    baseline survives the controller (here the simulated one) coming up on another port; another serial is
+    still another robot."""
+    import dataclasses
+
+    from payload_agent.motion.planner import make_plan
+    from payload_agent.session import baseline as baselines
+    from payload_agent.session.connection import identify_controller
+
+    config = load_config(ROOT / "configs" / "sim-ur5e-modbus.yaml")
+    plan = make_plan(config)
+    infos, endpoints = [], []
+    for _ in range(2):  # two sessions, each simulated server on an ephemeral port of its own
+        with simulated_cell(config) as cell:
+            driver = build_driver(config, cell.options)
+            driver.connect()
+            try:
+                infos.append(identify_controller(driver))
+                endpoints.append(driver.describe_endpoint())
+            finally:
+                driver.close()
+    assert endpoints[0] != endpoints[1]
+    assert infos[0] == infos[1] and infos[0].serial == "SIM-UR5E-0001"
+    stored, now = (baselines.describe_for(config, plan, info, source_run=ROOT) for info in infos)
+    assert baselines.mismatches(stored, now, max_age_days=7) == []
+    other = baselines.describe_for(config, plan, dataclasses.replace(infos[1], serial="SIM-UR5E-0002"), ROOT)
+    assert any("serial changed" in r for r in baselines.mismatches(stored, other, max_age_days=7))
+
+
+def test_a_declared_serial_the_controller_contradicts_is_refused():
+    import dataclasses
+
+    from payload_agent.errors import ConfigError
+    from payload_agent.session.connection import identify_controller
+
+    config = load_config(ROOT / "configs" / "sim-ur5e.yaml")
+    with simulated_cell(config) as cell:
+        driver = build_driver(config, dataclasses.replace(cell.options, serial="20990000000"))
+        driver.connect()
+        try:
+            reported = driver.identify().serial
+            assert reported  # the UR dashboard reports its serial number
+            with pytest.raises(ConfigError, match="driver.serial") as wrong:
+                identify_controller(driver)
+            assert reported in str(wrong.value) and "20990000000" in str(wrong.value)
+        finally:
+            driver.close()

@@ -9,6 +9,7 @@ socket opens. ``open_controller`` starts the simulated controller when the YAML 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import time
 from typing import Iterator
@@ -19,6 +20,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver, DriverOptions, MotionLimits, Supervision
 from payload_agent.drivers.registry import make_driver
 from payload_agent.errors import ConfigError
+from payload_agent.types import ControllerInfo
 
 SAMPLE_WAIT_S = 5.0
 STILL_WINDOW_S = 0.3  # the arm must stand this long (controller time where it stamps samples) before we start
@@ -60,6 +62,21 @@ def simulated_cell(config: Config, cell=None) -> Iterator[object | None]:
         yield own
     finally:
         own.close()
+
+
+def identify_controller(driver: Driver) -> ControllerInfo:
+    """What the controller reports of itself, with the serial the YAML declares (``driver.serial``) where
+    it reports none: the robot's identity for its stored baseline, never where it is reached (an address or
+    port changes, the robot does not). A declared serial the controller contradicts is refused."""
+    info = driver.identify()
+    declared = driver.options.serial
+    if not declared:
+        return info
+    if info.serial and info.serial != declared:
+        raise ConfigError("driver.serial", f"the YAML declares serial {declared!r}, the controller at "
+                                           f"{driver.describe_endpoint()} reports {info.serial!r}: is this the right "
+                                           "robot's YAML?")
+    return dataclasses.replace(info, serial=declared)
 
 
 def motion_under_way(driver: Driver, state) -> str | None:

@@ -38,7 +38,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.errors import (BaselineError, CommunicationError, ConfigError, DataError, PayloadAgentError,
                                   RobotNotReadyError)
 from payload_agent.recording.state import RobotState
-from payload_agent.session.connection import motion_under_way
+from payload_agent.session.connection import identify_controller, motion_under_way
 from payload_agent.session.robot_lock import current_holder
 
 STREAM_WINDOW_S = 2.0
@@ -155,7 +155,7 @@ def run_doctor(config: Config, *, cell: Any = None, stream_window_s: float = STR
 
 def _connected_checks(config: Config, driver, report: DoctorReport, window_s: float, plan, cell) -> None:
     try:
-        info = driver.identify()
+        info = identify_controller(driver)
     except PayloadAgentError as exc:
         report.checks.append(Check("identify", FAIL, f"the controller did not identify itself: {exc}"))
         if isinstance(exc, CommunicationError):  # it accepts but does not speak the protocol: as `run`, exit 6

@@ -41,7 +41,7 @@ from payload_agent.output.console import attach_run_log, detach_run_log
 from payload_agent.output.plan_table import format_plan
 from payload_agent.session.finish import RunOutcome, finish, write_run_report
 from payload_agent.session.robot_lock import robot_lock
-from payload_agent.session.connection import build_driver, motion_under_way, simulated_cell
+from payload_agent.session.connection import build_driver, identify_controller, motion_under_way, simulated_cell
 from payload_agent.session.manifest import RunManifest, new_run_dir
 from payload_agent.output.stop_text import stop_sentence
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
@@ -206,7 +206,7 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
 def _check_controller(config: Config, opts: RunOptions, driver: Driver):
     """Identity, readiness, drive gains and the kinematic cross-check, before anything is shown or moved."""
     out = opts.out
-    info = driver.identify()
+    info = identify_controller(driver)
     ctl_state = driver.state()
     out(f"Connected: {info.vendor} {info.model}, firmware {info.firmware}"
         + (f" ({ctl_state.detail})" if ctl_state.detail else ""))

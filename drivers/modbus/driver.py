@@ -367,8 +367,9 @@ class ModbusDriver(Driver):
         if self.map.has_all("firmware_major", "firmware_minor"):
             v = self._read("firmware_major", "firmware_minor")
             fw = f"{int(v['firmware_major'][0])}.{int(v['firmware_minor'][0])}"
+        # a register map carries no serial number: driver.serial declares it (never the address: it changes)
         return ControllerInfo(self.map.vendor or "Modbus device", self.map.model or (self.map.preset or "custom map"),
-                              fw, self.endpoint.describe())
+                              fw, "")
 
     # -- pose, payload, inputs ----------------------------------------------------------------
     def flange_pose(self) -> FlangePose | None:
