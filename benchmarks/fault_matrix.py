@@ -29,6 +29,7 @@ from pathlib import Path
 import yaml
 
 from payload_agent.configuration.config import parse_config
+from payload_agent.drivers.settings import Supervision
 from payload_agent.errors import PayloadAgentError
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.runner import RunOptions, run_identification
@@ -87,8 +88,12 @@ def load_sim_config(driver: str, storage: Path):
 
 def stop_limit_s(fault: str) -> float:
     """How long after the injection the stop must reach the controller: STOP_DEADLINE_S after the fault can
-    be seen (a stalled stream after the gap limit, a never-finished move after the finish grace)."""
-    return STOP_DEADLINE_S + {"never_finish": FINISH_GRACE_S, "stall_stream": GAP_LIMIT_MS / 1000}.get(fault, 0.0)
+    be seen (a stalled stream after the gap limit, a silent controller after the reply limit, which follows the
+    gap limit (session.connection.supervision), a never-finished move after the finish grace)."""
+    gap = GAP_LIMIT_MS / 1000
+    reply = max(gap, Supervision.max_reply_wait_s)
+    return STOP_DEADLINE_S + {"never_finish": FINISH_GRACE_S, "stall_stream": gap, "slow_reply": reply,
+                              "no_reply": reply}.get(fault, 0.0)
 
 
 def run_cell(driver: str, fault: str, storage: Path) -> Cell:

@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from payload_agent.configuration.config import parse_config
+from payload_agent.errors import PayloadAgentError
 from payload_agent.session.runner import RunOptions, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,22 +61,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-seed", type=int, default=1)
     p.add_argument("--json", metavar="OUT", help="also write the runs and the summary as JSON")
     args = p.parse_args(argv)
-    runs = []
+    runs, failed = [], []
     for seed in range(args.first_seed, args.first_seed + args.runs):
-        with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
-            r = one_run(args.robot, seed, Path(tmp))
+        try:
+            with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
+                r = one_run(args.robot, seed, Path(tmp))
+        except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
+            failed.append({"seed": seed, "error": str(exc)})
+            print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
+            continue
         runs.append(r)
         print(f"seed {seed:3d}: " + "  ".join(f"{n} {e:+7.2f} ± {s:5.2f}" for n, e, s in zip(NAMES, r["error"], r["std"]))
               + ("" if r["passed"] else "  (quality gate failed)"), flush=True)
+    if len(runs) < 2:
+        print("fewer than two runs ended in a result: no summary")
+        return 1
     summary = summarise(runs)
-    print(f"\n{args.robot}, {len(runs)} seeded runs (each with its own empty run):")
+    print(f"\n{args.robot}, {len(runs)} seeded runs (each with its own empty run)"
+          + (f", {len(failed)} without a result" if failed else "") + ":")
     print("| quantity | mean error | ± s.e. | mean σ | rms(err/σ) | 95 % coverage |\n|---|---|---|---|---|---|")
     for s in summary:
         se = f"{s['stderr_of_mean']:.2f}" if s["stderr_of_mean"] is not None else "-"
         print(f"| {s['quantity']} | {s['mean_error']:+.2f} | {se} | {s['mean_sigma']:.2f} | {s['rms_z']:.2f} "
               f"| {s['coverage_95']:.2f} |")
     if args.json:
-        Path(args.json).write_text(json.dumps({"robot": args.robot, "runs": runs, "summary": summary}, indent=2))
+        Path(args.json).write_text(json.dumps({"robot": args.robot, "runs": runs, "failed": failed, "summary": summary}, indent=2))
     return 0
 
 
