@@ -148,6 +148,9 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
     else:
         cell.stop_s = stop.t - fault_t
         limit = stop_limit_s(fault)
+        withheld = ctrl.first_event_after("withheld", fault_t)
+        if withheld is not None:  # asked only now and then (CANopen's SDO liveness): the limit runs from the ask
+            limit += withheld.t - fault_t
         if cell.stop_s > limit:
             cell.problems.append(f"stop after {cell.stop_s:.3f} s (limit {limit} s)")
     late = [e for e in ctrl.events if e.kind == "move" and e.t > fault_t]

@@ -12,7 +12,8 @@ every fake through the same few calls:
 - ``set_payload`` / ``payload`` (the truth), ``set_friction_scale`` (drift at a tool change);
 - ``inject_fault(name)`` with the common names in ``FAULTS``; ``clear_faults()``;
 - ``events``: every motion and stop command the controller accepted, with its receive time,
-  so a test can tell when a stop arrived and that no motion followed a fault.
+  so a test can tell when a stop arrived and that no motion followed a fault; a controller the
+  agent asks only now and then also logs the first request a reply fault held back (``withheld``).
 """
 
 from __future__ import annotations

@@ -214,7 +214,11 @@ class SimulatedCANopenArm(SimulatedController):
 
     # -- bus services ---------------------------------------------------------------------------
     def _on_sdo(self, d: SimDrive, can_id: int, data: bytearray, timestamp: float) -> None:
-        if d.silent or "no_reply" in self.active_faults:
+        if d.silent:
+            return
+        if "no_reply" in self.active_faults or "slow_reply" in self.active_faults:
+            self._note_withheld(d)
+        if "no_reply" in self.active_faults:
             return
         delay = float(self.active_faults.get("slow_reply", {}).get("delay_s", 1.0)) \
             if "slow_reply" in self.active_faults else 0.0
@@ -222,6 +226,12 @@ class SimulatedCANopenArm(SimulatedController):
             threading.Timer(delay, self._serve_sdo, (d, bytes(data))).start()
         else:
             self._serve_sdo(d, bytes(data))
+
+    def _note_withheld(self, d: SimDrive) -> None:
+        """Log the first SDO request a reply fault held back: the agent asks only now and then (its liveness
+        requests), so the fault can show no earlier than this request plus the agent's reply limit."""
+        if not any(e.kind == "withheld" for e in self.events):
+            self.record_event("withheld", f"SDO request to node {d.node_id}")
 
     def _on_nmt(self, d: SimDrive, can_id: int, data: bytearray, timestamp: float) -> None:
         if not d.silent:
