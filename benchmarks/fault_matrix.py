@@ -47,6 +47,9 @@ MESSAGE = {"drop_connections": ("connection", "closed", "lost", "reach"), "stall
            "emergency_stop": ("emergency", "e-stop", "emcy"),  # CiA 402 drives see safe torque off as a fault
            "leave_remote": ("remote", "teach", "local", "mode", "operation enabled"), "slow_reply": ("reply", "time", "respond"),
            "no_reply": ("reply", "time", "respond"), "never_finish": ("finish", "within", "time")}
+# every controller's late replies come this late (each simulation has its own default; the Modbus one, 0.3 s, is under
+# the reply limit, so whether and how a slow Modbus controller showed depended on the host's load)
+FAULT_PARAMS = {"slow_reply": {"delay_s": 1.0}}
 STOP_DEADLINE_S = 0.5
 # a motion that never reports finished shows only after the arm has stood at its target this long
 # (Supervision.finish_grace_s): its stop is due within STOP_DEADLINE_S after that
@@ -113,7 +116,7 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
                 if _sweep_recording(config.storage.runs_dir) and ctrl.robot.snapshot().moving:
                     time.sleep(0.1)
                     seen["fault_t"] = time.monotonic()
-                    ctrl.inject_fault(fault)
+                    ctrl.inject_fault(fault, **FAULT_PARAMS.get(fault, {}))
                     if fault == "never_finish":  # the fault shows only once the arm has arrived
                         while ctrl.robot.snapshot().moving and time.monotonic() < deadline:
                             time.sleep(0.002)

@@ -30,6 +30,10 @@ NMT_OPERATIONAL, NMT_BOOTUP = 0x05, 0x00
 NMT_NAMES = {0x00: "boot-up", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 HEARTBEAT_ERROR = 0x8130  # CiA 301 emergency code "life guard or heartbeat error"
 SILENT_SYNCS = 5  # a drive missing this many SYNC answers in a row (and >= 20 ms) while the others answer
+# an SDO request unanswered past the reply limit while the drive answered this many SYNCs after it: the drive is alive
+# and its SDO server late. The receive thread handles frames in bus order, so a reply that came during a stall of the
+# agent's own process is seen before the TPDOs behind it: a count, not a rate, which a loaded host would not reach
+SDO_ALIVE_SYNCS = 10
 
 
 class DriveMonitor:
@@ -144,12 +148,14 @@ class DriveMonitor:
         self._check_sdo(now, period_s)
 
     def sdo_requested(self, j: int) -> None:
-        """The driver sends an SDO request to drive ``j`` now (call before sending it)."""
-        self.sdo_pending[j] = (time.monotonic(), self.seq[j])
+        """The driver sends an SDO request to drive ``j`` now (call before sending it). An earlier request
+        still unanswered keeps its time: the drive has owed an answer since then."""
+        if self.sdo_pending[j] is None:
+            self.sdo_pending[j] = (time.monotonic(), self.seq[j])
 
     def _check_sdo(self, now: float, period_s: float) -> None:
         limit = self.sdo_reply_limit_s
-        syncs = max(3, int(0.5 * limit / period_s))  # half the SYNCs the limit spans: the drive is alive and busy
+        syncs = SDO_ALIVE_SYNCS
         for j, pending in enumerate(self.sdo_pending):
             if pending is None:
                 continue

@@ -159,7 +159,8 @@ class SdoWatch:
         except Exception as exc:  # noqa: BLE001 - a malformed reply (canopen's decoder raised): not an answer,
             log.debug("SDO liveness request to %s: %s: %s", drv.labels[j], type(exc).__name__, exc)  # keep watching
         finally:
-            monitor.sdo_pending[j] = None
+            if answered:  # an unanswered request stays owed: only a reply clears it (on_sdo_response)
+                monitor.sdo_pending[j] = None
             lock.release()
         if answered:
             self.answered_t[j] = t
