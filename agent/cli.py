@@ -197,6 +197,19 @@ def build_parser() -> argparse.ArgumentParser:
                        help="also add the result to the robot's history (needs --robot); left alone otherwise")
     solve.add_argument("--tool", help="with --history: the tool label to record")
 
+    imp = add("import", "identify the payload from two recordings of one motion the agent did not make "
+                        "(RTDE CSV; never moves)", json_ok=True)
+    _robot_arg(imp, what="robot YAML or NAME whose kinematics the recordings are analysed with")
+    imp.add_argument("--empty", required=True, metavar="FILE", help="the recording with the empty flange")
+    imp.add_argument("--loaded", required=True, metavar="FILE", help="the same motion with the tool mounted")
+    imp.add_argument("--columns", metavar="MAP",
+                     help="the columns of a file without a header line, in order: name[count] for a vector, - to "
+                          "skip, e.g. timestamp,actual_q[6],actual_qd[6],actual_current[6],target_current[6],"
+                          "target_moment[6] (RTDE names; a header line names them itself)")
+    imp.add_argument("--gains", choices=["controller", "config"], default="controller",
+                     help="current-to-torque constants: fitted from the controller's target_current and "
+                          "target_moment (default), or the robot YAML's effort.gains_nm_per_unit")
+
     doc = add("doctor", "connect and check that the robot is ready for a run; never moves", json_ok=True)
     _robot_arg(doc)
     doc.add_argument("--seconds", type=float, default=2.0, metavar="S",

@@ -13,8 +13,8 @@ import math
 from pathlib import Path
 from typing import Any, Callable
 
-from payload_agent.configuration.config import Config, load_config
-from payload_agent.configuration.paths import find_robot
+from payload_agent.cli_import import cmd_import, load_robot
+from payload_agent.configuration.config import Config
 from payload_agent.errors import CommunicationError, ConfigError, QualityGateError
 from payload_agent.output.console import Console
 
@@ -25,10 +25,6 @@ NO_TERMINAL_HINT = {
     "calibrate": "Pass --yes to accept the plan, and --unattended if the reference payload is already mounted and "
                  "a stored baseline fits.",
 }
-
-
-def load_robot(args) -> Config:
-    return load_config(find_robot(args.robot))
 
 
 # -- sessions that move the robot ---------------------------------------------------------------
@@ -351,6 +347,13 @@ def cmd_solve(args, con: Console) -> int:
     baseline_dir = _existing_run_dir(args.baseline, "--baseline", args) if args.baseline else None
     if args.history and not args.robot:
         raise ConfigError("--history", "needs --robot: the history belongs to a robot's state folder")
+    from payload_agent.recording.imported_run import is_imported
+    from payload_agent.recording.rundata import load_manifest
+
+    if is_imported(load_manifest(run_dir)):
+        from payload_agent.cli_import import solve_imported
+
+        return solve_imported(run_dir, load_manifest(run_dir), args, con)
     manifest, config = recorded_config(args, run_dir)
     solver = args.solver or recorded_solver(run_dir, manifest)  # the run's own solver, not the YAML's
     solved = solve_run(run_dir, manifest, config, solver=solver, baseline_dir=baseline_dir,
@@ -377,5 +380,5 @@ def cmd_solve(args, con: Console) -> int:
 
 COMMANDS: dict[str, Callable[[Any, Console], int]] = {
     "run": cmd_run, "baseline": cmd_baseline, "calibrate": cmd_calibrate, "watch": cmd_watch, "plan": cmd_plan,
-    "doctor": cmd_doctor, "history": cmd_history, "report": cmd_report, "solve": cmd_solve,
+    "doctor": cmd_doctor, "history": cmd_history, "report": cmd_report, "solve": cmd_solve, "import": cmd_import,
 }
