@@ -53,7 +53,8 @@ from payload_agent.model.profile import lead_joint_caps, percent_for_lead
 from payload_agent.types import ControllerInfo, ControllerState, FlangePose, PayloadSetting, Sample
 
 
-STOP_TIMEOUT_S = 0.3  # the supervision's stop: how long to wait for the line and for the reply
+STOP_TIMEOUT_S = 0.3  # the supervision's stop: how long to wait for the reply
+STOP_LINE_WAIT_S = 0.02  # ... and for the command connection to be free
 FIRST_FRAME_WAIT_S = 0.5  # joint_temperatures_c() / flange_pose() right after connect(): wait for a frame
 START_GRACE_S = 1.0  # how long a real controller may take to report "running" after moveByJoint
 POLL_INTERVAL_S = 0.005  # robot-state polling while a move runs
@@ -288,7 +289,9 @@ class EliteECDriver(Driver):
         rpc = self._rpc
         if rpc is None:
             return False
-        return rpc.stop(STOP_TIMEOUT_S, lock_timeout_s=STOP_TIMEOUT_S)  # False: sent, unacknowledged
+        # not behind a request still waiting for its reply (a slow controller): the base then goes straight to a new
+        # connection, which a controller serves at once, instead of queueing the stop behind the late reply
+        return rpc.stop(STOP_TIMEOUT_S, lock_timeout_s=STOP_LINE_WAIT_S)  # False: sent, unacknowledged
 
     def _stop_fresh(self) -> bool:
         o = self.options
