@@ -77,6 +77,11 @@ def describe(result: Mapping[str, Any], sources: Mapping[str, str]) -> str:
         lines.append("Inertia about the centre of mass (kg·m², flange axes): "
                      f"Ixx {I[0, 0]:.4f} ± {s[0, 0]:.4f}, Iyy {I[1, 1]:.4f} ± {s[1, 1]:.4f}, "
                      f"Izz {I[2, 2]:.4f} ± {s[2, 2]:.4f}, Ixy {I[0, 1]:.4f}, Ixz {I[0, 2]:.4f}, Iyz {I[1, 2]:.4f}")
+        ur, pr = result["forms"]["ur"], result["forms"]["principal"]
+        lines.append("UR set_target_payload inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg·m² at the CoG: ["
+                     + ", ".join(f"{v:.5f}" for v in ur["inertia_kgm2"]) + "]")
+        lines.append("Principal (KUKA load data, OPC 40010 LoadType): A, B, C " + ", ".join(f"{v:.1f}" for v in
+                     pr["abc_deg"]) + " °; JX, JY, JZ " + ", ".join(f"{v:.5f}" for v in pr["j_kgm2"]) + " kg·m²")
     else:
         lines.append(f"Inertia: not given ({result['inertia_unsupported']['reason']})")
     lines += [f"Note: {n}" for n in result["notes"]]

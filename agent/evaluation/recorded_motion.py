@@ -23,6 +23,7 @@ from payload_agent.analysis.motion_alignment import AlignedPair, align, resample
 from payload_agent.errors import DataError
 from payload_agent.evaluation.torque_constants import TorqueConstants, fit_torque_constants
 from payload_agent.model.kinematics import Kinematics
+from payload_agent.output.payload_forms import payload_forms
 from payload_agent.recording.motion_csv import MotionRecording
 from payload_agent.solvers import full_payload
 from payload_agent.solvers.dynamic import derivatives
@@ -55,8 +56,9 @@ class RecordedMotionResult:
         notes = list(self.notes) + list(p.notes)
         if problem:
             notes.append(f"no inertia given: {problem} (the estimate is under inertia_unsupported)")
+        forms = payload_forms(p.mass_kg, cog, None if problem else inertia)
         return {
-            "kind": KIND, "solver": full_payload.NAME,
+            "kind": KIND, "solver": full_payload.NAME, "forms": forms,
             "mass_kg": p.mass_kg, "mass_std_kg": p.mass_std_kg, "mass_ci95_kg": 1.96 * p.mass_std_kg,
             "cog_mm": (1000 * cog).tolist(), "cog_std_mm": (1000 * np.sqrt(np.maximum(np.diag(cog_cov), 0))).tolist(),
             "inertia_com_kgm2": None if problem else inertia.tolist(),
