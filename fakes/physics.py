@@ -53,7 +53,30 @@ class PayloadTruth:
 
     mass_kg: float
     cog_m: tuple[float, float, float]  # flange frame
-    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # principal, about the COM, flange axes
+    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # principal moments, about the COM
+    axes_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  # principal axes in flange axes (w, x, y, z)
+
+    @classmethod
+    def from_tensor(cls, mass_kg: float, cog_m: Sequence[float], inertia_com_kgm2) -> "PayloadTruth":
+        """A tool with a full inertia tensor about its centre of mass (3×3, flange axes)."""
+        from scipy.spatial.transform import Rotation
+
+        tensor = np.asarray(inertia_com_kgm2, float)
+        moments, vectors = np.linalg.eigh(0.5 * (tensor + tensor.T))
+        if np.linalg.det(vectors) < 0:
+            vectors[:, 2] *= -1
+        x, y, z, w = Rotation.from_matrix(vectors).as_quat()
+        return cls(float(mass_kg), tuple(float(c) for c in cog_m), tuple(float(v) for v in moments),
+                   (float(w), float(x), float(y), float(z)))
+
+    @property
+    def inertia_com_kgm2(self) -> np.ndarray:
+        """The 3×3 tensor about the centre of mass in flange axes."""
+        from scipy.spatial.transform import Rotation
+
+        w, x, y, z = self.axes_quat
+        R = Rotation.from_quat([x, y, z, w]).as_matrix()
+        return R @ np.diag(self.inertia_kgm2) @ R.T
 
     @classmethod
     def point(cls, mass_kg: float, cog_mm: Sequence[float]) -> "PayloadTruth":
@@ -167,7 +190,7 @@ class ArmPhysics:
         else:
             self.model.body_mass[pid] = payload.mass_kg
             self.model.body_ipos[pid] = payload.cog_m
-            self.model.body_iquat[pid] = (1.0, 0.0, 0.0, 0.0)
+            self.model.body_iquat[pid] = payload.axes_quat
             self.model.body_inertia[pid] = payload.inertia_kgm2
             self.payload = payload
         # MuJoCo caches derived constants (subtree masses, ...) at compile time: refresh them.

@@ -20,6 +20,8 @@ ZEROS = (0.0,) * N_JOINTS
 class SimPayload:
     mass_kg: float
     cog_mm: tuple[float, float, float]
+    # the 3×3 inertia about the centre of mass, flange axes (kg·m²); None: a compact 6 cm cube of that mass
+    inertia_com_kgm2: tuple[tuple[float, float, float], ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -97,11 +99,34 @@ class SimulationConfig:
     effects: SimEffects = field(default_factory=SimEffects)
 
 
+def _inertia(payload: Node) -> tuple[tuple[float, float, float], ...]:
+    """``simulation.payload.inertia_com_kgm2``: a symmetric 3×3 a rigid body can have."""
+    import numpy as np
+
+    raw = payload.raw("inertia_com_kgm2")
+    try:
+        tensor = np.array(raw, dtype=float)
+    except (TypeError, ValueError):
+        tensor = np.zeros(0)
+    if tensor.shape != (3, 3) or not np.all(np.isfinite(tensor)):
+        raise payload.error("inertia_com_kgm2", f"expected three rows of three numbers (kg·m², about the centre "
+                                                f"of mass, flange axes), got {raw!r:.80}")
+    if not np.allclose(tensor, tensor.T, atol=1e-9):
+        raise payload.error("inertia_com_kgm2", "is not symmetric (Ixy must equal Iyx, and so on)")
+    moments = np.linalg.eigvalsh(tensor)
+    if moments[0] <= 0 or moments[2] > moments[0] + moments[1] + 1e-12:
+        raise payload.error("inertia_com_kgm2", f"no rigid body has it: principal moments "
+                                                f"{', '.join(f'{v:.4g}' for v in moments)} kg·m² (all must be "
+                                                "positive, and none larger than the other two together)")
+    return tuple(tuple(float(v) for v in row) for row in tensor)
+
+
 def parse_simulation(node: Node) -> SimulationConfig:
     arm = node.string("arm", choices=SIMULATED_ARMS)
     p = node.child("payload")
-    payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000))
-    p.reject_unknown(["mass_kg", "cog_mm"])
+    payload = SimPayload(p.number("mass_kg", min=0, max=50), p.numbers("cog_mm", 3, min=-1000, max=1000),
+                         _inertia(p) if p.has("inertia_com_kgm2") else None)
+    p.reject_unknown(["mass_kg", "cog_mm", "inertia_com_kgm2"])
     noise = node.per_joint("noise_nm", N_JOINTS, min=0, max=100)
     fr = node.child("friction")
     coulomb = fr.per_joint("coulomb_nm", N_JOINTS, min=0, max=200)

@@ -35,6 +35,7 @@ class SimulatedCell:
             raise _cannot_listen(config, exc) from None
         self.truth_mass_kg = self.sim.payload.mass_kg
         self.truth_cog_mm = tuple(self.sim.payload.cog_mm)
+        self.truth_inertia_com = self.sim.payload.inertia_com_kgm2
         self.options: DriverOptions = config.driver_options
 
     def start(self) -> "SimulatedCell":
@@ -59,18 +60,26 @@ class SimulatedCell:
     def change_tool(self, mass_kg: float, cog_mm: tuple[float, float, float]) -> None:
         """Swap the simulated tool for another (the truth of the next loaded run); used by tests and demos."""
         self.truth_mass_kg, self.truth_cog_mm = float(mass_kg), tuple(float(c) for c in cog_mm)
+        self.truth_inertia_com = None
 
     def mount_tool(self, mounted: bool) -> None:
         """The simulated tool change; friction drifts by ``friction.drift`` between the runs."""
         from payload_agent.fakes.physics import PayloadTruth
 
-        truth = PayloadTruth.point(self.truth_mass_kg, self.truth_cog_mm)
+        if self.truth_inertia_com is not None:
+            truth = PayloadTruth.from_tensor(self.truth_mass_kg, [c / 1000.0 for c in self.truth_cog_mm],
+                                             self.truth_inertia_com)
+        else:
+            truth = PayloadTruth.point(self.truth_mass_kg, self.truth_cog_mm)
         self.controller.set_payload(truth if mounted else None)
         self.controller.set_friction_scale(1.0 + (self.sim.friction_drift if mounted else 0.0))
 
     @property
     def truth_json(self) -> dict[str, Any]:
-        return {"mass_kg": self.truth_mass_kg, "cog_mm": list(self.truth_cog_mm)}
+        truth: dict[str, Any] = {"mass_kg": self.truth_mass_kg, "cog_mm": list(self.truth_cog_mm)}
+        if self.truth_inertia_com is not None:
+            truth["inertia_com_kgm2"] = [list(row) for row in self.truth_inertia_com]
+        return truth
 
 
 def _cannot_listen(config: Config, exc: OSError) -> CommunicationError:
