@@ -17,16 +17,8 @@ from typing import Callable
 
 from payload_agent.configuration.config import Config, load_config
 from payload_agent.configuration.paths import find_robot
-from payload_agent.session.finish import RunOutcome
-from payload_agent.session.preflight import preflight
 from payload_agent.session.runner import RunOptions, run_identification
 from payload_agent.solvers.results import RunResult
-
-
-def run_session(config: Config, options: RunOptions) -> RunOutcome:
-    """One session: every check `plan` makes, then the run. The CLI's run, baseline and calibrate use this."""
-    preflight(config, calibration=options.mode == "identify", apply=options.apply and options.mode == "identify").require()
-    return run_identification(config, options)
 
 
 def identify(robot: str | Path | Config, *, unattended: bool = True, apply: bool = False, tool: str | None = None,
@@ -42,4 +34,4 @@ def identify(robot: str | Path | Config, *, unattended: bool = True, apply: bool
     config = robot if isinstance(robot, Config) else load_config(find_robot(robot))
     options = RunOptions(unattended=unattended, assume_yes=not unattended, apply=apply, tool=tool, solver=solver,
                          fresh_baseline=fresh_baseline, progress=False, out=out or (lambda _text: None))
-    return run_session(config, options).result
+    return run_identification(config, options).result

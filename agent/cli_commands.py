@@ -49,14 +49,12 @@ def _run_options(args, con: Console, mode: str, **extra):
 
 def _session(args, con: Console, mode: str, **extra):
     from payload_agent.recording.state import describe_locations
-    from payload_agent.session.preflight import preflight
-    from payload_agent.api import run_session
+    from payload_agent.session.runner import run_identification
 
     config = load_robot(args)
-    preflight(config, calibration=mode == "identify", apply=bool(extra.get("apply")) and mode == "identify").require()
-    con.say(describe_locations(config))  # run_session checks it all again (the API's entry) before anything starts
-    try:
-        outcome = run_session(config, _run_options(args, con, mode, **extra))
+    con.say(describe_locations(config))
+    try:  # checks everything `plan` checks before anything starts (session.preflight), once
+        outcome = run_identification(config, _run_options(args, con, mode, **extra))
     except QualityGateError as exc:
         outcome = getattr(exc, "outcome", None)
         if outcome is not None:

@@ -30,7 +30,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (BaselineError, CommunicationError, DataError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, RobotNotReadyError, SafetyError)
-from payload_agent.motion.planner import Plan, expected_durations, make_plan, remaining_plan
+from payload_agent.motion.planner import Plan, expected_durations, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
 from payload_agent.evaluation.calibration import RUN_CALIBRATION, effective_calibration
@@ -45,6 +45,7 @@ from payload_agent.session.connection import build_driver, identify_controller, 
 from payload_agent.session.manifest import RunManifest, new_run_dir
 from payload_agent.output.stop_text import stop_sentence
 from payload_agent.session.phases import PhaseRunner, check_kinematics, joint_temperatures
+from payload_agent.session.preflight import preflight
 from payload_agent.session.resume import ResumeState, config_fingerprint, load_resume
 from payload_agent.types import PayloadSetting
 
@@ -109,8 +110,10 @@ def run_identification(config: Config, opts: RunOptions) -> RunOutcome:
         raise ValueError(f"unknown mode {opts.mode!r}")
     if opts.mode == "calibrate" and opts.reference is None:
         raise PayloadAgentError("calibrate needs the reference payload (--known-mass, --known-cog)")
-    plan = make_plan(config)
-    build_driver(config)  # a bad driver section or effort unit is refused before anything starts
+    # everything `plan` checks, once, before anything starts: the YAML, the plan and the safety gate's view of it,
+    # the driver section and what the options need of it, the stored calibration
+    plan = preflight(config, calibration=opts.mode == "identify",
+                     apply=opts.apply and opts.mode == "identify").require().plan
     resume = None
     if opts.resume is not None:
         resume = load_resume(config, plan, opts.resume)
