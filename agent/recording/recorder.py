@@ -84,11 +84,28 @@ class RunRecorder:
                                                          "problem": problems[entry["name"]]})
         self.write_manifest()
 
-    def end_phase(self, status: str) -> None:
+    def end_phase(self, status: str, stop: dict[str, Any] | None = None, **info: Any) -> None:
+        """Close the open phase with its status; ``stop``: how the arm was stopped (an aborted phase); ``info``
+        further keys (``joint_temperatures_end``)."""
         if self._phase is not None:
-            self.manifest["phases"][self._phase].update(ended_utc=utc_now(), status=status)
+            entry = self.manifest["phases"][self._phase]
+            entry.update(ended_utc=utc_now(), status=status)
+            if stop is not None:
+                entry["stop"] = stop
+            if "joint_temperatures_end" in info:
+                entry.setdefault("joint_temperatures_c", {})["end"] = info.pop("joint_temperatures_end")
+            entry.update(info)
             self.write_manifest()
             self._phase = None
+
+    def adopt_phase(self, name: str, entry: dict[str, Any]) -> None:
+        """A phase recorded elsewhere and copied into this folder (the stored empty-flange baseline)."""
+        self.manifest["phases"][name] = entry
+        self.write_manifest()
+
+    def phase_info(self, name: str) -> dict[str, Any]:
+        """A copy of a phase's manifest entry (empty if the phase is not in the run)."""
+        return json.loads(json.dumps(self.manifest["phases"].get(name, {})))
 
     def begin_sweep(self, move: Move) -> None:
         if self._phase is None or move.sweep is None:
@@ -142,6 +159,16 @@ class RunRecorder:
     def update(self, **fields: Any) -> None:
         self.manifest.update(fields)
         self.write_manifest()
+
+    def mark_resumed(self) -> None:
+        self.update(status="recording", resumed_utc=utc_now())
+
+    def mark_complete(self) -> None:
+        self.update(status="complete", finished_utc=utc_now())
+
+    def mark_stopped(self, why: str, stop: dict[str, Any] | None, session_stop_sent: bool) -> None:
+        """An aborted run: why (a sentence), how the arm was stopped, and whether this session sent a stop."""
+        self.update(status="incomplete", stopped_because=why, stop=stop, session_stop_sent=session_stop_sent)
 
     def write_manifest(self) -> None:
         tmp = self.run_dir / "manifest.json.tmp"

@@ -144,16 +144,13 @@ class PhaseRunner:
             stats = self.driver.end_stats()
             self.recorder.end_sweep("aborted", None if stats is None else stats.to_json())
             report = getattr(exc, "stop_report", None) or self.driver.last_stop_report
-            if report is not None:
-                self.recorder.manifest["phases"][name]["stop"] = report.to_json()
-            self.recorder.end_phase(f"aborted: {stop_sentence(exc)}")
+            self.recorder.end_phase(f"aborted: {stop_sentence(exc)}", None if report is None else report.to_json())
             if isinstance(exc, KeyboardInterrupt):
                 how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted by the operator (Ctrl-C)"
                 raise MotionAbortedError(f"{how}; the robot was stopped, recorded data kept in "
                                          f"{self.recorder.run_dir}") from None
             raise
-        self.recorder.manifest["phases"][name]["joint_temperatures_c"]["end"] = joint_temperatures(self.driver)
-        self.recorder.end_phase("complete")
+        self.recorder.end_phase("complete", joint_temperatures_end=joint_temperatures(self.driver))
 
     def stop_robot(self) -> None:
         """Stop the move this session commanded, if one may still run (the driver sends nothing otherwise)."""

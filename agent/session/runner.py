@@ -180,12 +180,12 @@ def _run_connected(config: Config, opts: RunOptions, plan: Plan, cell, driver: D
             stored = _store_baseline(config, plan, info, state, recorder)
             out(f"Empty-flange baseline stored in {stored}")
         if opts.mode == "baseline":
-            recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+            recorder.mark_complete()
             return RunOutcome(recorder.run_dir, None, cell.truth_json if cell else None,
                               {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion})
         outcome = finish(config, opts, state, driver, recorder.run_dir, stored_info, cell)
         outcome.timings = {"wall_s": time.monotonic() - t0, "motion_wall_s": t_motion}
-        recorder.update(status="complete", finished_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+        recorder.mark_complete()
     except BaseException as exc:
         stop_sent = driver.stop()  # only motion this session commanded; a refusal before our first move sends nothing
         if recorder is not None:
@@ -257,7 +257,7 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
     """The run folder: a new one with its manifest, or the resumed one."""
     if resume is not None:
         recorder = RunRecorder.reopen(resume.run_dir)
-        recorder.update(status="recording", resumed_utc=datetime.now().astimezone().isoformat(timespec="seconds"))
+        recorder.mark_resumed()
         return recorder
     recorder = RunRecorder(new_run_dir(config, opts.mode, datetime.now().strftime("%Y%m%d-%H%M%S")), {
         **RunManifest(config, plan, opts.mode, baselines.controller_identity(info), driver.effort_unit,
@@ -268,8 +268,7 @@ def _open_recorder(config, opts, plan, info, driver, state, cell, resume, phases
         "config_fingerprint": config_fingerprint(config), "phases_planned": phases, "store_empty": store_empty,
         "solver": opts.solver or config.procedure.solver})  # `solve` redoes the run with the run's own solver
     if stored_info is not None:  # the run folder keeps its own copy: self-contained
-        recorder.manifest["phases"]["empty"] = baselines.copy_into_run(state, stored_info, recorder.run_dir)
-        recorder.write_manifest()
+        recorder.adopt_phase("empty", baselines.copy_into_run(state, stored_info, recorder.run_dir))
     if opts.mode != "baseline" and effective_calibration(config) is not None:  # what its analysis will use, from
         shutil.copyfile(state.gains_path, recorder.run_dir / RUN_CALIBRATION)  # the start: solve and --resume agree
     return recorder
@@ -281,8 +280,8 @@ def _mark_stopped(config: Config, recorder: RunRecorder, exc: BaseException, opt
     (only for motion it commanded); a report shows what was recorded."""
     report = getattr(exc, "stop_report", None)
     why = stop_sentence(exc)  # a sentence, no exception class names (output/stop_text.py)
-    recorder.update(status="incomplete", stopped_because=why, stop=None if report is None else report.to_json(),
-                    session_stop_sent=stop_sent or (report is not None and report.stop_sent_t is not None))
+    recorder.mark_stopped(why, None if report is None else report.to_json(),
+                          stop_sent or (report is not None and report.stop_sent_t is not None))
     try:
         exc.run_dir = recorder.run_dir
     except AttributeError:
@@ -321,7 +320,7 @@ def _store_baseline(config: Config, plan: Plan, info, state: RobotState, recorde
     from payload_agent.evaluation.pipeline import check_baseline_segmentation
 
     check_baseline_segmentation(config, recorder.run_dir)  # DataError: nothing is stored
-    temps = recorder.manifest["phases"]["empty"].get("joint_temperatures_c", {}).get("end")
+    temps = recorder.phase_info("empty").get("joint_temperatures_c", {}).get("end")
     return baselines.store_baseline(state, recorder.run_dir,
                                     baselines.describe_for(config, plan, info, recorder.run_dir,
                                                            joint_temperatures_c=temps))
