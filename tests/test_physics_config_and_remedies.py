@@ -129,6 +129,6 @@ def test_tool_cable_check_fails_on_a_strong_cable_and_names_it(runs):
     good = cable_check.check(clean, kin)
     assert good["passed"], good
     # the same wrist offsets, as a σ term sized from the data: large with the cable, ~nothing without
-    _, with_cable = offsets.wrist_offset_covariance(combined, kin)
-    _, without = offsets.wrist_offset_covariance(clean, kin)
+    with_cable = offsets.wrist_offset_size(combined, kin)
+    without = offsets.wrist_offset_size(clean, kin)
     assert with_cable > 0.1 and without < 0.01

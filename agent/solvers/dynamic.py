@@ -27,7 +27,7 @@ samples of a moving joint near zero speed are left out of that joint's rows.
 
 This solver is not in ``SOLVERS``: it needs its own trajectory, not the point-to-point
 sweeps the rest of the pipeline records. The simulator's excitation run is
-``payload_agent.fakes.excitation``; the accuracy benchmark compares it with the PTP methods.
+``benchmarks.excitation``; the accuracy benchmark compares it with the PTP methods.
 """
 
 from __future__ import annotations
