@@ -100,7 +100,7 @@ def test_noisy_with_friction_drift_within_tolerance_and_honest_sigma(setup):
 
 
 def test_not_registered_with_the_ptp_solvers():
-    """It needs its own trajectory: analysis.solve_all must not call it on PTP sweeps."""
+    """It needs its own trajectory: evaluation.analyse.solve_all must not call it on PTP sweeps."""
     assert dynamic.NAME not in SOLVERS
 
 

@@ -3,7 +3,7 @@
 A cable or hose from the forearm to the tool is a spring on joints 4–6. During every arm sweep
 the wrist stands still, so the spring's torque is constant along the sweep, while the payload's
 weight torque on the wrist changes with the link angle. The check fits the general model twice
-on the same deltas (``solvers.offsets``): with the moving joint's friction offsets only, and
+on the same deltas (``systematics.offsets``): with the moving joint's friction offsets only, and
 with one more constant offset per (pose, wrist joint). It fails when both hold:
 
 - the wrist offsets are there: their Wald χ² exceeds the (1 − ``ALPHA``) quantile of χ²_k
@@ -24,7 +24,7 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import offsets
+from payload_agent.evaluation.systematics import offsets
 from payload_agent.solvers.fitted import FittedModel
 from payload_agent.types import SweepKey
 

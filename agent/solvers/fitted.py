@@ -12,7 +12,7 @@ refitting them. It holds:
 - each pose's own fit (``fit(pose)``), made when first asked for (the quality gate and the systematic
   terms compare the poses; a plain solve never needs them);
 - ``cached(key, make)``: anything else derived from the same fit once (the DH-length derivatives of
-  the rows, the fits with nuisance offsets of ``solvers.offsets``).
+  the rows, the fits with nuisance offsets of ``evaluation.systematics.offsets``).
 
 Every fit is made at most once per model; a fit that is impossible raises the same ``DataError`` (or
 ``LinAlgError``) each time it is asked for, so every consumer reports it as it did before.

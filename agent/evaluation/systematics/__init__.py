@@ -1,11 +1,17 @@
 """The one recipe for a real arm's systematic errors: compensate what is declared, put the rest into σ.
 
+Every systematic-error term lives in this package (issue 22 reworks them here): this module is the recipe
+and ``TERMS``; ``compliance`` the joint stiffness and zeros (compensation, finite-difference sensitivities),
+``offsets`` the torques the model lacks (friction gaps, nuisance-offset fits, wrist torques),
+``gain_scatter`` the torque-gain scatter between standing angles. Every term is evaluated on the analysis'
+one fitted model (``solvers.fitted``).
+
 A real arm has errors no amount of averaging removes, the same on every sample of a run. This
-module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``calibrate``
+module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``calibrate``
 (``calibration.fit_gains``) and the accuracy benchmark (method general-bi-cal-comp) all do about them:
 
 1. ``prepare``: the declared joint stiffness (``robot.kinematics.stiffness_nm_per_rad``) is
-   compensated in the loaded and the empty run alike (``solvers.compliance.compensate``: every
+   compensated in the loaded and the empty run alike (``systematics.compliance.compensate``: every
    sample moved to its link angle q − τ/k) before the baseline subtraction and the combination
    of the two directions;
 2. ``evaluate``: every entry of ``TERMS`` turns what is known about one error source into a
@@ -28,7 +34,7 @@ module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``c
      j) and a_j·δ_j (δ_j ~ friction_change × the baseline's level), per sweep ΔF's measurement noise;
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load), sized from the data
-     (``solvers.gain_scatter``);
+     (``systematics.gain_scatter``);
    - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
      dependent gear ripple), one per (pose, wrist joint), sized from the data
      (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
@@ -51,7 +57,8 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.solvers import compliance, gain_scatter, general, offsets, wls
+from payload_agent.evaluation.systematics import compliance, gain_scatter, offsets
+from payload_agent.solvers import general, wls
 from payload_agent.solvers.fitted import ALL, FittedModel  # ALL: the combined fit's key (others: poses)
 from payload_agent.solvers.results import Estimate
 from payload_agent.types import SweepKey
@@ -284,7 +291,7 @@ def wrist_terms(ctx: Context) -> list[Term]:
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
     """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load),
-    sized from the data (``solvers.gain_scatter``)."""
+    sized from the data (``systematics.gain_scatter``)."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
                             {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model)
     return [] if out is None else [Term("torque-gain scatter", *out)]
@@ -316,7 +323,7 @@ def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
 def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: JointSystematicsConfig,
                        theta: np.ndarray, weights: np.ndarray, friction_level_nm: Mapping[int, float] | None = None
                        ) -> np.ndarray:
-    """The terms that can be predicted before moving, for a planned procedure (``motion.design``).
+    """The terms that can be predicted before moving, for a planned procedure (``evaluation.design``).
 
     ``sweeps``: the plan's synthetic sweeps at the samples the analysis will use (Δτ unused), ``theta``
     a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:

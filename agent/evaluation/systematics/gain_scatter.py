@@ -50,7 +50,8 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import general, offsets
+from payload_agent.evaluation.systematics import offsets
+from payload_agent.solvers import general
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
 from payload_agent.types import SweepKey
@@ -159,7 +160,7 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
             selectors: Sequence[offsets.Selector] = (), model: FittedModel | None = None) -> GainScatter:
     """The gain scatter between standing angles in these deltas (see the module docstring).
 
-    ``selectors``: nuisance offsets (``solvers.offsets``) fitted beside the gain columns, so that a constant
+    ``selectors``: nuisance offsets (``systematics.offsets``) fitted beside the gain columns, so that a constant
     torque (e.g. on the still wrist: ``offsets.wrist_joint``) is not taken for a gain error.
     ``model``: the analysis' fitted model of these deltas (its combined fit is the plain fit here).
     """
