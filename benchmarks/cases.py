@@ -183,7 +183,7 @@ def _robot(draws: dict, start: np.ndarray, seed_extra: int):
 
 def _row(base: dict, est, mass: float, cog_mm, motion: float) -> dict:
     """Errors, reported uncertainty and interval coverage of one estimate."""
-    from payload_agent.solvers.general import cog_with_covariance
+    from payload_agent.solvers.wls import cog_with_covariance
 
     dm = est.mass_kg - mass
     dc = np.asarray(est.cog_m) - np.asarray(cog_mm) / 1000.0

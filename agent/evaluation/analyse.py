@@ -74,10 +74,7 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     model = general.fit_model(deltas, kin, gains.rel_std)
     syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model)
     primary, others = solve_all(model, options, gains, syst, solvers)
-    primary.notes.extend(notes)
-    primary.notes.extend(prepared.notes)
-    if gains.note:
-        primary.notes.append(gains.note)
+    primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []))
     quality_result = quality.evaluate(deltas, kin, primary, gain_rel_std=gains.rel_std,
                                       length_std_m=options.length_std_m, gain_reference=gains.reference,
                                       others=others, systematics=syst, model=model)
@@ -100,14 +97,15 @@ def solve_all(model: FittedModel, options: AnalysisOptions, gains: Gains, syst: 
                                    length_std_m=options.length_std_m, gain_reference=gains.reference, model=model)
 
     main = run(options.solver)
-    done = [(options.solver, main)]
+    done, failed = [(options.solver, main)], []
     for name in (SOLVERS if solvers is None else solvers):
         if name == options.solver:
             continue
         try:
             done.append((name, run(name)))
         except DataError as exc:
-            main.notes.append(f"{name} not computed: {exc}")
+            failed.append(f"{name} not computed: {exc}")
+    done[0] = (options.solver, main.with_notes(*failed))
     out = [_with_systematics(SOLVERS[name].carries_systematics, est, syst) for name, est in done]
     return out[0], out[1:]
 
@@ -116,7 +114,7 @@ def _with_systematics(carries: bool, est: Estimate, syst: systematics.Systematic
     """An estimate widened by the systematic terms (evaluated on the fitted model) if its solver carries them."""
     if not carries:
         if syst.terms:
-            est.notes.append(f"the systematic terms ({syst.describe()}) are in the general solver's σ only")
+            return est.with_notes(f"the systematic terms ({syst.describe()}) are in the general solver's σ only")
         return est
     return syst.apply(est)
 

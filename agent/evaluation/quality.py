@@ -19,7 +19,7 @@ cannot include an unknown gain error): calibrate.
   estimates must agree within the uncertainty of their difference. That uncertainty has the
   same terms as the primary estimate's (``general.solve``): the sensor noise, independent
   between the poses (different sweeps), plus — when the caller passes them, as
-  ``analysis.analyse_run`` does — the drive-gain uncertainty of a calibration and the DH lengths'
+  ``evaluation.analyse`` does — the drive-gain uncertainty of a calibration and the DH lengths'
   standard uncertainty. Those two are common to both poses (one drive, one arm), so they are
   not added in quadrature: the same gain error ε_j and the same length error δp_k are
   propagated through both per-pose fits (first order, as in ``wls.gain_covariance`` and

@@ -40,20 +40,16 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.fitted import FittedModel
-from payload_agent.solvers.regressor import centripetal_regressor, payload_regressor, regressor
+from payload_agent.solvers.regressor import payload_regressor
 from payload_agent.solvers.results import Estimate
-from payload_agent.solvers.wls import (HAC_MAX_FRACTION, FitResult, Group, autocorrelation_time,
-                                       cog_with_covariance, fit, gain_covariance, long_run_scores)
+from payload_agent.solvers.wls import Group, cog_with_covariance
 
 NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 __all__ = ["NAME", "GRAVITY_JOINTS", "ZERO_ROW_TOL", "select_sweeps", "build_groups", "length_parameters",
            "perturbed", "length_derivatives", "absorbed_length_error", "kinematic_sensitivities",
-           "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate",
-           # the fitting core and the regressor, re-exported for callers that use the general solver's names
-           "FitResult", "Group", "fit", "gain_covariance", "autocorrelation_time", "long_run_scores",
-           "cog_with_covariance", "HAC_MAX_FRACTION", "regressor", "centripetal_regressor"]
+           "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate"]
 
 
 def select_sweeps(deltas: dict[SweepKey, DeltaSweep], *, poses: Iterable[str] | None = None,
@@ -270,7 +266,7 @@ def estimate(model: FittedModel, *, name: str = NAME, length_std_m: float | None
         samples={d.key.name: len(d.q) for d in sweeps},
         mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
         cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)),
-        covariance=cov.tolist(),
+        covariance=cov,
         condition_number=res.condition_number,
         notes=notes,
     )

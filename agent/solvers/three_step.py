@@ -166,7 +166,7 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         samples={b2.key.name: int(inside.sum()), b3.key.name: len(b3.q), d3.key.name: len(d3.q)},
         mass_std_kg=float(std[0]),
         cog_std_m=(float(std[1]), float(std[2]), float(std[3])),
-        covariance=cov_theta.tolist(),
+        covariance=cov_theta,
         notes=notes,
     )
 

@@ -113,5 +113,5 @@ def with_covariance(est: Estimate, cov: np.ndarray, note: str | None = None) -> 
     theta = np.array([est.mass_kg, *(est.mass_kg * np.asarray(est.cog_m))])
     _, cov_c = cog_with_covariance(theta, cov[:4, :4])
     notes = list(est.notes) + ([note] if note else [])
-    return replace(est, covariance=cov.tolist(), mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
+    return replace(est, covariance=cov, mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
                    cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)), notes=notes)
