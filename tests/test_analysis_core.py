@@ -114,3 +114,13 @@ def test_solvers_share_one_signature_and_the_model(run):
     plain = general.solve(deltas, options.kin, gain_rel_std=gains.rel_std)
     np.testing.assert_array_equal(plain.covariance, general.estimate(model).covariance)
     assert model.fit(ALL) is model.fit(ALL)
+
+
+def test_an_unknown_solver_is_refused_by_name(run):
+    from payload_agent.errors import DataError
+
+    loaded, empty, options, gains = run
+    for opts, others in ((AnalysisOptions(options.kin, options.joints, None, "least-squares"), None),
+                         (options, ("three-step", "least-squares"))):
+        with pytest.raises(DataError, match="unknown solver 'least-squares'; available: general, three-step"):
+            analyse(loaded, empty, opts, gains, solvers=others)

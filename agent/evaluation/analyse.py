@@ -67,8 +67,9 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     ``robot``/``run_dir``: recorded in the result as given; ``solvers``: the solvers besides the primary
     (default: every one of ``solvers.SOLVERS``).
     """
-    if options.solver not in SOLVERS:
-        raise DataError(f"unknown solver {options.solver!r}; available: {', '.join(SOLVERS)}")
+    for name in (options.solver, *(solvers or ())):
+        if name not in SOLVERS:
+            raise DataError(f"unknown solver {name!r}; available: {', '.join(SOLVERS)}")
     prepared = systematics.prepare(loaded, empty, options.joints, commands)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
