@@ -35,9 +35,9 @@ from payload_agent.solvers.wls import FitResult, Group, fit, gain_covariance
 ALL = "all"  # the combined fit's key (the others are pose names)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FittedModel:
-    """One analysis' weighted fit and what is derived from it (see the module docstring)."""
+    """One analysis' weighted fit and what is derived from it (see the module docstring; compared by identity)."""
 
     deltas: Mapping[SweepKey, DeltaSweep]  # the data the model was made from (every sweep, raw and combined)
     kin: Kinematics
