@@ -52,7 +52,7 @@ Methods
                   declared joint stiffness compensated, stiffness, zero-offset, residual-friction and
                   wrist-torque uncertainty in σ, the tool-cable check in the quality gate
   dynamic         the paper's §3.4 baseline (eq. 29): loaded − empty along a 5th-order Fourier
-                  excitation trajectory of joints 4–6 (fakes/excitation.py, solvers/dynamic.py);
+                  excitation trajectory of joints 4–6 (benchmarks/excitation.py, solvers/dynamic.py);
                   speed-independent, reported once per scenario in the row "excitation"
 Procedures
   speed rows     sweep 1, 5, 10, 20 % of 144 °/s, travel 10 %, acceleration 20 %, 0–55° (pinned:

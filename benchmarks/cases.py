@@ -15,7 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import hard
+from benchmarks.gate import gate
 from benchmarks.hard import ABLATION_SCENARIOS, HARD, STRONG
+from benchmarks.reference import REFERENCE, calibrate, theta_reference
+from benchmarks.remedies import COMP, comp_estimate
 from benchmarks.tables import EXCITATION_LABEL
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,9 +28,6 @@ SCENARIOS = ("ideal", "realistic", HARD, STRONG)
 # ablations, only with --scenarios: realistic but with exact drive gains (what `calibrate` would buy);
 # realistic plus one error source of a real arm (benchmarks/hard.py)
 ALL_SCENARIOS = (*SCENARIOS, "realistic-exact-gains", *ABLATION_SCENARIOS)
-# general-bi-cal-comp: general-bi-cal plus the remedies of benchmarks/remedies.py (declared joint stiffness
-# compensated, stiffness and zero-offset uncertainty in σ, friction offsets, the tool-cable check in the gate)
-COMP = "general-bi-cal-comp"
 METHODS = ("three-step", "general-up", "general-bi", "general-bi-cal", COMP, "dynamic")
 PTP_METHODS = METHODS[:5]
 NOISE_NM = 0.3
@@ -36,7 +36,6 @@ VISCOUS_NM_S_RAD = (8.0, 8.0, 5.0, 1.0, 1.0, 0.5)
 TICK_S = 0.008  # the Elite monitor's sample period
 DH_ERROR_MM = 0.5  # realistic scenarios: every non-zero DH length off by uniform ±this
 GAIN_ERROR = 0.03  # realistic scenario: every drive gain off by uniform ±this (relative)
-REFERENCE = (3.0, (0.0, 0.0, 80.0))  # calibration payload: kg, mm in the flange frame
 CHI2_3_95 = 7.814727903251178  # 95 % quantile of χ² with 3 degrees of freedom
 # speed rows: the procedure of configs/sim-ec66.yaml when this benchmark was set up (pinned here so
 # that editing the config does not silently change the benchmark)
@@ -184,7 +183,7 @@ def _robot(draws: dict, start: np.ndarray, seed_extra: int):
 
 def _row(base: dict, est, mass: float, cog_mm, motion: float) -> dict:
     """Errors, reported uncertainty and interval coverage of one estimate."""
-    from payload_agent.solvers.general import cog_with_covariance
+    from payload_agent.solvers.wls import cog_with_covariance
 
     dm = est.mass_kg - mass
     dc = np.asarray(est.cog_m) - np.asarray(cog_mm) / 1000.0
@@ -229,56 +228,6 @@ def record_reference(robot, plan_bi, draws) -> dict:
     finally:
         robot.effects = tool_effects
     return ref
-
-
-def _calibrate(ref: dict, empty: dict, config, unfitted_std: float, decl=None
-               ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
-    """Gain scale, relative gain uncertainty and fitted joints from the reference run's sweeps.
-
-    agent/calibration.py fits the joints that carry enough reference torque; as in the agent's
-    own analysis (``GainCalibration.gain_rel_std(unfitted=...)``) the others keep their nominal
-    gain with ``unfitted_std`` (``declared_unfitted_gain_std``) as its uncertainty. ``decl``
-    (``JointSystematicsConfig``): a declared joint stiffness is compensated first, as
-    ``calibration.fit_gains`` does (``systematics.prepare``); None: rigid.
-    """
-    from payload_agent.evaluation import systematics
-    from payload_agent.evaluation.calibration import fit_gains_from_deltas
-
-    deltas = systematics.prepare(ref, empty, systematics.RIGID if decl is None else decl).deltas
-    scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics,
-                                                     np.asarray(config.effort.gains_nm_per_unit),
-                                                     REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
-    rel_std = np.array([scale_std[j] if j in fitted else unfitted_std for j in range(len(scale))])
-    return np.asarray(scale, float), rel_std, tuple(fitted)
-
-
-def theta_reference() -> list[float]:
-    m_ref = REFERENCE[0]
-    return [m_ref, *(m_ref * np.asarray(REFERENCE[1]) / 1000.0)]
-
-
-def _gate(deltas: dict, kin, est, **kw) -> dict:
-    """The agent's own quality gate (``quality.evaluate``) on the deltas and uncertainty terms a method used.
-
-    ``kw``: ``gain_rel_std``, ``length_std_m``, ``gain_reference`` and ``systematics``, passed as
-    ``analysis.analyse_run`` passes them. Returns whether it passed and the names of what failed (checks, and reasons that
-    belong to no check, such as a pose that cannot be solved on its own).
-    """
-    from payload_agent.evaluation import cable_check, quality
-
-    try:
-        q = quality.evaluate(deltas, kin, est, **kw)
-    except Exception as exc:  # noqa: BLE001 - a crash of the gate is a refusal, reported by name
-        return {"gate_passed": False, "gate_failed": [f"gate raised {type(exc).__name__}: {exc}"]}
-    failed = [c["check"] for c in q.get("checks", []) if not c.get("passed")]
-    listed = {c.get("reason") for c in q.get("checks", []) if not c.get("passed")}
-    failed += [r.split(" (")[0] for r in q.get("reasons", []) if r not in listed]  # without the numbers
-    out = {"gate_passed": bool(q.get("passed")), "gate_failed": failed,
-           "gate_values": {c["check"]: c["value"] for c in q.get("checks", [])}}
-    cable = next((c for c in q.get("checks", []) if c["check"] == cable_check.NAME), None)
-    if cable is not None:
-        out["cable"] = {k: cable.get(k) for k in ("chi2", "chi2_limit", "mass_shift_g", "cog_shift_mm", "passed")}
-    return out
 
 
 def run_case(args: tuple) -> list[dict]:
@@ -334,16 +283,14 @@ def run_case(args: tuple) -> list[dict]:
             elif method == "general-bi":
                 est, plan = general.solve(combined, kin, **kin_kw), plan_bi
             elif method == "general-bi-cal":
-                scale, gain_rel_std, fitted = _calibrate(ref_run(), empty, config_bi, unfitted_std)
+                scale, gain_rel_std, fitted = calibrate(ref_run(), empty, config_bi, unfitted_std)
                 gate_deltas = _scaled(combined, scale)
                 gate_kw.update(gain_rel_std=list(gain_rel_std), gain_reference=(theta_reference(), fitted))
                 est, plan = general.solve(gate_deltas, kin, name="general-bi-cal", **gate_kw), plan_bi
             elif method == COMP:
-                from benchmarks.remedies import comp_estimate
-
-                est, gate = comp_estimate(loaded, empty, ref_run(), draws["declared"], config_bi, unfitted_std,
+                est, gate_cols = comp_estimate(loaded, empty, ref_run(), draws["declared"], config_bi, unfitted_std,
                                           kin_kw)
-                rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan_bi)), **gate))
+                rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan_bi)), **gate_cols))
                 continue
             else:
                 raise ValueError(method)
@@ -351,7 +298,7 @@ def run_case(args: tuple) -> list[dict]:
             rows.append(dict(base, method=method, error=str(exc)))
             continue
         row = dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan)),
-                   **_gate(gate_deltas, kin, est, **gate_kw))
+                   **gate(gate_deltas, kin, est, **gate_kw))
         if "gain_rel_std" in gate_kw:
             row["gain_rel_std"] = [float(v) for v in gate_kw["gain_rel_std"]]
             row["fitted_joints"] = [int(j) for j in gate_kw["gain_reference"][1]]
@@ -362,7 +309,7 @@ def run_case(args: tuple) -> list[dict]:
 @functools.lru_cache(maxsize=None)
 def _excitation_trajectory():
     from payload_agent.fakes.arms import SPECS
-    from payload_agent.fakes.excitation import default_start, design_trajectory
+    from benchmarks.excitation import default_start, design_trajectory
     from payload_agent.model.kinematics import Kinematics
 
     kin = Kinematics(SPECS["ec66"]().dh)  # the experimenter designs on the nominal model
@@ -374,7 +321,7 @@ def run_dynamic_case(args: tuple) -> list[dict]:
     scenario, index, mass, cog_mm = args
     from payload_agent.configuration.config import load_config
     from payload_agent.errors import PayloadAgentError
-    from payload_agent.fakes.excitation import record_excitation
+    from benchmarks.excitation import record_excitation
     from payload_agent.fakes.physics import PayloadTruth
     from payload_agent.solvers import dynamic
 

@@ -1,8 +1,8 @@
-"""Does motion/design's predicted σ match what runs report, and the errors they reach? (issue 14, item 4)
+"""Does evaluation/design's predicted σ match what runs report, and the errors they reach? (issue 14, item 4)
 
 Not a test: it prints a table. For each sweep speed, every seeded payload is run through the accuracy
 benchmark's cases (realistic scenario, ``general-bi-cal``) and its σ is predicted beforehand by
-``motion.design.predict`` from the plan, the regressor, the benchmark's effort noise (0.3 N·m at 8 ms)
+``evaluation.design.predict`` from the plan, the regressor, the benchmark's effort noise (0.3 N·m at 8 ms)
 and the same systematic terms the run declares (DH lengths; the calibration's gain uncertainty of that
 case). Columns: mean predicted σ, mean reported σ, their ratio, and the RMS of the actual errors.
 
@@ -44,7 +44,7 @@ def use_procedure(name: str) -> None:
 
 def one(args) -> dict:
     speed, index, mass, cog, knobs = args
-    from payload_agent.motion import design
+    from payload_agent.evaluation import design
 
     name, travel, accel, lo, hi = knobs
     use_procedure(name)

@@ -73,7 +73,7 @@ class Declared:
     stiffness_rel_std: float
     zero_offset_std_rad: float
     # standard uncertainty of the Coulomb friction's direction asymmetry (robot.friction_asymmetry_percent);
-    # the agent measures the friction change between the runs it multiplies (evaluation/systematics.py)
+    # the agent measures the friction change between the runs it multiplies (evaluation/systematics/)
     friction_asymmetry_std: float = 0.0
     # standard uncertainty of the friction level's change between the runs, relative (robot.friction_change_percent)
     friction_change_std: float = 0.0

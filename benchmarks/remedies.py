@@ -1,7 +1,7 @@
 """The benchmark method general-bi-cal-comp: general-bi-cal with the remedies for a real arm's effects.
 
-What the agent itself does (``payload-agent run`` / ``solve`` / ``calibrate``), through its own recipe
-``payload_agent.evaluation.systematics``: the declared joint stiffness is compensated in the tool run,
+What the agent itself does (``payload-agent run`` / ``solve`` / ``calibrate``), through its own pure
+analysis ``payload_agent.evaluation.analyse.analyse`` (systematic terms: ``evaluation.systematics``): the declared joint stiffness is compensated in the tool run,
 the empty-flange baseline and the calibration reference run alike; the declared stiffness and
 zero-offset uncertainties, the friction the two-direction average leaves (declared direction asymmetry ×
 the friction change measured between the runs) and constant wrist torques sized from the data go into σ
@@ -19,7 +19,10 @@ import dataclasses
 
 import numpy as np
 
-from benchmarks.cases import COMP, _calibrate, _gate, theta_reference
+from benchmarks.gate import columns
+from benchmarks.reference import calibrate, theta_reference
+
+COMP = "general-bi-cal-comp"
 
 
 def declaration(declared):
@@ -40,19 +43,18 @@ def scaled(sweeps: dict, scale: np.ndarray) -> dict:
 
 
 def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict):
-    """(Estimate, gate columns) of general-bi-cal-comp on one case's recorded sweeps."""
-    from payload_agent.evaluation import systematics
-    from payload_agent.solvers import general
+    """(Estimate, gate columns) of general-bi-cal-comp on one case's recorded sweeps: the agent's own
+    ``analyse`` (general solver only, as the other methods are compared separately) after the calibration."""
+    from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
-    kin = config.robot.kinematics
     decl = declaration(declared)
-    scale, gain_rel_std, fitted = _calibrate(ref, empty, config, unfitted_std, decl)
-    kw = dict(kin_kw, gain_rel_std=list(gain_rel_std), gain_reference=(theta_reference(), fitted))
-    prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl)
-    est = general.solve(prepared.deltas, kin, name=COMP, **kw)
-    syst = systematics.evaluate(prepared, kin, decl, kw["gain_rel_std"])
-    est = syst.apply(est)
-    return est, _gate(prepared.deltas, kin, est, systematics=syst, **kw)
+    scale, gain_rel_std, fitted = calibrate(ref, empty, config, unfitted_std, decl)
+    options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), "general")
+    gains = Gains(tuple(float(g) for g in np.asarray(config.effort.gains_nm_per_unit) * scale),
+                  "calibrated on the benchmark's reference run", None, tuple(float(v) for v in gain_rel_std),
+                  (tuple(theta_reference()), tuple(fitted)))
+    result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=())
+    return dataclasses.replace(result.primary, solver=COMP), columns(result.quality)
 
 
-__all__ = ["comp_estimate", "declaration"]
+__all__ = ["COMP", "comp_estimate", "declaration", "scaled"]

@@ -1,7 +1,10 @@
 """The layout keeps its shape: no import cycles, no oversized modules, analysis never imports the fakes.
 
 Imports are read with ``ast`` (including imports inside functions, which is where cycles hide;
-``if TYPE_CHECKING:`` blocks are not imports at run time and are skipped).
+``if TYPE_CHECKING:`` blocks are not imports at run time and are skipped). ``benchmarks/`` is part of the
+graph. Importing ``a.b.c`` runs ``a/b/__init__.py`` first, so every import also reaches the packages above
+its target (except the importing module's own ancestors, which always run before it): a package whose
+``__init__`` imports a module that imports the package back through a sibling is a cycle too.
 """
 
 import ast
@@ -9,8 +12,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = {"agent": "payload_agent", "drivers": "payload_agent.drivers", "fakes": "payload_agent.fakes",
-           "procedures": "payload_agent.procedures"}
+           "procedures": "payload_agent.procedures", "benchmarks": "benchmarks"}
 MAX_LINES = 500
+# the analysis core and the benchmarks (issue 20): at most this many lines per module
+CORE_MAX_LINES = 400
+CORE = ("payload_agent.solvers", "payload_agent.evaluation", "payload_agent.analysis", "payload_agent.motion",
+        "payload_agent.solve", "benchmarks")
 # stages that must never see a simulated controller (the registry names fakes by string only)
 NO_FAKES = ("payload_agent.model", "payload_agent.configuration", "payload_agent.motion",
             "payload_agent.recording", "payload_agent.analysis", "payload_agent.solvers",
@@ -53,11 +60,18 @@ def import_graph() -> dict[str, set[str]]:
                     anchor = anchor[:len(anchor) - node.level + 1]
                     base = ".".join(anchor + ([base] if base else []))
                 targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base for a in node.names]
+            own_ancestors = {mod.rsplit(".", k)[0] for k in range(1, mod.count(".") + 1)}
             for t in targets:
                 while t and t not in mods:
                     t = t.rpartition(".")[0]
                 if t and t != mod:
                     graph[mod].add(t)
+                    # the packages above the target run first (their __init__ is executed on the way)
+                    parent = t.rpartition(".")[0]
+                    while parent:
+                        if parent in mods and parent != mod and parent not in own_ancestors:
+                            graph[mod].add(parent)
+                        parent = parent.rpartition(".")[0]
     return graph
 
 
@@ -99,6 +113,20 @@ def test_no_module_over_the_size_limit():
     assert not big, f"modules over {MAX_LINES} lines: {big}"
 
 
+def test_no_analysis_or_benchmark_module_over_the_core_limit():
+    big = {str(p.relative_to(ROOT)): n for m, p in project_modules().items() if m.startswith(CORE)
+           and (n := len(p.read_text(encoding="utf-8").splitlines())) > CORE_MAX_LINES}
+    assert not big, f"analysis/benchmark modules over {CORE_MAX_LINES} lines: {big}"
+
+
+def test_the_graph_covers_benchmarks_and_package_inits():
+    graph = import_graph()
+    assert "benchmarks.accuracy" in graph and "benchmarks.cases" in graph["benchmarks.accuracy"]
+    # importing payload_agent.solvers.general runs payload_agent/solvers/__init__.py first
+    assert "payload_agent.solvers" in graph["payload_agent.evaluation.quality"]
+    assert find_cycle({"p": {"p.a"}, "p.a": {"q"}, "q": {"p"}}) == ["p", "p.a", "q", "p"]
+
+
 def test_agent_stages_never_import_the_fakes():
     offenders = {m: sorted(t for t in deps if t.startswith("payload_agent.fakes"))
                  for m, deps in import_graph().items() if m.startswith(NO_FAKES)}
@@ -116,8 +144,8 @@ def test_motion_is_commanded_only_through_the_safety_gate():
     """Every call that can command motion, anywhere in the agent and the drivers, is the gate's."""
     offenders = []
     for mod, path in project_modules().items():
-        if mod.startswith("payload_agent.fakes"):
-            continue  # the simulated controllers move their own simulated arm
+        if mod.startswith(("payload_agent.fakes", "benchmarks")):
+            continue  # the simulated controllers move their own simulated arm; benchmarks drive it offline
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in MOTION_CALLS:
                 via_super = isinstance(node.func.value, ast.Call) and getattr(node.func.value.func, "id", "") == "super"

@@ -9,7 +9,7 @@ from payload_agent.analysis.combine import COMBINED, add_combined, combine_pair
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.types import SweepKey
-from payload_agent.solvers import general, three_step
+from payload_agent.solvers import general, regressor, three_step
 
 from test_general_solver import THETA, TRUTH_C, TRUTH_M, planned_sweeps
 
@@ -25,7 +25,7 @@ def friction_deltas(sweeps, kin, noise=0.0, rng=None):
         v = np.sign(q[-1, j] - q[0, j])
         dtau = np.zeros_like(q)
         for i, qi in enumerate(q):
-            dtau[i, 1:] = general.regressor(kin, qi, range(1, 6), j, 0.025) @ THETA  # gravity + centripetal
+            dtau[i, 1:] = regressor.regressor(kin, qi, range(1, 6), j, 0.025) @ THETA  # gravity + centripetal
         dtau[:, j] += v * (COULOMB[j] * 0.1 + LOAD_RATIO * np.abs(dtau[:, j]))  # what the baseline missed
         if noise:
             dtau += rng.normal(0.0, noise, dtau.shape)

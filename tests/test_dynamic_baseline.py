@@ -1,6 +1,6 @@
 """The dynamic-model baseline (paper §3.4, eq. 29) on the simulated EC66.
 
-The excitation run is simulated tick by tick (``fakes.excitation``); the solver sees only
+The excitation run is simulated tick by tick (``benchmarks.excitation``); the solver sees only
 time, joint angles and efforts, differentiates the angles itself and fits loaded − empty
 with the payload's 10-parameter Newton–Euler regressor.
 """
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from payload_agent.fakes.arms import SPECS
-from payload_agent.fakes.excitation import (MAX_ACCEL_RAD_S2, MAX_EXCURSION_RAD, MAX_SPEED_RAD_S,
+from benchmarks.excitation import (MAX_ACCEL_RAD_S2, MAX_EXCURSION_RAD, MAX_SPEED_RAD_S,
                                             default_start, design_trajectory, record_excitation)
 from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
@@ -100,7 +100,7 @@ def test_noisy_with_friction_drift_within_tolerance_and_honest_sigma(setup):
 
 
 def test_not_registered_with_the_ptp_solvers():
-    """It needs its own trajectory: analysis.solve_all must not call it on PTP sweeps."""
+    """It needs its own trajectory: evaluation.analyse.solve_all must not call it on PTP sweeps."""
     assert dynamic.NAME not in SOLVERS
 
 

@@ -1,4 +1,4 @@
-"""solvers.gain_scatter: a gain error per (joint, standing angle) widens σ by what it does; white noise does not.
+"""evaluation.systematics.gain_scatter: a gain error per (joint, standing angle) widens σ by what it does; white noise does not.
 
 Synthetic deltas on the EC66 model: poses b and d, joints 2 and 3 swept 55°, every other joint still.
 The payload's torque plus white noise, and optionally a relative gain error per (still joint, angle)
@@ -14,7 +14,8 @@ import pytest
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.configuration.config import load_config
-from payload_agent.solvers import gain_scatter, general
+from payload_agent.evaluation.systematics import gain_scatter
+from payload_agent.solvers import general
 from payload_agent.solvers.regressor import payload_regressor
 from payload_agent.solvers.wls import cog_with_covariance
 from payload_agent.types import SweepKey

@@ -13,9 +13,9 @@ import pytest
 
 from payload_agent.analysis.combine import add_combined
 from payload_agent.analysis.delta import subtract_all
-from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.config import JointSystematicsConfig, parse_config
 from payload_agent.errors import ConfigError
-from payload_agent.evaluation import cable_check
+from payload_agent.evaluation import cable_check, systematics
 from payload_agent.fakes.arms import ec66_spec
 from payload_agent.fakes.base import sim_robot_kwargs
 from payload_agent.fakes.effects import PhysicsEffects, ToolCable
@@ -23,7 +23,8 @@ from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
-from payload_agent.solvers import compliance, general, offsets
+from payload_agent.evaluation.systematics import offsets
+from payload_agent.solvers import general
 
 from conftest import tweak
 
@@ -98,20 +99,27 @@ def _estimate(kin):
     return estimate_of
 
 
+def _compensated(kin, run, decl):
+    """The agent's recipe for the joints (``evaluation.systematics``): compensate, solve, add the joint terms."""
+    prepared = systematics.prepare(*run, decl)
+    syst = systematics.evaluate(prepared, kin, decl, terms=[systematics.joint_terms])
+    return syst.apply(general.solve(prepared.deltas, kin))
+
+
 def test_declared_stiffness_compensation_recovers_the_rigid_estimate(runs):
     kin = runs["config"].robot.kinematics
     est = _estimate(kin)
     rigid = est(*runs["rigid"])
     raw = est(*runs["elastic"])
-    decl = compliance.JointSystematics(tuple(runs["k"]), 0.1, np.radians(0.02))
-    fixed = compliance.solve_with_systematics(*runs["elastic"], decl, est)
+    decl = JointSystematicsConfig(tuple(runs["k"]), 0.1, (np.radians(0.02),) * 6, 0.0, 0.0)
+    fixed = _compensated(kin, runs["elastic"], decl)
     err = lambda e: (abs(e.mass_kg - rigid.mass_kg), np.linalg.norm(np.subtract(e.cog_m, rigid.cog_m)))  # noqa: E731
     raw_m, raw_c = err(raw)
     fix_m, fix_c = err(fixed)
     assert raw_m > 1e-3  # the twist costs grams here ...
     assert fix_m < 0.2 * raw_m and fix_c < 0.5 * raw_c + 2e-5  # ... compensated
     # the declared uncertainties widen σ of the compensated estimate, never narrow it, and say so
-    certain = compliance.solve_with_systematics(*runs["elastic"], compliance.JointSystematics(tuple(runs["k"])), est)
+    certain = _compensated(kin, runs["elastic"], JointSystematicsConfig(tuple(runs["k"]), 0.0, (0.0,) * 6, 0.0, 0.0))
     assert certain.mass_kg == fixed.mass_kg
     assert fixed.mass_std_kg > certain.mass_std_kg
     assert all(f >= c for f, c in zip(fixed.cog_std_m, certain.cog_std_m))
@@ -129,6 +137,6 @@ def test_tool_cable_check_fails_on_a_strong_cable_and_names_it(runs):
     good = cable_check.check(clean, kin)
     assert good["passed"], good
     # the same wrist offsets, as a σ term sized from the data: large with the cable, ~nothing without
-    _, with_cable = offsets.wrist_offset_covariance(combined, kin)
-    _, without = offsets.wrist_offset_covariance(clean, kin)
+    with_cable = offsets.wrist_offset_size(combined, kin)
+    without = offsets.wrist_offset_size(clean, kin)
     assert with_cable > 0.1 and without < 0.01

@@ -1,4 +1,4 @@
-"""A procedure chosen for a target accuracy (agent/motion/design.py): the predicted σ is the σ a run reports.
+"""A procedure chosen for a target accuracy (agent/evaluation/design.py): the predicted σ is the σ a run reports.
 
 The prediction is made before any motion from the plan, the regressor and the effort noise; the
 simulated run then reports its own σ through the general solver. They must agree within ±30 %
@@ -16,7 +16,7 @@ from payload_agent.fakes.arms import ec66_spec
 from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
-from payload_agent.motion import design
+from payload_agent.evaluation import design
 from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import general
 

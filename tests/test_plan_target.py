@@ -29,7 +29,7 @@ def test_the_candidates_include_other_procedures_and_every_one_passes_the_safety
     import numpy as np
 
     from payload_agent.configuration.config import load_config
-    from payload_agent.motion import design
+    from payload_agent.evaluation import design
     from payload_agent.motion.safety import SafetyGate
 
     config = load_config(ROOT / "configs" / "sim-ec66.yaml")
@@ -58,7 +58,7 @@ def test_declared_zero_and_friction_terms_raise_the_predicted_sigma():
     import math
 
     from payload_agent.configuration.config import load_config
-    from payload_agent.motion import design
+    from payload_agent.evaluation import design
 
     config = load_config(ROOT / "configs" / "sim-ec66.yaml")
     c = design.Candidate(10, 25, 0, 40, 1, 100, "j2_pair")

@@ -1,7 +1,7 @@
-"""A run folder's loaded-minus-empty sweeps: read, segment, subtract, combine.
+"""A run folder's sweeps as the analysis reads them: each phase's sweeps and the plan's windows.
 
-The one entry from a recorded run into the analysis; the pipeline (``analyse_run``) and the
-drive-gain calibration both start here. The constant-speed windows come from the plan on file
+The one entry from a recorded run into the analysis; the pipeline (``analyse_run``, which hands
+``phases_for``'s sweeps to the pure ``evaluation.analyse``) and the drive-gain calibration both start here. The constant-speed windows come from the plan on file
 (``manifest.json`` ``plan``: each sweep's start is the previous move's target), the same
 commands for the empty and the loaded phase. ``check_segmentation`` is the test a baseline
 must pass before it is stored.
@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from payload_agent.analysis.combine import add_combined
-from payload_agent.analysis.delta import DeltaSweep, subtract_all, window_of
+from payload_agent.analysis.delta import window_of
 from payload_agent.analysis.segmenter import SweepCommand, Window, sweep_commands
 from payload_agent.errors import DataError
 from payload_agent.recording.rundata import SweepData, load_manifest, load_phase
@@ -51,23 +50,6 @@ def phases_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = Non
     if notes is not None and not commands:
         notes.append("the manifest has no plan: constant-speed windows found in the data alone")
     return loaded, empty, commands
-
-
-def deltas_for(run_dir: Path, gains: np.ndarray, baseline_dir: Path | None = None, *,
-               combine: bool = True, notes: list[str] | None = None) -> dict[SweepKey, DeltaSweep]:
-    """Loaded-minus-empty sweeps of a run; the empty phase comes from ``baseline_dir`` if given.
-
-    Both phases are segmented with the run's own plan (a baseline is only valid for the same plan).
-    With ``combine``, every sweep recorded in both directions also gets its friction-cancelling
-    combined sweep (direction "both", see ``payload_agent.analysis.combine``); problems go to ``notes``.
-    """
-    loaded, empty, commands = phases_for(run_dir, gains, baseline_dir, notes=notes)
-    deltas = subtract_all(loaded, empty, commands)
-    if combine:
-        deltas, problems = add_combined(deltas)
-        if notes is not None:
-            notes.extend(problems)
-    return deltas
 
 
 def check_segmentation(run_dir: Path, phase: str = "empty") -> dict[str, Window]:

@@ -3,7 +3,7 @@
 A cable or hose from the forearm to the tool is a spring on joints 4–6. During every arm sweep
 the wrist stands still, so the spring's torque is constant along the sweep, while the payload's
 weight torque on the wrist changes with the link angle. The check fits the general model twice
-on the same deltas (``solvers.offsets``): with the moving joint's friction offsets only, and
+on the same deltas (``systematics.offsets``): with the moving joint's friction offsets only, and
 with one more constant offset per (pose, wrist joint). It fails when both hold:
 
 - the wrist offsets are there: their Wald χ² exceeds the (1 − ``ALPHA``) quantile of χ²_k
@@ -24,7 +24,8 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import offsets
+from payload_agent.evaluation.systematics import offsets
+from payload_agent.solvers.fitted import FittedModel
 from payload_agent.types import SweepKey
 
 NAME = "tool cable / hose on the wrist"
@@ -49,13 +50,17 @@ def _mass_cog(theta: np.ndarray) -> tuple[float, np.ndarray]:
 
 
 def check(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, gain_rel_std: Iterable[float] | None = None,
-          alpha: float = ALPHA, mass_shift_g: float = MASS_SHIFT_G, cog_shift_mm: float = COG_SHIFT_MM
-          ) -> dict[str, Any]:
-    """The check dict: ``value`` = the larger shift relative to its limit (> 1 with significant offsets fails)."""
+          alpha: float = ALPHA, mass_shift_g: float = MASS_SHIFT_G, cog_shift_mm: float = COG_SHIFT_MM,
+          model: FittedModel | None = None) -> dict[str, Any]:
+    """The check dict: ``value`` = the larger shift relative to its limit (> 1 with significant offsets fails).
+
+    ``model``: the analysis' fitted model of these deltas; its offset fits are shared with the wrist term.
+    """
     gain = None if gain_rel_std is None else list(gain_rel_std)
     try:
-        base = offsets.fit_offsets(deltas, kin, offsets.moving_joint, gain_rel_std=gain)
-        wrist = offsets.fit_offsets(deltas, kin, offsets.moving_joint, offsets.wrist_joint, gain_rel_std=gain)
+        base = offsets.fit_offsets(deltas, kin, offsets.moving_joint, gain_rel_std=gain, model=model)
+        wrist = offsets.fit_offsets(deltas, kin, offsets.moving_joint, offsets.wrist_joint, gain_rel_std=gain,
+                                    model=model)
     except (DataError, np.linalg.LinAlgError) as exc:
         return {"check": NAME, "value": float("nan"), "limit": 1.0, "passed": True,
                 "note": f"not evaluated: {exc}"}

@@ -1,4 +1,4 @@
-"""Everything after the recorder: segment, subtract the baseline, combine directions, solve, check.
+"""A run folder in, its result out: read the sweeps and the drive gains, then the pure ``analyse.analyse``.
 
 ``payload-agent solve RUN_DIR`` and ``run`` both come through here, so a recorded
 run can always be re-analysed and gives the same answer.
@@ -7,74 +7,20 @@ run can always be re-analysed and gives the same answer.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from payload_agent.evaluation import quality, systematics
-from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
-                                                  run_calibration)
-from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.analysis.run_deltas import check_segmentation, deltas_for, phases_for
+from payload_agent.analysis.run_deltas import check_segmentation, phases_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
-from payload_agent.model.kinematics import Kinematics
-from payload_agent.types import SweepKey
+from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
+                                                  run_calibration)
 from payload_agent.recording.rundata import load_manifest
-from payload_agent.solvers.results import Estimate, RunResult
-from payload_agent.solvers import SOLVERS, general, three_step
+from payload_agent.solvers.results import RunResult
 
-POSE_AGREEMENT_Z = quality.POSE_AGREEMENT_Z  # kept for callers that imported it from here
-__all__ = ["deltas_for", "solve_all", "quality_checks", "analyse_run", "check_baseline_segmentation",
-           "POSE_AGREEMENT_Z"]
-
-
-def solve_all(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: str,
-              gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
-              gain_reference: tuple[Sequence[float], Sequence[int]] | None = None
-              ) -> tuple[Estimate, list[Estimate]]:
-    """The primary solver's estimate, plus every other solver's that can be computed on the same data.
-
-    ``gain_rel_std`` (relative drive-gain uncertainty per joint, from a calibration) and
-    ``length_std_m`` (standard uncertainty of the DH lengths; ``gain_reference``: the calibration's
-    reference θ and fitted joints, see ``general.kinematic_covariance``) go into the general
-    solver's covariance; the three-step solver takes the drive-gain term of joints 2 and 3.
-    """
-    if primary not in SOLVERS:
-        raise DataError(f"unknown solver {primary!r}; available: {', '.join(SOLVERS)}")
-
-    def run(name: str) -> Estimate:
-        if name == general.NAME and (gain_rel_std is not None or length_std_m):
-            return general.solve(deltas, kin, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
-                                 gain_reference=gain_reference)
-        if name == three_step.NAME and gain_rel_std is not None:
-            return three_step.solve(deltas, kin, gain_rel_std=gain_rel_std)
-        return SOLVERS[name](deltas, kin)
-
-    main = run(primary)
-    others = []
-    for name in SOLVERS:
-        if name == primary:
-            continue
-        try:
-            others.append(run(name))
-        except DataError as exc:
-            main.notes.append(f"{name} not computed: {exc}")
-    return main, others
-
-
-def quality_checks(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate,
-                   gain_rel_std: Sequence[float] | None = None, length_std_m: float | None = None,
-                   gain_reference: tuple[Sequence[float], Sequence[int]] | None = None,
-                   others: Sequence[Estimate] = (), syst: systematics.Systematics | None = None) -> dict[str, Any]:
-    """Redundant checks recorded beside the result; ``payload_agent.evaluation.quality.require_passed`` enforces them.
-
-    The uncertainty terms are those the primary estimate was solved with (see ``solve_all``): the
-    pose-agreement check propagates the same drive-gain and DH-length uncertainty through both poses.
-    The primary estimate is checked whichever solver made it, against ``others`` too.
-    """
-    return quality.evaluate(deltas, kin, primary, gain_rel_std=gain_rel_std, length_std_m=length_std_m,
-                            gain_reference=gain_reference, others=others, systematics=syst)
+__all__ = ["analyse_run", "run_gains", "check_baseline_segmentation"]
 
 
 def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
@@ -94,6 +40,15 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     zeros', the friction the two-direction average leaves and constant wrist torques go into the
     general solver's covariance and into the quality gate's pose comparison.
     """
+    gains_used = run_gains(config, run_dir, gains)
+    notes: list[str] = []
+    loaded, empty, commands = phases_for(run_dir, np.asarray(gains_used.nm_per_unit, float), baseline_dir, notes=notes)
+    return analyse(loaded, empty, AnalysisOptions.from_config(config, solver), gains_used, commands=commands,
+                   notes=notes, robot=config.robot.name, run_dir=str(run_dir))
+
+
+def run_gains(config: Config, run_dir: Path, gains: Sequence[float] | None = None) -> Gains:
+    """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``)."""
     gain_rel_std = gain_reference = None
     cal = run_calibration(run_dir)  # the copy the session made when the run began: solve uses the same
     if cal is not None:
@@ -117,35 +72,10 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
         source = "nominal (effort.gains_nm_per_unit of the config)"
         note = ("drive gains are nominal: the reported uncertainty does not include their error (a few % "
                 "on most arms); run `payload-agent calibrate` with a known reference payload")
-    notes: list[str] = []
-    loaded, empty, commands = phases_for(run_dir, gains_arr, baseline_dir, notes=notes)
-    decl = config.robot.joints
-    prepared = systematics.prepare(loaded, empty, decl, commands)
-    notes.extend(prepared.notes)
-    deltas = prepared.deltas
-    kin = config.robot.kinematics
-    primary, others = solve_all(deltas, kin, solver or config.procedure.solver, gain_rel_std,
-                                config.robot.length_uncertainty_m, gain_reference)
-    syst = systematics.evaluate(prepared, kin, decl, gain_rel_std)
-    primary, others = _with_systematics(primary, syst), [_with_systematics(e, syst) for e in others]
-    primary.notes.extend(notes)
-    if note:
-        primary.notes.append(note)
-    quality_result = quality_checks(deltas, kin, primary, gain_rel_std, config.robot.length_uncertainty_m,
-                                    gain_reference, others, syst)
-    extra = {"gains_nm_per_unit": [float(g) for g in gains_arr], "gains_source": source}
-    if gain_rel_std is not None:
-        extra["gains_rel_std"] = list(gain_rel_std)
-    return RunResult(config.robot.name, str(run_dir), primary, others, quality=quality_result, extra=extra)
-
-
-def _with_systematics(est: Estimate, syst: systematics.Systematics) -> Estimate:
-    """The general solver's estimate widened by the systematic terms (evaluated on its fit); others unchanged."""
-    if est.solver != general.NAME:
-        if syst.terms:
-            est.notes.append(f"the systematic terms ({syst.describe()}) are in the general solver's σ only")
-        return est
-    return syst.apply(est)
+    return Gains(tuple(float(g) for g in gains_arr), source, note,
+                 None if gain_rel_std is None else tuple(float(v) for v in gain_rel_std),
+                 None if gain_reference is None else (tuple(float(v) for v in gain_reference[0]),
+                                                      tuple(int(j) for j in gain_reference[1])))
 
 
 def check_baseline_segmentation(config: Config, run_dir: Path) -> None:

@@ -19,7 +19,7 @@ cannot include an unknown gain error): calibrate.
   estimates must agree within the uncertainty of their difference. That uncertainty has the
   same terms as the primary estimate's (``general.solve``): the sensor noise, independent
   between the poses (different sweeps), plus — when the caller passes them, as
-  ``analysis.analyse_run`` does — the drive-gain uncertainty of a calibration and the DH lengths'
+  ``evaluation.analyse`` does — the drive-gain uncertainty of a calibration and the DH lengths'
   standard uncertainty. Those two are common to both poses (one drive, one arm), so they are
   not added in quadrature: the same gain error ε_j and the same length error δp_k are
   propagated through both per-pose fits (first order, as in ``wls.gain_covariance`` and
@@ -57,6 +57,7 @@ from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.solvers import general, wls
+from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.evaluation import cable_check
 from payload_agent.evaluation.solver_checks import make_check as _check, solver_checks
 
@@ -89,15 +90,15 @@ def _output_jacobian(theta: np.ndarray) -> np.ndarray:
     return J
 
 
-def _pose_fit(groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
+def _pose_fit(res: wls.FitResult, groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
               eps: dict[int, np.ndarray], gain_rel_std: np.ndarray | None) -> dict[str, Any]:
-    """One pose's own fit: θ, its noise covariance, and its first-order response to the common errors.
+    """One pose's own fit ``res`` of ``groups``: θ, its noise covariance, and its first-order response to the
+    common errors.
 
     ``G`` (4 × joints): ∂θ/∂ε_j of a relative gain error of joint j (``wls.gain_covariance``);
     ``S`` (K × 4): ∂θ/∂p_k of DH length k, less what the calibration's gain fit absorbed
     (``general.kinematic_sensitivities``); ``rows`` selects this pose's rows of the stacked groups.
     """
-    res = wls.fit(groups)
     theta, w, inv = res.theta, res.weights, res.normal_inverse
     Y = np.vstack([g.Y for g in groups])
     pred = Y @ theta
@@ -124,7 +125,8 @@ def _pose_fit(groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
 def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estimate, *,
              gain_rel_std: Iterable[float] | None = None, length_std_m: float | None = None,
              gain_reference: tuple[Iterable[float], Iterable[int]] | None = None,
-             others: Sequence[Estimate] = (), systematics: Any = None) -> dict[str, Any]:
+             others: Sequence[Estimate] = (), systematics: Any = None,
+             model: FittedModel | None = None) -> dict[str, Any]:
     """Every check on one identification; ``passed`` is True only if all passed (see the module docstring).
 
     ``others``: the other solvers' estimates on the same data; the primary must agree with each
@@ -135,11 +137,14 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
     terms through both per-pose fits. Without them it compares on the sensor noise alone.
     ``systematics`` (``evaluation.systematics.Systematics``): the real arm's terms the estimate
     carries; each pose's own response to them enters the pose comparison.
+    ``model``: the analysis' fitted model of ``deltas`` with ``gain_rel_std`` (made here if None): its
+    combined and per-pose fits are the ones checked.
     """
     q: dict[str, Any] = {"passed": True, "reasons": []}
     checks: list[dict[str, Any]] = []
-    sweeps = general.select_sweeps(deltas)
-    groups = general.build_groups(sweeps, kin)
+    if model is None:
+        model = general.fit_model(deltas, kin, gain_rel_std)
+    sweeps, groups = list(model.sweeps), list(model.groups)
     gain_std = None if gain_rel_std is None else np.asarray(list(gain_rel_std), float)
     length_std = float(length_std_m) if length_std_m and length_std_m > 0 else 0.0
 
@@ -151,13 +156,13 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
     dY: list[np.ndarray] = []
     eps: dict[int, np.ndarray] = {}
     if length_std > 0 and len(poses) >= 2 and groups:
-        dY = general.length_derivatives(sweeps, kin, groups)
+        dY = general.model_length_derivatives(model)
         if gain_reference is not None:
             eps = general.absorbed_length_error(sweeps, groups, dY, gain_reference)
     row_pose = np.repeat([pose_of[g.sweep] for g in groups], [len(g.y) for g in groups])
     for pose in poses:
         try:
-            f = _pose_fit([g for g in groups if pose_of[g.sweep] == pose], row_pose == pose, dY, eps, gain_std)
+            f = _pose_fit(model.fit(pose), model.groups_of(pose), row_pose == pose, dY, eps, gain_std)
             theta = f["theta"]
             if not theta[0] > 0:
                 raise DataError(f"mass {theta[0]:.4f} kg is not positive")
@@ -218,7 +223,7 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
 
     # --- the combined general fit: conditioning, mass, residuals, gains -------------------
     try:
-        res = wls.fit(groups)
+        res = model.fit(ALL)
     except DataError as exc:
         q["reasons"].append(f"general fit impossible: {exc}")
         res = None
@@ -255,7 +260,7 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
         checks.extend(_gain_checks(groups, theta))
 
     # --- a tool cable or hose on the wrist ---------------------------------------------------
-    cable = cable_check.check(deltas, kin, gain_rel_std=gain_std)
+    cable = cable_check.check(deltas, kin, gain_rel_std=gain_std, model=model)
     checks.append(cable)
 
     # --- samples --------------------------------------------------------------------------

@@ -138,7 +138,8 @@ def _result_page(run_dir: Path, manifest: dict, result: dict, config: Config, hi
     figures = _sweep_figures(loaded, empty, kin, theta, theta_from, {})
     residual_fig = None
     try:
-        residual_fig = P.residual_figure(loaded, empty, kin, theta, theta_from, result, _commands(manifest))
+        residual_fig = P.residual_figure(loaded, empty, kin, theta, theta_from, result, _commands(manifest),
+                                         config.robot.joints)
     except DataError as exc:
         notes.append(f"residuals not plotted: {exc}")
     history_rows, trend_fig, this_entry = [], None, None

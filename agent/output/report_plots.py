@@ -162,16 +162,17 @@ def sweep_figure(legs: list[tuple[SweepKey, SweepData, SweepData | None]], kin, 
 
 def residual_figure(loaded: dict[SweepKey, SweepData], empty: dict[SweepKey, SweepData], kin,
                     theta: np.ndarray | None, theta_from: str, result: dict[str, Any],
-                    commands: dict | None = None) -> Figure | None:
+                    commands: dict | None = None, joints=None) -> Figure | None:
+    """Δτ − Y·θ̂ on the deltas the analysis solved on (``systematics.prepare``: the declared joint stiffness
+    ``joints`` compensated first, as ``evaluation.analyse`` does; None: a rigid arm)."""
     from matplotlib.figure import Figure as MplFigure
 
-    from payload_agent.analysis.combine import add_combined
-    from payload_agent.analysis.delta import subtract_all
+    from payload_agent.evaluation import systematics
     from payload_agent.solvers.general import GRAVITY_JOINTS, ZERO_ROW_TOL, select_sweeps
 
     if theta is None or not empty:
         return None
-    deltas, _ = add_combined(subtract_all(loaded, empty, commands))  # as analysis.deltas_for, without re-reading
+    deltas = systematics.prepare(loaded, empty, systematics.RIGID if joints is None else joints, commands).deltas
     sweeps = select_sweeps(deltas)
     rms_reported = ((result.get("estimates") or {}).get(theta_from) or {}).get("residual_rms_nm") or {}
     if not sweeps:

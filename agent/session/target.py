@@ -2,7 +2,7 @@
 
 The effort noise comes from the stored empty-flange baseline when there is one (measured in its
 constant-speed windows), else from the simulation's declared noise; a real robot without a
-baseline is refused with what to do. The prediction itself is ``motion.design``.
+baseline is refused with what to do. The prediction itself is ``evaluation.design``.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
-from payload_agent.motion.design import Choice, NoiseModel, choose, measured_effort_std
+from payload_agent.evaluation.design import Choice, NoiseModel, choose, measured_effort_std
 from payload_agent.recording.state import RobotState
 from payload_agent.session.connection import build_driver
 
@@ -54,7 +54,7 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 def baseline_friction_nm(empty) -> tuple[float, ...] | None:
     """Each joint's friction level in the baseline's sweeps (largest over its poses), for the
     residual-friction term of the prediction (``systematics.planned_covariance``)."""
-    from payload_agent.solvers.offsets import friction_gaps
+    from payload_agent.evaluation.systematics.offsets import friction_gaps
 
     level = [0.0] * 6
     for (_, j), gap in friction_gaps(empty).items():

@@ -1,13 +1,30 @@
 """Payload solvers: turn baseline-subtracted sweeps into mass and centre of mass.
 
-Each solver is ``solve(deltas, kinematics) -> Estimate``; SOLVERS maps the CLI name to it.
-``general`` (weighted least squares over every loaded joint and sweep) is the default of
-new configs; ``three-step`` is the paper's method (both directions combined where recorded).
+Every solver has one signature, ``solve(deltas, kin, *, gain_rel_std, length_std_m, gain_reference, model)
+-> Estimate`` (``model``: the analysis' ``fitted.FittedModel`` of ``deltas``, which a solver built on the
+general fit reuses instead of refitting); ``SOLVERS`` maps the CLI name to a ``Solver``. ``general``
+(weighted least squares over every loaded joint and sweep) is the default of new configs and carries a
+real arm's systematic terms (``evaluation.systematics``); ``three-step`` is the paper's method (both
+directions combined where recorded).
 """
 
-from payload_agent.solvers import general, three_step
+from dataclasses import dataclass
+from typing import Callable
 
-SOLVERS = {
-    general.NAME: general.solve,
-    three_step.NAME: three_step.solve,
+from payload_agent.solvers import general, three_step
+from payload_agent.solvers.results import Estimate
+
+
+@dataclass(frozen=True)
+class Solver:
+    """A solver as the analysis calls it."""
+
+    name: str
+    solve: Callable[..., Estimate]  # the common signature above
+    carries_systematics: bool  # its covariance is the fitted model's, so the systematic terms add to it
+
+
+SOLVERS: dict[str, Solver] = {
+    general.NAME: Solver(general.NAME, general.solve, carries_systematics=True),
+    three_step.NAME: Solver(three_step.NAME, three_step.solve, carries_systematics=False),
 }

@@ -27,7 +27,7 @@ samples of a moving joint near zero speed are left out of that joint's rows.
 
 This solver is not in ``SOLVERS``: it needs its own trajectory, not the point-to-point
 sweeps the rest of the pipeline records. The simulator's excitation run is
-``payload_agent.fakes.excitation``; the accuracy benchmark compares it with the PTP methods.
+``benchmarks.excitation``; the accuracy benchmark compares it with the PTP methods.
 """
 
 from __future__ import annotations
@@ -145,7 +145,7 @@ def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
         samples={g.label: len(g.y) for g in groups},
         mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
         cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)),
-        covariance=cov[:4, :4].tolist(),
+        covariance=cov[:4, :4],
         condition_number=res.condition_number,
         notes=notes,
     )

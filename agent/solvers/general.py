@@ -39,20 +39,17 @@ from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
-from payload_agent.solvers.regressor import centripetal_regressor, payload_regressor, regressor
+from payload_agent.solvers.fitted import FittedModel
+from payload_agent.solvers.regressor import payload_regressor
 from payload_agent.solvers.results import Estimate
-from payload_agent.solvers.wls import (HAC_MAX_FRACTION, FitResult, Group, autocorrelation_time,
-                                       cog_with_covariance, fit, gain_covariance, long_run_scores)
+from payload_agent.solvers.wls import Group, cog_with_covariance
 
 NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 __all__ = ["NAME", "GRAVITY_JOINTS", "ZERO_ROW_TOL", "select_sweeps", "build_groups", "length_parameters",
            "perturbed", "length_derivatives", "absorbed_length_error", "kinematic_sensitivities",
-           "kinematic_covariance", "solve",
-           # the fitting core and the regressor, re-exported for callers that use the general solver's names
-           "FitResult", "Group", "fit", "gain_covariance", "autocorrelation_time", "long_run_scores",
-           "cog_with_covariance", "HAC_MAX_FRACTION", "regressor", "centripetal_regressor"]
+           "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate"]
 
 
 def select_sweeps(deltas: dict[SweepKey, DeltaSweep], *, poses: Iterable[str] | None = None,
@@ -156,7 +153,8 @@ def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: lis
 
 def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], w: np.ndarray,
                             inv: np.ndarray, theta: np.ndarray,
-                            reference: tuple[Iterable[float], Iterable[int]] | None = None) -> np.ndarray:
+                            reference: tuple[Iterable[float], Iterable[int]] | None = None,
+                            dY: list[np.ndarray] | None = None) -> np.ndarray:
     """∂θ̂/∂p_k for every DH length of ``length_parameters(kin)``: shape (K, 4), per metre.
 
     The regressor is evaluated with the nominal lengths p; the arm's torques follow the true ones,
@@ -170,12 +168,12 @@ def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: l
     ε_jk = ⟨Y_j θ_ref, ∂Y_j/∂p_k θ_ref⟩ / ⟨Y_j θ_ref, Y_j θ_ref⟩ over joint j's rows, each
     group's mean removed from Y_j θ_ref where the calibration fits it an offset), so
     δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂ − ε_·k ∘ Y·θ̂)·δp_k. The tool run's sweeps stand in for
-    the calibration's (same procedure).
+    the calibration's (same procedure). ``dY``: ``length_derivatives`` when already computed.
     """
     Y = np.vstack([g.Y for g in groups])
     pred = Y @ theta
     joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
-    dY = length_derivatives(sweeps, kin, groups)
+    dY = length_derivatives(sweeps, kin, groups) if dY is None else dY
     eps = absorbed_length_error(sweeps, groups, dY, reference) if reference is not None else {}
     out = []
     for k, d in enumerate(dY):
@@ -198,10 +196,28 @@ def kinematic_covariance(sweeps: list[DeltaSweep], kin: Kinematics, groups: list
     return float(length_std_m) ** 2 * (S.T @ S)
 
 
+def fit_model(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iterable[float] | None = None, *,
+              poses: Iterable[str] | None = None, use_combined: bool = True) -> FittedModel:
+    """The one fitted model of these deltas (``solvers.fitted``): rows built here, each fit made when first used.
+
+    ``gain_rel_std``: relative drive-gain uncertainty per joint (0-based), part of ``cov_params()``.
+    """
+    sweeps = select_sweeps(deltas, poses=poses, use_combined=use_combined)
+    return FittedModel(deltas, kin, tuple(sweeps), tuple(build_groups(sweeps, kin)), {d.key.name: d.key.pose for d in sweeps},
+                       None if gain_rel_std is None else tuple(float(v) for v in gain_rel_std))
+
+
+def model_length_derivatives(model: FittedModel) -> list[np.ndarray]:
+    """``length_derivatives`` of the model's rows, computed once per model."""
+    return model.cached(("length derivatives",),
+                        lambda: length_derivatives(list(model.sweeps), model.kin, list(model.groups)))
+
+
 def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterable[str] | None = None,
           use_combined: bool = True, name: str = NAME, gain_rel_std: Iterable[float] | None = None,
           length_std_m: float | None = None,
-          gain_reference: tuple[Iterable[float], Iterable[int]] | None = None) -> Estimate:
+          gain_reference: tuple[Iterable[float], Iterable[int]] | None = None,
+          model: FittedModel | None = None) -> Estimate:
     """Weighted LS estimate of mass and centre of mass with its covariance (see the module docstring).
 
     ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), e.g.
@@ -209,17 +225,28 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterabl
     ``length_std_m``: standard uncertainty of every non-zero DH length (``kinematic_covariance``);
     ``gain_reference``: (θ_ref = [m, m·cx, m·cy, m·cz], fitted joints) of the drive-gain calibration
     the data were scaled with, whose fit absorbed part of the length errors.
+    ``model``: the analysis' fitted model of ``deltas`` with ``gain_rel_std`` (``fit_model``), made here if None.
     """
-    sweeps = select_sweeps(deltas, poses=poses, use_combined=use_combined)
+    if model is None:
+        model = fit_model(deltas, kin, gain_rel_std, poses=poses, use_combined=use_combined)
+    return estimate(model, name=name, length_std_m=length_std_m, gain_reference=gain_reference, poses=poses)
+
+
+def estimate(model: FittedModel, *, name: str = NAME, length_std_m: float | None = None,
+             gain_reference: tuple[Iterable[float], Iterable[int]] | None = None,
+             poses: Iterable[str] | None = None) -> Estimate:
+    """The general solver's estimate from a fitted model: θ, ``cov_params()`` and the DH-length term
+    (``poses``: only to name them when the model has no sweep)."""
+    sweeps = list(model.sweeps)
     if not sweeps:
         which = "" if poses is None else f" in pose(s) {', '.join(sorted(poses))}"
         raise DataError(f"general: no sweep{which} to solve with")
-    groups = build_groups(sweeps, kin)
-    res = fit(groups, gain_rel_std)
-    theta, cov = res.theta, res.cov
-    if length_std_m:
-        cov = cov + kinematic_covariance(sweeps, kin, groups, res.weights, res.normal_inverse, theta, length_std_m,
-                                         gain_reference)
+    res = model.fit()
+    theta, cov = res.theta, model.cov_params()
+    if length_std_m and length_std_m > 0:
+        S = kinematic_sensitivities(sweeps, model.kin, list(model.groups), res.weights, res.normal_inverse, theta,
+                                    gain_reference, dY=model_length_derivatives(model))
+        cov = cov + float(length_std_m) ** 2 * (S.T @ S)
     mass = float(theta[0])
     if not mass > 0:
         raise DataError(f"general: identified mass {mass:.4f} kg is not positive; is a payload mounted?")
@@ -239,7 +266,7 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, poses: Iterabl
         samples={d.key.name: len(d.q) for d in sweeps},
         mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
         cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)),
-        covariance=cov.tolist(),
+        covariance=cov,
         condition_number=res.condition_number,
         notes=notes,
     )

@@ -5,15 +5,21 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class Estimate:
+    """One solver's estimate of mass and centre of mass (SI), frozen: a change is a new estimate.
+
+    ``covariance`` is the 4×4 covariance of θ = [m, m·cx, m·cy, m·cz] as a read-only array (a nested
+    list given by a caller is converted); ``notes`` a tuple (``with_notes`` adds to a copy).
+    """
+
     solver: str
     mass_kg: float
     cog_m: tuple[float, float, float]
@@ -21,9 +27,20 @@ class Estimate:
     samples: dict[str, int] = field(default_factory=dict)
     mass_std_kg: float | None = None
     cog_std_m: tuple[float, float, float] | None = None
-    covariance: list[list[float]] | None = None  # of θ = [m, m·cx, m·cy, m·cz], SI
+    covariance: np.ndarray | None = None  # of θ = [m, m·cx, m·cy, m·cz], SI
     condition_number: float | None = None
-    notes: list[str] = field(default_factory=list)
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.covariance is not None:
+            cov = np.array(self.covariance, dtype=float)
+            cov.setflags(write=False)
+            object.__setattr__(self, "covariance", cov)
+        object.__setattr__(self, "notes", tuple(self.notes))
+
+    def with_notes(self, *notes: str) -> "Estimate":
+        """This estimate with ``notes`` added after its own."""
+        return replace(self, notes=self.notes + tuple(notes)) if notes else self
 
     @property
     def cog_mm(self) -> tuple[float, float, float]:
@@ -39,11 +56,11 @@ class Estimate:
             d["cog_std_mm"] = [1000.0 * v for v in self.cog_std_m]
             d["cog_ci95_mm"] = [1960.0 * v for v in self.cog_std_m]
         if self.covariance is not None:
-            d["covariance_theta_si"] = self.covariance
+            d["covariance_theta_si"] = self.covariance.tolist()
         if self.condition_number is not None:
             d["condition_number"] = self.condition_number
         if self.notes:
-            d["notes"] = self.notes
+            d["notes"] = list(self.notes)
         return d
 
 

@@ -89,13 +89,16 @@ def _interp_transpose(x_new: np.ndarray, xs: np.ndarray, weights: np.ndarray) ->
 
 
 def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d",
-          directions: tuple[str, ...] = PREFERENCE, gain_rel_std: Iterable[float] | None = None) -> Estimate:
+          directions: tuple[str, ...] = PREFERENCE, gain_rel_std: Iterable[float] | None = None,
+          length_std_m: float | None = None, gain_reference: object = None, model: object = None) -> Estimate:
     """Mass and centre of mass by the paper's three steps, with the covariance of the result.
 
     ``directions``: which recorded direction to use per sweep, in order of preference (default:
     the combined "both", else "up"; ``("up",)`` is the paper's single-direction procedure).
     ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), added
-    to the covariance for joints 2 and 3.
+    to the covariance for joints 2 and 3. ``length_std_m``, ``gain_reference`` and ``model`` belong to
+    the solvers' common signature (``solvers.Solver``): the three steps use four sweeps directly, not the
+    general fit, and propagate no DH-length error.
     """
     b2, b3, d3 = (_find(deltas, pose_xy, 2, directions), _find(deltas, pose_xy, 3, directions),
                   _find(deltas, pose_z, 3, directions))
@@ -163,7 +166,7 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         samples={b2.key.name: int(inside.sum()), b3.key.name: len(b3.q), d3.key.name: len(d3.q)},
         mass_std_kg=float(std[0]),
         cog_std_m=(float(std[1]), float(std[2]), float(std[3])),
-        covariance=cov_theta.tolist(),
+        covariance=cov_theta,
         notes=notes,
     )
 

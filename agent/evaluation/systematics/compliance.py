@@ -11,12 +11,11 @@ angles gravity acts at.
 What stays uncertain goes into σ: the declared stiffness has a relative standard uncertainty
 (catalogue values are averages) and every joint's zero has a standard uncertainty (encoder
 zeroing). Both are systematic: the same on every sample, so no amount of data averages them out.
-``systematic_covariance`` propagates them to first order: θ̂ is re-solved with each joint's
-compliance and zero shifted by a small step, and Σ = Σ_j σ_j² · (∂θ̂/∂p_j)(∂θ̂/∂p_j)ᵀ.
+``sensitivities`` gives their first-order effect: θ̂ is re-solved with each joint's compliance and
+zero shifted by a small step; the recipe (``evaluation.systematics``, used by ``analyse``,
+``calibrate`` and the benchmark) turns them into terms, Σ = Σ_j σ_j² · (∂θ̂/∂p_j)(∂θ̂/∂p_j)ᵀ.
 
-Pure functions on recorded sweeps. The agent's recipe (``evaluation.systematics``, used by
-``analyse_run``, ``calibrate`` and the benchmark) calls ``compensate`` and ``sensitivities``;
-``solve_with_systematics`` is the estimate-only form of the same two steps (no pose-wise terms).
+Pure functions on recorded sweeps.
 """
 
 from __future__ import annotations
@@ -107,38 +106,6 @@ def sensitivities(loaded: Sweeps, empty: Sweeps, decl: JointSystematics, theta_o
     return d_c, d_z
 
 
-def systematic_covariance(loaded: Sweeps, empty: Sweeps, decl: JointSystematics, theta_of: SolveFn) -> np.ndarray:
-    """Covariance of θ̂ from the declared stiffness and zero-offset uncertainties (independent per joint)."""
-    d_c, d_z = sensitivities(loaded, empty, decl, theta_of)
-    s_c = np.where(decl.compliance() > 0, decl.stiffness_rel_std, 0.0)
-    s_z = decl.zero_std()
-    return (d_c * s_c[:, None]).T @ (d_c * s_c[:, None]) + (d_z * s_z[:, None]).T @ (d_z * s_z[:, None])
-
-
-EstimateFn = Callable[[dict[SweepKey, SweepData], dict[SweepKey, SweepData]], Estimate]
-
-
-def solve_with_systematics(loaded: Sweeps, empty: Sweeps, decl: JointSystematics, estimate_of: EstimateFn
-                           ) -> Estimate:
-    """The estimate on compensated sweeps, its covariance widened by ``systematic_covariance``.
-
-    ``estimate_of(loaded, empty)``: the caller's analysis (subtract, combine, solve) returning an
-    ``Estimate`` with a covariance of θ = [m, m·c].
-    """
-    c = decl.compliance()
-    est = estimate_of(compensate(loaded, c), compensate(empty, c))
-    if not decl.active or est.covariance is None:
-        return est
-
-    def theta_of(lo, em):
-        e = estimate_of(lo, em)
-        return np.array([e.mass_kg, *(e.mass_kg * np.asarray(e.cog_m))])
-
-    extra = systematic_covariance(loaded, empty, decl, theta_of)
-    return with_covariance(est, np.asarray(est.covariance, float) + extra,
-                           note=systematics_note(decl))
-
-
 def with_covariance(est: Estimate, cov: np.ndarray, note: str | None = None) -> Estimate:
     """``est`` with a new covariance of θ and the standard deviations derived from it (delta method)."""
     from payload_agent.solvers.wls import cog_with_covariance
@@ -146,16 +113,5 @@ def with_covariance(est: Estimate, cov: np.ndarray, note: str | None = None) -> 
     theta = np.array([est.mass_kg, *(est.mass_kg * np.asarray(est.cog_m))])
     _, cov_c = cog_with_covariance(theta, cov[:4, :4])
     notes = list(est.notes) + ([note] if note else [])
-    return replace(est, covariance=cov.tolist(), mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
+    return replace(est, covariance=cov, mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
                    cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)), notes=notes)
-
-
-def systematics_note(decl: JointSystematics) -> str:
-    parts = []
-    if decl.compliance().any():
-        k = decl.stiffness_nm_per_rad or ()
-        parts.append("joint elasticity compensated (k = " + "/".join(f"{v:.3g}" for v in k) + " N·m/rad, "
-                     f"±{100 * decl.stiffness_rel_std:.0f} % in σ)")
-    if decl.zero_std().any():
-        parts.append(f"joint zero uncertainty {np.degrees(decl.zero_std().max()):.3f}° in σ")
-    return "; ".join(parts)

@@ -1,11 +1,17 @@
 """The one recipe for a real arm's systematic errors: compensate what is declared, put the rest into σ.
 
+Every systematic-error term lives in this package (issue 22 reworks them here): this module is the recipe
+and ``TERMS``; ``compliance`` the joint stiffness and zeros (compensation, finite-difference sensitivities),
+``offsets`` the torques the model lacks (friction gaps, nuisance-offset fits, wrist torques),
+``gain_scatter`` the torque-gain scatter between standing angles. Every term is evaluated on the analysis'
+one fitted model (``solvers.fitted``).
+
 A real arm has errors no amount of averaging removes, the same on every sample of a run. This
-module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``calibrate``
+module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``calibrate``
 (``calibration.fit_gains``) and the accuracy benchmark (method general-bi-cal-comp) all do about them:
 
 1. ``prepare``: the declared joint stiffness (``robot.kinematics.stiffness_nm_per_rad``) is
-   compensated in the loaded and the empty run alike (``solvers.compliance.compensate``: every
+   compensated in the loaded and the empty run alike (``systematics.compliance.compensate``: every
    sample moved to its link angle q − τ/k) before the baseline subtraction and the combination
    of the two directions;
 2. ``evaluate``: every entry of ``TERMS`` turns what is known about one error source into a
@@ -28,7 +34,7 @@ module is what ``payload-agent run`` / ``solve`` (``pipeline.analyse_run``), ``c
      j) and a_j·δ_j (δ_j ~ friction_change × the baseline's level), per sweep ΔF's measurement noise;
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load), sized from the data
-     (``solvers.gain_scatter``);
+     (``systematics.gain_scatter``);
    - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
      dependent gear ripple), one per (pose, wrist joint), sized from the data
      (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
@@ -51,11 +57,12 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.solvers import compliance, gain_scatter, general, offsets, wls
+from payload_agent.evaluation.systematics import compliance, gain_scatter, offsets
+from payload_agent.solvers import general, wls
+from payload_agent.solvers.fitted import ALL, FittedModel  # ALL: the combined fit's key (others: poses)
 from payload_agent.solvers.results import Estimate
 from payload_agent.types import SweepKey
 
-ALL = "all"  # the key of the combined fit's sensitivities (the others are pose names)
 RIGID = JointSystematicsConfig(None, 0.0, (0.0,) * 6, 0.0, 0.0)  # nothing declared: no compensation, no term
 
 Sweeps = Mapping[SweepKey, SweepData]
@@ -158,24 +165,19 @@ class Context:
     groups: dict[str, list[wls.Group]]  # ALL and each pose
     fits: dict[str, wls.FitResult]
 
+    model: FittedModel | None = None
+
     @classmethod
     def build(cls, prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
-              gain_rel_std: Sequence[float] | None = None) -> "Context":
-        sweeps = general.select_sweeps(prepared.deltas)
-        all_groups = general.build_groups(sweeps, kin)
-        pose_of = {d.key.name: d.key.pose for d in sweeps}
-        groups = {ALL: all_groups}
-        for pose in sorted(set(pose_of.values())):
-            groups[pose] = [g for g in all_groups if pose_of[g.sweep] == pose]
-        fits = {}
-        for which, gs in groups.items():
-            try:
-                fits[which] = wls.fit(gs, gain_rel_std if which == ALL else None)
-            except (DataError, np.linalg.LinAlgError):
-                continue  # a pose that cannot be solved alone: the gate says so
+              gain_rel_std: Sequence[float] | None = None, model: FittedModel | None = None) -> "Context":
+        """The context on ``model`` (the analysis' fitted model of ``prepared.deltas``; made here if None)."""
+        if model is None:
+            model = general.fit_model(prepared.deltas, kin, gain_rel_std)
+        fits = model.fits()  # a pose that cannot be solved alone is left out: the gate says so
         if ALL not in fits:
             raise DataError("systematics: the combined fit is impossible")
-        return cls(prepared, kin, decl, gain_rel_std, sweeps, groups, fits)
+        groups = {which: model.groups_of(which) for which in (ALL, *model.poses)}
+        return cls(prepared, kin, decl, gain_rel_std, list(model.sweeps), groups, fits, model)
 
     def thetas(self, deltas: Deltas) -> np.ndarray:
         """θ of every base fit (ALL, then the poses) on other deltas, with the base fits' weights: (4·F,)."""
@@ -276,22 +278,22 @@ def friction_terms(ctx: Context) -> list[Term]:
 def wrist_terms(ctx: Context) -> list[Term]:
     """Constant torques on the still wrist, one per (pose, wrist joint), of the size the data show."""
     try:
-        sigma_w = offsets.wrist_offset_size(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std)
+        sigma_w = offsets.wrist_offset_size(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std, ctx.model)
     except (DataError, np.linalg.LinAlgError):
         return []
     if sigma_w <= 0:
         return []
-    labels = sorted({offsets.wrist_joint(g, d) for d in ctx.sweeps for g in general.build_groups([d], ctx.kin)}
-                    - {None})
+    by_name = {d.key.name: d for d in ctx.sweeps}
+    labels = sorted({offsets.wrist_joint(g, by_name[g.sweep]) for g in ctx.groups[ALL]} - {None})
     return [Term("wrist torques", np.full(len(labels), sigma_w), ctx.offset_sens(offsets.wrist_joint, labels),
                  f"constant wrist torques of {1000 * sigma_w:.0f} mN·m rms (from the data) in σ")]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
     """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load),
-    sized from the data (``solvers.gain_scatter``)."""
+    sized from the data (``systematics.gain_scatter``)."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
-                            {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL)
+                            {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model)
     return [] if out is None else [Term("torque-gain scatter", *out)]
 
 
@@ -300,11 +302,13 @@ TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wri
 
 def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
              gain_rel_std: Sequence[float] | None = None,
-             terms: Sequence[Callable[[Context], list[Term]]] | None = None) -> Systematics:
-    """Step 2: every term of ``TERMS`` on a prepared run (``gain_rel_std`` as the estimate was solved with)."""
+             terms: Sequence[Callable[[Context], list[Term]]] | None = None,
+             model: FittedModel | None = None) -> Systematics:
+    """Step 2: every term of ``TERMS`` on a prepared run (``gain_rel_std`` as the estimate was solved with;
+    ``model``: the analysis' fitted model of ``prepared.deltas``, made here if None)."""
     out = Systematics()
     try:
-        ctx = Context.build(prepared, kin, decl, gain_rel_std)
+        ctx = Context.build(prepared, kin, decl, gain_rel_std, model)
     except (DataError, np.linalg.LinAlgError) as exc:
         out.notes.append(f"systematic error terms not evaluated: {exc}")
         return out
@@ -319,7 +323,7 @@ def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
 def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: JointSystematicsConfig,
                        theta: np.ndarray, weights: np.ndarray, friction_level_nm: Mapping[int, float] | None = None
                        ) -> np.ndarray:
-    """The terms that can be predicted before moving, for a planned procedure (``motion.design``).
+    """The terms that can be predicted before moving, for a planned procedure (``evaluation.design``).
 
     ``sweeps``: the plan's synthetic sweeps at the samples the analysis will use (Δτ unused), ``theta``
     a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:

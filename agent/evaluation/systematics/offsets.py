@@ -16,8 +16,8 @@ The payload torque along a 55° sweep varies like cos/sin of the link angle, so 
 separable from it; the price is a wider σ (the fit has fewer effective degrees of freedom). Fitting
 the moving joint's offsets also makes the estimate sensitive to slow position-dependent torque
 (gear ripple once per output turn), which then biases it (benchmarks: +4 g mean in the ripple-only
-ablation); ``friction_offset_covariance`` instead keeps the plain estimate and puts the offsets'
-plausible size, from the friction the baseline shows, into σ.
+ablation); ``evaluation.systematics`` instead keeps the plain estimate and puts the offsets' plausible
+size into σ (``offset_sensitivities``: how θ responds to each).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general
-from payload_agent.solvers.results import Estimate
+from payload_agent.solvers.fitted import FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
 from payload_agent.types import SweepKey
 
@@ -82,11 +82,17 @@ class OffsetFit:
         return float(b @ np.linalg.lstsq(self.offsets_cov, b, rcond=None)[0])
 
 
-def plain_groups(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics) -> tuple[list[DeltaSweep], list[Group]]:
-    sweeps = general.select_sweeps(deltas)
+def plain_groups(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
+                 model: FittedModel | None = None) -> tuple[list[DeltaSweep], list[Group]]:
+    """The general fit's sweeps and rows: ``model``'s when given (built from the same deltas), else built here."""
+    if model is not None:
+        sweeps, groups = list(model.sweeps), list(model.groups)
+    else:
+        sweeps = general.select_sweeps(deltas)
+        groups = general.build_groups(sweeps, kin) if sweeps else []
     if not sweeps:
         raise DataError("offsets: no sweep to solve with")
-    return sweeps, general.build_groups(sweeps, kin)
+    return sweeps, groups
 
 
 def augment(sweeps: list[DeltaSweep], groups: list[Group], *selectors: Selector) -> tuple[list[Group], list[str]]:
@@ -114,38 +120,19 @@ def augment(sweeps: list[DeltaSweep], groups: list[Group], *selectors: Selector)
 
 
 def fit_offsets(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *selectors: Selector,
-                gain_rel_std: Iterable[float] | None = None) -> OffsetFit:
-    sweeps, groups = plain_groups(deltas, kin)
+                gain_rel_std: Iterable[float] | None = None, model: FittedModel | None = None) -> OffsetFit:
+    """The general fit with the offsets ``selectors`` name. With ``model`` (the analysis' fitted model of
+    these deltas, whose drive-gain uncertainty it uses instead of ``gain_rel_std``), made once per model."""
+    if model is not None:
+        return model.cached(("offsets", selectors), lambda: _fit_offsets(*plain_groups(deltas, kin, model), selectors,
+                                                                         model.gain_rel_std))
+    return _fit_offsets(*plain_groups(deltas, kin), selectors, gain_rel_std)
+
+
+def _fit_offsets(sweeps: list[DeltaSweep], groups: list[Group], selectors: tuple[Selector, ...],
+                 gain_rel_std: Iterable[float] | None) -> OffsetFit:
     aug, labels = augment(sweeps, groups, *selectors)
-    return OffsetFit(fit(aug, gain_rel_std), labels, aug)
-
-
-def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *selectors: Selector, name: str = "general-offsets",
-          **general_kw) -> Estimate:
-    """``general.solve`` with nuisance offsets (default: the moving joint's, see the module docstring).
-
-    The systematic terms the general solver adds on top of its fit (DH lengths, calibration
-    absorption) are taken from the plain solve: they depend on the geometry, not on the offsets.
-    """
-    selectors = selectors or (moving_joint,)
-    plain = general.solve(deltas, kin, name=name, **general_kw)
-    sweeps, groups = plain_groups(deltas, kin)
-    gain_std = general_kw.get("gain_rel_std")
-    plain_fit = fit(groups, gain_std)
-    aug, labels = augment(sweeps, groups, *selectors)
-    res = fit(aug, gain_std)
-    systematic = np.asarray(plain.covariance, float) - plain_fit.cov
-    cov = res.cov[:4, :4] + systematic
-    theta = res.theta[:4]
-    if not theta[0] > 0:
-        raise DataError(f"{name}: identified mass {theta[0]:.4f} kg is not positive; is a payload mounted?")
-    c, cov_c = general.cog_with_covariance(theta, cov)
-    notes = list(plain.notes) + [f"constant offsets fitted on {len(labels)} (sweep, joint) pairs: "
-                                 + ", ".join(f"{lab} {v:+.3f} N·m" for lab, v in zip(labels, res.theta[4:]))]
-    return replace(plain, mass_kg=float(theta[0]), cog_m=tuple(float(v) for v in c),
-                   residual_rms_nm=res.residual_rms_nm, mass_std_kg=float(np.sqrt(max(cov[0, 0], 0.0))),
-                   cog_std_m=tuple(float(np.sqrt(max(v, 0.0))) for v in np.diag(cov_c)), covariance=cov.tolist(),
-                   condition_number=res.condition_number, notes=notes)
+    return OffsetFit(fit(aug, None if gain_rel_std is None else list(gain_rel_std)), labels, aug)
 
 
 # -- the friction residual as an uncertainty instead of an estimate -------------------------------------
@@ -202,14 +189,6 @@ def friction_gaps(sweeps: Mapping[SweepKey, SweepData], commands: Mapping | None
     return out
 
 
-def odd_friction_nm(empty: Mapping[SweepKey, SweepData]) -> dict[int, float]:
-    """Per moving joint (0-based): the largest friction level the run shows over its poses (``friction_gaps``)."""
-    out: dict[int, float] = {}
-    for (_, j), gap in friction_gaps(empty).items():
-        out[j] = max(out.get(j, 0.0), abs(gap.level_nm))
-    return out
-
-
 def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.ndarray, inv: np.ndarray,
                          selector: Selector) -> dict[str, np.ndarray]:
     """∂θ/∂b_k of a constant torque b_k on the rows ``selector`` names k: s_k = (YᵀWY)⁻¹·YᵀW·1_k.
@@ -226,38 +205,20 @@ def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.nd
     return s
 
 
-def friction_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, friction_nm: Mapping[int, float],
-                               rel_std: float, gain_rel_std: Iterable[float] | None = None) -> np.ndarray:
-    """Covariance of θ from an unknown constant torque on each moving joint, σ_j = rel_std × friction_nm[j].
-
-    What the two-direction average leaves is even in speed: a Coulomb direction asymmetry a times
-    the change of the friction level between the empty and the loaded run. One cause per joint, so
-    the offsets of all sweeps of a joint move together: Σ = Σ_j σ_j² · s_j s_jᵀ with s_j summed over
-    joint j's moving rows. (``evaluation.systematics`` measures the change per sweep instead.)
-    """
-    sweeps, groups = plain_groups(deltas, kin)
-    res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
-    s = offset_sensitivities(sweeps, groups, res.weights, res.normal_inverse,
-                             lambda g, d: str(g.joint) if g.joint == d.moving and g.joint in friction_nm else None)
-    cov = np.zeros((4, 4))
-    for j, v in s.items():
-        cov += (rel_std * friction_nm[int(j)]) ** 2 * np.outer(v, v)
-    return cov
-
-
 def wrist_offset_size(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                      gain_rel_std: Iterable[float] | None = None) -> float:
+                      gain_rel_std: Iterable[float] | None = None, model: FittedModel | None = None) -> float:
     """How big constant wrist torques the model lacks are on this arm with this tool (N·m), from the data.
 
     A small tool cable, or gear ripple that grows with load on a wrist joint standing still, puts a
     constant torque on joints 4–6 during a sweep. The fit with one offset per (pose, wrist joint)
     estimates them, b̂ with covariance C; their spread beyond noise, σ_w² = max(0, (Σ b̂² − tr C)/k)
     (method of moments). Zero when the data show no such torque; large ones fail ``cable_check``.
+    ``model``: the analysis' fitted model of these deltas (its offset fit is shared with ``cable_check``).
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
-    sweeps, groups = plain_groups(deltas, kin)
+    sweeps, groups = plain_groups(deltas, kin, model)
     base_names = set(augment(sweeps, groups, moving_joint)[1])
-    both = fit_offsets(deltas, kin, moving_joint, wrist_joint, gain_rel_std=gain)
+    both = fit_offsets(deltas, kin, moving_joint, wrist_joint, gain_rel_std=gain, model=model)
     idx = [i for i, n in enumerate(both.labels) if n not in base_names]
     if not idx:
         return 0.0
@@ -266,17 +227,5 @@ def wrist_offset_size(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     return float(np.sqrt(max(0.0, float(b @ b - np.trace(c)) / len(idx))))
 
 
-def wrist_offset_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, float]:
-    """Covariance of θ from constant wrist torques of the size ``wrist_offset_size`` finds, and that size.
-
-    Treated as random, each (pose, wrist joint) torque moves θ̂ by s_k·b_k, so Σ = σ_w²·Σ_k s_k s_kᵀ.
-    """
-    sigma_w = wrist_offset_size(deltas, kin, gain_rel_std)
-    if sigma_w == 0.0:
-        return np.zeros((4, 4)), 0.0
-    sweeps, groups = plain_groups(deltas, kin)
-    res = fit(groups, None if gain_rel_std is None else list(gain_rel_std))
-    s = offset_sensitivities(sweeps, groups, res.weights, res.normal_inverse, wrist_joint)
-    cov = sum((sigma_w ** 2 * np.outer(v, v) for v in s.values()), np.zeros((4, 4)))
-    return cov, sigma_w
+__all__ = ["WRIST_JOINTS", "Selector", "moving_joint", "wrist_joint", "OffsetFit", "plain_groups", "augment",
+           "fit_offsets", "FrictionGap", "friction_gaps", "offset_sensitivities", "wrist_offset_size"]

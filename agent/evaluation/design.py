@@ -168,17 +168,9 @@ def planned_sweeps(plan: Plan, period_s: float):
     return out
 
 
-def predict_covariance(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray,
-                       repetitions: int = 1) -> tuple[np.ndarray, int]:
-    """Predicted covariance of θ = [m, m·c] and the number of constant-speed samples of one run."""
-    noise_cov, sys_cov, n = covariance_parts(config, plan, noise, theta)
-    return noise_cov / repetitions + sys_cov, n
-
-
 def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, int]:
     """(noise covariance of one run, systematic covariance, constant-speed samples of one run)."""
-    repetitions = 1
     from payload_agent.solvers import general, wls
 
     kin = config.robot.kinematics
@@ -190,7 +182,7 @@ def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     for g in groups:
         # loaded minus empty: both runs' noise (the empty run's, interpolated, a little less: taken as
         # equal); the two legs of a bidirectional sweep averaged: half of it
-        var = 2.0 * std[g.joint] ** 2 * (0.5 if by_name[g.sweep].key.direction == "both" else 1.0) / repetitions
+        var = 2.0 * std[g.joint] ** 2 * (0.5 if by_name[g.sweep].key.direction == "both" else 1.0)
         w_rows.append(np.full(len(g.y), 1.0 / max(var, 1e-30)))
     w = np.concatenate(w_rows)
     Y = np.vstack([g.Y for g in groups])

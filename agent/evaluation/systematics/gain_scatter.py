@@ -50,7 +50,9 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import general, offsets
+from payload_agent.evaluation.systematics import offsets
+from payload_agent.solvers import general
+from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
 from payload_agent.types import SweepKey
 
@@ -155,16 +157,18 @@ def sensitivities(sweeps: list[DeltaSweep], groups: list[Group], res: FitResult,
 
 def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
             gain_rel_std: Iterable[float] | None = None, tol_rad: float = SAME_ANGLE_RAD,
-            selectors: Sequence[offsets.Selector] = ()) -> GainScatter:
+            selectors: Sequence[offsets.Selector] = (), model: FittedModel | None = None) -> GainScatter:
     """The gain scatter between standing angles in these deltas (see the module docstring).
 
-    ``selectors``: nuisance offsets (``solvers.offsets``) fitted beside the gain columns, so that a constant
+    ``selectors``: nuisance offsets (``systematics.offsets``) fitted beside the gain columns, so that a constant
     torque (e.g. on the still wrist: ``offsets.wrist_joint``) is not taken for a gain error.
+    ``model``: the analysis' fitted model of these deltas (its combined fit is the plain fit here).
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
-    sweeps = general.select_sweeps(deltas)
-    groups = general.build_groups(sweeps, kin)
-    plain = fit(groups, gain)
+    if model is None:
+        model = general.fit_model(deltas, kin, gain)
+    sweeps, groups = list(model.sweeps), list(model.groups)
+    plain = model.fit(ALL)
     theta = plain.theta
     names = clusters(sweeps, groups, tol_rad)
     labels: list[str] = []
@@ -189,40 +193,29 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     return GainScatter(labels, eps, eps_cov, float(np.sqrt(tau2)), S.T)
 
 
-def gain_scatter_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                            gain_rel_std: Iterable[float] | None = None) -> tuple[np.ndarray, str]:
-    """(4×4 covariance of θ = [m, m·c], note) from the gain scatter between standing angles.
-
-    The note is empty when the data show no scatter beyond noise (the covariance is then zero).
-    """
-    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS)
-    if gs.tau <= 0.0:
-        return np.zeros((4, 4)), ""
-    return gs.covariance, note(gs)
-
-
 def note(gs: GainScatter) -> str:
     return (f"torque-gain scatter of {100 * gs.tau:.2g} % between the angles joints stand at "
             f"({len(gs.labels)} (joint, angle) pairs, from the data; gear ripple under load) in σ")
 
 
 def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iterable[float] | None,
-         fits: Mapping[str, tuple[list[Group], FitResult]], combined: str
+         fits: Mapping[str, tuple[list[Group], FitResult]], combined: str, model: FittedModel | None = None
          ) -> tuple[np.ndarray, dict[str, np.ndarray], str] | None:
     """The scatter as one systematic term for ``evaluation.systematics``: (σ per cluster, {fit: (4, k)}, note).
 
     ``fits``: every fit the term must reach (the combined one under the key ``combined``, each pose's
     own), as (its groups, its result); each gets its own response to the same cluster errors, so a
     comparison between fits counts only the part that moves them apart. None: no scatter beyond noise.
+    ``model``: the analysis' fitted model of these deltas (made here if None).
     """
-    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS)
+    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS, model=model)
     if gs.tau <= 0.0:
         return None
     theta = fits[combined][1].theta[:4]
-    sweeps = general.select_sweeps(deltas)
+    sweeps = general.select_sweeps(deltas) if model is None else list(model.sweeps)
     sens = {which: sensitivities(sweeps, groups, res, theta, gs.labels) for which, (groups, res) in fits.items()}
     return np.full(len(gs.labels), gs.tau), sens, note(gs)
 
 
 __all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "measure",
-           "gain_scatter_covariance", "note", "term"]
+           "note", "term"]
