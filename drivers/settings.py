@@ -16,6 +16,9 @@ class DriverOptions:
     serial: str | None = option(None, help="the controller's serial number as its type plate shows it: identifies "
                                            "the robot (stored baseline) where the controller does not report one, "
                                            "and must match where it does")
+    target_tolerance_deg: float | None = option(None, gt=0, max=10.0,
+                                                help="final position check after a move: the arm must stand this "
+                                                     "close to every joint's target (default: the driver's)")
 
 
 @dataclass(frozen=True)

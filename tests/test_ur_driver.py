@@ -105,8 +105,9 @@ def test_registered_with_its_simulator():
 def test_options_defaults():
     o = URRTDEDriver.parse_options({"type": "ur_rtde", "host": "10.0.0.1"})
     assert o == URRTDEOptions(type="ur_rtde", host="10.0.0.1", frequency_hz=None, connect_timeout_s=5.0,
-                              upper_range_registers=False, target_tolerance_deg=0.1, stop_decel_rad_s2=2.0,
+                              upper_range_registers=False, target_tolerance_deg=None, stop_decel_rad_s2=2.0,
                               poll_interval_s=0.0002)
+    assert make_driver("10.0.0.1").target_tolerance_rad == pytest.approx(math.radians(0.1))  # the shared default
 
 
 @pytest.mark.parametrize("options, key", [
@@ -467,7 +468,7 @@ def _fault_mid_move(ur, d, fault: str, **params):
             while not ur.robot.snapshot().moving and time.monotonic() < deadline:
                 time.sleep(0.002)
             time.sleep(0.1)
-            if not d._armed:  # noqa: SLF001 - the move is already over: do not fault the next one
+            if not d.supervising:  # the move is already over: do not fault the next one
                 return
             box["q"] = ur.robot.snapshot().q
             box["t"] = time.monotonic()

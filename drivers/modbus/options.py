@@ -52,7 +52,6 @@ class ModbusOptions(DriverOptions):
     ack_timeout_s: float = option(1.0, gt=0, max=30, help="how long the program may take to take a command")
     heartbeat_timeout_s: float = option(0.5, gt=0, max=30)
     stop_ack_wait_s: float = option(0.5, gt=0, max=10)
-    target_tolerance_deg: float = option(0.3, gt=0, max=10)
     max_abs_angle_deg: float = option(720.0, gt=0, max=7200, help="a decoded angle beyond this is garbage")
     repeat_is_stale: bool = option(True, help="a sample identical to the previous one is not new")
     max_round_trip_s: float | None = option(None, gt=0, max=10, help="slower replies are not samples "
