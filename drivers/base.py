@@ -35,7 +35,7 @@ from typing import Any, ClassVar, Sequence
 
 import numpy as np
 
-from payload_agent.configuration.options import option, parse_options
+from payload_agent.configuration.options import option
 from payload_agent.drivers.capabilities import OptionalCapabilities
 from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted, refused
 from payload_agent.drivers.settings import DriverOptions, MotionLimits, Supervision
@@ -96,7 +96,7 @@ class Driver(OptionalCapabilities, abc.ABC):
     @classmethod
     def parse_options(cls, data: Any, key_path: str = "driver", source: str | None = None) -> DriverOptions:
         """The YAML ``driver`` mapping -> this driver's options (ConfigError names the key)."""
-        return parse_options(cls.options_class, data, key_path, source)
+        return cls.options_class.parse(data, key_path, source)
 
     def check_effort_unit(self, yaml_unit: str, key_path: str = "effort.unit") -> None:
         if yaml_unit != self.effort_unit:

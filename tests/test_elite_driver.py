@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from payload_agent.drivers.base import MotionLimits, Supervision
-from payload_agent.drivers.elite_ec import EliteECDriver, EliteECOptions
+from payload_agent.drivers.elite_ec.driver import EliteECDriver
+from payload_agent.drivers.elite_ec.options import EliteECOptions
 from payload_agent.drivers.registry import driver_class, simulator_class
 from payload_agent.errors import (
     CommunicationError,

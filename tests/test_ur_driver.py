@@ -13,7 +13,8 @@ pytest.importorskip("rtde_control", reason="ur-rtde wheel not installed (CPython
 
 from payload_agent.drivers.base import MotionLimits, Supervision  # noqa: E402
 from payload_agent.drivers.registry import driver_class, simulator_class  # noqa: E402
-from payload_agent.drivers.ur_rtde import URRTDEDriver, URRTDEOptions  # noqa: E402
+from payload_agent.drivers.ur_rtde.driver import URRTDEDriver  # noqa: E402
+from payload_agent.drivers.ur_rtde.options import URRTDEOptions  # noqa: E402
 from payload_agent.errors import (  # noqa: E402
     CommunicationError,
     ConfigError,
@@ -424,14 +425,16 @@ def test_lost_connection_ends_the_stream_with_an_error():
 
 
 def test_missing_wheel_fails_only_this_driver(monkeypatch):
-    """Without the ur-rtde wheel (Python 3.13+) the UR driver names the problem; Elite still loads."""
+    """Without the ur-rtde wheel (Python 3.13+) the UR driver names the problem; Elite still loads, and a UR
+    robot YAML still parses (plan works without the wheel)."""
     import sys
 
     from payload_agent.drivers import registry
 
     monkeypatch.setitem(sys.modules, "rtde_control", None)  # "import rtde_control" now raises ImportError
-    monkeypatch.delitem(sys.modules, "payload_agent.drivers.ur_rtde")
+    monkeypatch.delitem(sys.modules, "payload_agent.drivers.ur_rtde.driver")
     monkeypatch.setattr(registry, "_table", {})
+    assert registry.parse_driver_options({"type": "ur_rtde", "host": "10.0.0.1"}).host == "10.0.0.1"
     with pytest.raises(ConfigError) as err:
         driver_class("ur_rtde")
     assert err.value.key_path == "driver.type"
@@ -446,7 +449,7 @@ def test_missing_wheel_is_a_config_error_naming_the_python_versions():
 
     code = ("import sys\nsys.modules['rtde_control'] = None\n"
             "from payload_agent.errors import ConfigError\n"
-            "try:\n    import payload_agent.drivers.ur_rtde\nexcept ConfigError as e:\n"
+            "try:\n    import payload_agent.drivers.ur_rtde.driver\nexcept ConfigError as e:\n"
             "    print(e.key_path, 'CPython 3.11 and 3.12' in str(e))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "driver.type True", out.stderr

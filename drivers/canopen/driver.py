@@ -44,7 +44,7 @@ from payload_agent.drivers.canopen.bus import SyncProducer, another_master, open
 from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
                                                   QUICK_STOP_ACTIVE, SW_TARGET_REACHED, describe_code, state_of)
 from payload_agent.drivers.canopen.monitor import DriveMonitor
-from payload_agent.drivers.canopen.options import CANopenOptions, check_options
+from payload_agent.drivers.canopen.options import CANopenOptions
 from payload_agent.drivers.canopen.pdo import (RPDO2_COB, RPDO_COMMAND, TPDO1, Frame, TpdoCollector,
                                                configure_pdos)
 from payload_agent.drivers.canopen.watch import SdoWatch, configure_master_watch
@@ -91,12 +91,6 @@ class CANopenDriver(Driver):
         self.commanded: list[int | None] = [None] * self.n  # each drive's last set-point (counts) since enabled
         self._sdo_locks = [threading.Lock() for _ in range(self.n)]
         self._info: ControllerInfo | None = None
-
-    @classmethod
-    def parse_options(cls, data: Any, key_path: str = "driver", source: str | None = None) -> CANopenOptions:
-        if isinstance(data, dict) and isinstance(data.get("channel"), int) and not isinstance(data["channel"], bool):
-            data = {**data, "channel": str(data["channel"])}  # kvaser & co. number their channels
-        return check_options(super().parse_options(data, key_path, source), key_path, source)
 
     def describe_endpoint(self) -> str:
         o = self.options

@@ -35,7 +35,7 @@ from payload_agent.drivers.base import (ControllerInfo, ControllerState, Driver,
 from payload_agent.drivers.modbus import handshake as hs
 from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
 from payload_agent.drivers.modbus.command import CommandWatch
-from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, parse_modbus_options, resolve_map
+from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, resolve_map
 from payload_agent.drivers.modbus.pose import flange_from_tcp
 from payload_agent.drivers.modbus.registers import EncodingError, Entry, group_reads, int_range
 from payload_agent.drivers.modbus.regmap import si_factor
@@ -50,10 +50,6 @@ class ModbusDriver(Driver):
     options_class = ModbusOptions
     simulator = "payload_agent.fakes.modbus.controller:SimulatedModbusRobot"
     default_target_tolerance_deg = 0.3  # the programs' own "arrived" check is 0.005 rad (docs/modbus.md)
-
-    @classmethod
-    def parse_options(cls, data, key_path: str = "driver", source: str | None = None) -> ModbusOptions:
-        return parse_modbus_options(data, key_path, source)
 
     def __init__(self, options: ModbusOptions, limits: MotionLimits, supervision=None):
         super().__init__(options, limits, supervision)

@@ -44,7 +44,19 @@ import time
 from typing import Any, Callable
 
 import numpy as np
-import rtde_receive
+
+from payload_agent.errors import ConfigError
+
+try:  # only this driver needs the wheel
+    import rtde_control  # noqa: F401
+    import rtde_receive
+except ImportError as _exc:
+    raise ConfigError(
+        "driver.type",
+        "the ur_rtde driver needs the ur-rtde package, which ships wheels for CPython 3.11 and 3.12 only; "
+        "install it with `pip install 'payload-agent[ur]'` on one of those Python versions "
+        f"(import failed: {_exc})",
+    ) from _exc
 
 from payload_agent.drivers.base import DONE, RUNNING, Driver, MotionLimits, MoveStatus, Supervision, aborted, refused
 from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
