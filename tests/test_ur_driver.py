@@ -280,25 +280,6 @@ def test_leaving_remote_control_mid_move_aborts_with_what_to_do(ur, healthy):
     healthy.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
 
 
-def test_stop_from_another_thread_aborts_the_move(ur, healthy):
-    timer = threading.Timer(0.3, healthy.stop)
-    timer.start()
-    with pytest.raises(MotionAbortedError, match="stopped on request"):
-        healthy.move_joints([0.5, -1.3, 1.3, -1.5, -1.4, 0.3], 0.4, 1.0, timeout_s=20.0)
-    timer.join()
-    ur.wait_ticks(100)
-    assert not ur.robot.snapshot().moving
-    healthy.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
-
-
-def test_timeout_aborts_and_stops(ur, healthy):
-    with pytest.raises(MotionAbortedError, match="did not finish"):
-        healthy.move_joints([0.5, -1.3, 1.3, -1.5, -1.4, 0.3], 0.4, 1.0, timeout_s=0.3)
-    ur.wait_ticks(100)
-    assert not ur.robot.snapshot().moving
-    healthy.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
-
-
 def test_speed_above_the_configured_cap_is_refused(healthy):
     with pytest.raises(SafetyError):
         healthy.move_joints(HOME, 5.0, 1.0, timeout_s=10.0)
