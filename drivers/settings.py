@@ -5,17 +5,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from payload_agent.configuration.options import option
+from typing import Any
+
+from payload_agent.configuration.options import option, parse_options
 
 
 @dataclass(frozen=True, kw_only=True)
 class DriverOptions:
     """Options every driver has; each driver subclasses this with its own fields."""
 
+    @classmethod
+    def parse(cls, data: Any, key_path: str = "driver", source: str | None = None) -> "DriverOptions":
+        """The YAML ``driver`` mapping -> these options (ConfigError names the key). A family whose fields
+        depend on each other overrides this; it never imports the family's client library."""
+        return parse_options(cls, data, key_path, source)
+
     type: str = option(help="the driver name (registry key)")
     serial: str | None = option(None, help="the controller's serial number as its type plate shows it: identifies "
                                            "the robot (stored baseline) where the controller does not report one, "
                                            "and must match where it does")
+    target_tolerance_deg: float | None = option(None, gt=0, max=10.0,
+                                                help="final position check after a move: the arm must stand this "
+                                                     "close to every joint's target (default: the driver's)")
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from payload_agent.drivers.base import Driver, DriverOptions, option
-from payload_agent.errors import CommunicationError, MotionAbortedError
+from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MoveStatus, aborted, option
+from payload_agent.errors import CommunicationError
 from payload_agent.fakes.base import SimulatedController, sim_robot_kwargs
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
@@ -60,19 +60,23 @@ class InProcessDriver(Driver):
             return ControllerState(False, "clear the stop on the simulated robot", s.estop, s.protective_stop)
         return ControllerState(True, moving=s.moving)
 
-    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
-        robot, deadline = self._ctrl.robot, time.monotonic() + timeout_s
+    def _prepare_move(self, target, speed_rad_s, accel_rad_s2) -> None:
+        pass  # this arm takes any move; the status says when it stops short
+
+    def _start_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
+        robot = self._ctrl.robot
         self._ctrl.record_event("move")
-        before = robot.snapshot().move_id
+        self._before, self._target = robot.snapshot().move_id, target
         robot.move_joints(target, speed_rad_s, accel_rad_s2)
-        while robot.snapshot().move_id == before or robot.snapshot().moving:
-            self.check_supervision()
-            if time.monotonic() > deadline:
-                raise MotionAbortedError("the move did not finish in time")
-            time.sleep(0.002)
-        s = robot.snapshot()
-        if s.estop or s.protective_stop or np.max(np.abs(s.q - target)) > 1e-3:
-            raise MotionAbortedError("the move ended away from its target (stopped)")
+        return None
+
+    def _move_status(self) -> MoveStatus:
+        s = self._ctrl.robot.snapshot()
+        if s.move_id == self._before or s.moving:
+            return RUNNING
+        if s.estop or s.protective_stop or np.max(np.abs(s.q - self._target)) > 1e-3:
+            return aborted("the move ended away from its target (stopped)")
+        return DONE
 
     def _stop_command(self) -> bool:
         self._ctrl.record_event("stop")

@@ -133,10 +133,10 @@ def test_agent_stages_never_import_the_fakes():
     assert not {m: d for m, d in offenders.items() if d}
 
 
-MOTION_CALLS = {"move_joints", "_move_joints", "redo_last_sweep"}
+MOTION_CALLS = {"move_joints", "_start_move", "redo_last_sweep"}
 # who may call what: the gate calls the driver's move_joints; the base class calls the hook
 ALLOWED = {"move_joints": {"payload_agent.motion.safety"},
-           "_move_joints": {"payload_agent.drivers.base"},
+           "_start_move": {"payload_agent.drivers.base"},
            "redo_last_sweep": {"payload_agent.session.phases"}}
 
 
@@ -161,3 +161,40 @@ def test_the_configuration_knows_every_simulated_arm():
     from payload_agent.fakes.arms import SPECS
 
     assert set(SIMULATED_ARMS) == set(SPECS)
+
+
+DRIVER_HOOKS = {"_open", "_close", "_read_sample", "_prepare_move", "_start_move", "_move_status", "_stop_command",
+                "_stop_fresh", "_command_alive"}
+
+
+def base_privates() -> set[str]:
+    """The private names of drivers/base.py's Driver (its attributes and methods), less the hooks a driver fills."""
+    tree = ast.parse((ROOT / "drivers" / "base.py").read_text(encoding="utf-8"))
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Driver")
+    names = {n.name for n in cls.body if isinstance(n, ast.FunctionDef)}
+    names |= {n.attr for n in ast.walk(cls) if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+              and n.value.id == "self"}
+    return {n for n in names if n.startswith("_") and not n.startswith("__")} - DRIVER_HOOKS
+
+
+def test_drivers_use_only_the_public_side_of_the_base_class():
+    """A family's modules never reach into the base's privates (nor the stream's or the supervisor's): the
+    template's public methods (check_supervision, command_ok, trip, wait_for_trip, supervising, ...) are the
+    contract."""
+    private = base_privates()
+    assert "_connected" in private and "_run_move" in private  # the check sees the base's names
+    offenders = []
+    for path in sorted((ROOT / "drivers").glob("*/*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.Attribute) or not node.attr.startswith("_") or node.attr.startswith("__"):
+                continue
+            owner = node.value.attr if isinstance(node.value, ast.Attribute) else ""
+            if node.attr in private or owner in ("stream", "supervisor"):
+                offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} uses {node.attr}")
+    assert not offenders, "; ".join(offenders)
+
+
+def test_driver_modules_stay_under_400_lines():
+    big = {str(p.relative_to(ROOT)): n for p in (ROOT / "drivers").rglob("*.py")
+           if (n := len(p.read_text(encoding="utf-8").splitlines())) > 400}
+    assert not big, f"driver modules over 400 lines: {big}"

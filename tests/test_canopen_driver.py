@@ -17,7 +17,7 @@ import yaml
 from conftest import ROOT
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.base import MotionLimits, Supervision
-from payload_agent.drivers.canopen import CANopenDriver
+from payload_agent.drivers.canopen.driver import CANopenDriver
 from payload_agent.errors import CommunicationError, ConfigError, MotionAbortedError, SupervisionTrip
 from payload_agent.fakes.canopen import SimulatedCANopenArm
 

@@ -9,7 +9,7 @@ import yaml
 from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.base import MotionLimits
-from payload_agent.drivers.canopen import CANopenDriver
+from payload_agent.drivers.canopen.driver import CANopenDriver
 from payload_agent.errors import ConfigError
 
 SIM = ROOT / "configs" / "sim-canopen-arm.yaml"

@@ -29,8 +29,9 @@ from hypothesis import strategies as st
 
 from conftest import ROOT
 from payload_agent.configuration.config import parse_config
-from payload_agent.drivers.base import MotionLimits, Supervision, _check_sample
-from payload_agent.drivers.canopen import CANopenDriver
+from payload_agent.drivers.base import MotionLimits, Supervision
+from payload_agent.drivers.stream import check_sample as _check_sample
+from payload_agent.drivers.canopen.driver import CANopenDriver
 from payload_agent.drivers.canopen.cia402 import OPERATION_ENABLED, state_of
 from payload_agent.drivers.canopen.pdo import TPDO1, TPDO1_COB
 from payload_agent.errors import CommunicationError

@@ -361,7 +361,7 @@ frame_values = st.fixed_dictionaries({
 def test_driver_turns_any_monitor_frame_into_a_sample_or_a_communication_error(server, values):
     """The monitor path of the driver: samples (checked as the base's reader checks them), the flange
     pose and the joint temperatures from frames carrying any doubles, NaN and infinities included."""
-    from payload_agent.drivers.base import _check_sample
+    from payload_agent.drivers.stream import check_sample as _check_sample
 
     src = StreamSource([pack_frame(v) for v in values])
     drv = elite_driver(server.port, sample_source="monitor")

@@ -26,7 +26,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from payload_agent.drivers.base import MotionLimits, _check_sample
+from payload_agent.drivers.base import MotionLimits
+from payload_agent.drivers.stream import check_sample as _check_sample
 from payload_agent.drivers.modbus.bus import Endpoint, ModbusBus
 from payload_agent.drivers.modbus.driver import ModbusDriver
 from payload_agent.drivers.modbus.options import parse_modbus_options

@@ -26,7 +26,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from payload_agent.drivers.base import MotionLimits, _check_sample
+from payload_agent.drivers.base import MotionLimits
+from payload_agent.drivers.stream import check_sample as _check_sample
 from payload_agent.drivers.ur_rtde.driver import URRTDEDriver
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
 from payload_agent.drivers.ur_rtde.states import controller_state, safety_stop

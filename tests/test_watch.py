@@ -180,7 +180,7 @@ def elite():
 
 def elite_driver(ctrl):
     from payload_agent.drivers.base import MotionLimits
-    from payload_agent.drivers.elite_ec import EliteECDriver
+    from payload_agent.drivers.elite_ec.driver import EliteECDriver
 
     opts = EliteECDriver.parse_options({"type": "elite_ec", "host": "127.0.0.1", "rpc_port": ctrl.rpc_port,
                                         "monitor_port": ctrl.monitor_port})

@@ -1,6 +1,6 @@
-"""CANopen CiA 402 servo drives (one per joint) through the canopen library on python-can."""
+"""CANopen CiA 402 servo drives (one per joint) through the canopen library on python-can.
 
-from payload_agent.drivers.canopen.driver import CANopenDriver
-from payload_agent.drivers.canopen.options import CANopenOptions
-
-__all__ = ["CANopenDriver", "CANopenOptions"]
+``CANopenDriver`` (``driver``) fills the driver contract's hooks; ``CANopenOptions`` (``options``) is its
+YAML ``driver`` section, importable without python-can's CANopen stack (the registry parses a robot YAML
+with it alone).
+"""

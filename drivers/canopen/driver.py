@@ -10,7 +10,7 @@ servers until close. A drive found in FAULT is reported by ``state()`` (motion r
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
 
-Motion (``_move_joints``, see ``motion``): the first move enables the drives through the CiA 402
+Motion (``_start_move`` / ``_move_status``, see ``motion``): the first move enables the drives through the CiA 402
 power state machine in profile position mode (0x6060 = 1); each move sends profile velocity
 and acceleration/deceleration (0x6081/0x6083/0x6084, RPDO3/RPDO4) scaled so all joints arrive
 together (``model.profile.synchronised_joint_rates``) and every target (0x607A) with the
@@ -37,18 +37,18 @@ from typing import Any
 import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from payload_agent.drivers.base import Driver, MotionLimits, Supervision
+from payload_agent.drivers.base import Driver, MotionLimits, MoveStatus, Supervision
 from payload_agent.drivers.canopen import device, motion
 from payload_agent.drivers.canopen import objects as obj
 from payload_agent.drivers.canopen.bus import SyncProducer, another_master, open_bus
 from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
                                                   QUICK_STOP_ACTIVE, SW_TARGET_REACHED, describe_code, state_of)
 from payload_agent.drivers.canopen.monitor import DriveMonitor
-from payload_agent.drivers.canopen.options import CANopenOptions, check_options
+from payload_agent.drivers.canopen.options import CANopenOptions
 from payload_agent.drivers.canopen.pdo import (RPDO2_COB, RPDO_COMMAND, TPDO1, Frame, TpdoCollector,
                                                configure_pdos)
 from payload_agent.drivers.canopen.watch import SdoWatch, configure_master_watch
-from payload_agent.errors import (CommunicationError, MotionStopped, RobotNotReadyError,
+from payload_agent.errors import (CommunicationError, MotionAbortedError, MotionStopped, RobotNotReadyError,
                                   SupervisionTrip)
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
@@ -66,6 +66,7 @@ class CANopenDriver(Driver):
     simulator = "payload_agent.fakes.canopen:SimulatedCANopenArm"
     reports_flange_pose = False
     sampling_clock = "agent"  # the driver produces SYNC: in a simulation, simulated time follows it
+    move_poll_s = 0.002
 
     def __init__(self, options: CANopenOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
@@ -78,6 +79,7 @@ class CANopenDriver(Driver):
         self.nodes: list[canopen.RemoteNode] = []
         self.sync: SyncProducer | None = None
         self.monitor = DriveMonitor(options)
+        self._move = motion.ProfileMove([], [])
         self.tpdo = TpdoCollector(self.n)
         self.effort_per_permille = [1.0] * self.n
         self.enabled = False
@@ -89,12 +91,6 @@ class CANopenDriver(Driver):
         self.commanded: list[int | None] = [None] * self.n  # each drive's last set-point (counts) since enabled
         self._sdo_locks = [threading.Lock() for _ in range(self.n)]
         self._info: ControllerInfo | None = None
-
-    @classmethod
-    def parse_options(cls, data: Any, key_path: str = "driver", source: str | None = None) -> CANopenOptions:
-        if isinstance(data, dict) and isinstance(data.get("channel"), int) and not isinstance(data["channel"], bool):
-            data = {**data, "channel": str(data["channel"])}  # kvaser & co. number their channels
-        return check_options(super().parse_options(data, key_path, source), key_path, source)
 
     def describe_endpoint(self) -> str:
         o = self.options
@@ -327,15 +323,24 @@ class CANopenDriver(Driver):
         """Check heartbeats and TPDO silence; trip the supervision (stop every drive) on any fault during a move."""
         self.monitor.check_silence([self.tpdo.queued(j) for j in range(self.n)], self.nominal_period_s)
         if self.monitor.fault is not None:  # a drive that stopped itself is a motion abort (exit 4), a silent bus 6
-            self._trip(self.monitor.fault, error=MotionStopped if self.monitor.drive_fault else SupervisionTrip)
+            self.trip(self.monitor.fault, error=MotionStopped if self.monitor.drive_fault else SupervisionTrip)
 
     # -- commands --------------------------------------------------------------------------------
     def _send_command(self, j: int, controlword: int) -> None:
         """A controlword in the asynchronous RPDO2: the drive acts on it at once."""
         self.network.send_message(RPDO2_COB + self.options.node_ids[j], RPDO_COMMAND.pack(controlword))
 
-    def _move_joints(self, target, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
-        motion.move(self, target, speed_rad_s, accel_rad_s2, timeout_s)
+    def _prepare_move(self, target, speed_rad_s: float, accel_rad_s2: float) -> None:
+        if self.monitor.fault is not None:
+            raise MotionAbortedError(f"refusing to move, a drive fault is pending: {self.monitor.fault}; "
+                                     "nothing was sent")
+
+    def _start_move(self, target, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
+        self._move = motion.start(self, target, speed_rad_s, accel_rad_s2)
+        return None
+
+    def _move_status(self) -> MoveStatus:
+        return motion.status(self, self._move)
 
     def _stop_command(self) -> bool:
         return motion.quick_stop(self)

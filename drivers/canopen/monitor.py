@@ -175,14 +175,19 @@ class DriveMonitor:
     def faulty(self) -> list[int]:
         return [j for j, s in enumerate(self.states()) if s in FAULTY]
 
+    def pending(self, predicate, seq0: list[int], joints: list[int]) -> list[int]:
+        """The joints in ``joints`` for which ``predicate(j, statusword)`` does not yet hold on a TPDO newer than
+        ``seq0``."""
+        return [j for j in joints if not (self.seq[j] > seq0[j] and self.statusword[j] is not None
+                                          and predicate(j, self.statusword[j]))]
+
     def wait_for(self, predicate, seq0: list[int], joints: list[int], timeout_s: float, poll=None) -> list[int]:
         """Wait until ``predicate(j, statusword)`` holds for every joint in ``joints`` on a TPDO newer than
         ``seq0``; the joints for which it did not within ``timeout_s``. ``poll()`` runs every tick (it may raise)."""
         deadline = time.monotonic() + timeout_s
         pending = list(joints)
         while True:
-            pending = [j for j in pending if not (self.seq[j] > seq0[j] and self.statusword[j] is not None
-                                                  and predicate(j, self.statusword[j]))]
+            pending = self.pending(predicate, seq0, pending)
             if not pending or time.monotonic() > deadline:
                 return pending
             if poll is not None:

@@ -8,6 +8,7 @@ answered one SDO liveness request sent for this move (``watch.SdoWatch.confirm_a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -20,6 +21,7 @@ from payload_agent.drivers.canopen.bus import quick_stop_on_new_bus
 from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SETPOINT, CW_QUICK_STOP, FAULTY,
                                                   MODE_PROFILE_POSITION, OPERATION_ENABLED, SW_SETPOINT_ACK,
                                                   SW_TARGET_REACHED, describe_code, enable_step, state_of, stopped)
+from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted
 from payload_agent.drivers.canopen.pdo import (RPDO1_COB, RPDO3_COB, RPDO4_COB, RPDO_DECELERATION, RPDO_PROFILE,
                                                RPDO_SETPOINT)
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
@@ -116,12 +118,22 @@ def _profile_frames(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_
     return frames
 
 
-def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
-    """One synchronised PTP move in profile position mode (see the driver's docstring)."""
-    deadline = time.monotonic() + timeout_s
+@dataclasses.dataclass
+class ProfileMove:
+    """One synchronised move under way: which joints move to which counts, and the handshake's phase
+    ("ack": waiting for every set-point acknowledge, "reach": for target reached, "done": nothing to move)."""
+
+    moving: list[int]
+    counts: list[int]
+    phase: str = "done"
+    seq: list[int] = dataclasses.field(default_factory=list)
+    ack_deadline: float = 0.0
+
+
+def start(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> ProfileMove:
+    """Enable the drives if needed and send one synchronised PTP move in profile position mode (see the
+    driver's docstring): the profiles and every set-point with the new-set-point bit at one SYNC."""
     m, o = drv.monitor, drv.options
-    if m.fault is not None:
-        raise MotionAbortedError(f"refusing to move, a drive fault is pending: {m.fault}; nothing was sent")
     ensure_enabled(drv)
     q0 = np.asarray(drv.latest_sample.q, float)
     n = drv.n
@@ -134,44 +146,50 @@ def move(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad
     # a joint moves if its target changed; before its first set-point, if it stands outside the target window
     moving = [j for j in range(n) if (counts[j] != drv.commanded[j] if drv.commanded[j] is not None
                                       else abs(counts[j] - m.position[j]) > window * o.counts_per_rad[j])]
+    mv = ProfileMove(moving, counts)
     if not moving:
-        return
-
-    def poll() -> None:
-        _poll(drv)
-
-    def setpoints(controlword: int) -> list[tuple[int, bytes]]:
-        return [(RPDO1_COB + o.node_ids[j], RPDO_SETPOINT.pack(controlword, counts[j])) for j in moving]
-
-    drv.sdo_watch.confirm_alive(poll)  # a drive late on SDO trips here, before any set-point
-    poll()  # nothing is sent once the supervision has stopped the arm
+        return mv
+    drv.sdo_watch.confirm_alive(lambda: _poll(drv))  # a drive late on SDO trips here, before any set-point
+    _poll(drv)  # nothing is sent once the supervision has stopped the arm
     profile = [frame for j in moving for frame in
                _profile_frames(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)]
-    seq0 = list(m.seq)
+    mv.seq, mv.phase = list(m.seq), "ack"
+    mv.ack_deadline = time.monotonic() + max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
     # profiles first, then the set-points: all act at the same SYNC
-    drv.sync.after_next_sync(profile + setpoints(CW_ENABLE_OPERATION | CW_NEW_SETPOINT))
-    ack_wait = max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
-    late = m.wait_for(lambda j, sw: bool(sw & SW_SETPOINT_ACK), seq0, moving, ack_wait, poll)
-    if late:
-        drv.stop()
-        raise MotionAbortedError(f"{', '.join(drv.labels[j] for j in late)} did not acknowledge the new set-point "
-                                 f"(statusword bit 12) within {ack_wait:g} s; every drive was quick-stopped")
-    seq1 = list(m.seq)
-    drv.sync.after_next_sync(setpoints(CW_ENABLE_OPERATION))  # new-set-point bit low: the handshake's second half
-    late = m.wait_for(lambda j, sw: not sw & SW_SETPOINT_ACK and bool(sw & SW_TARGET_REACHED), seq1, moving,
-                      max(0.0, deadline - time.monotonic()), poll)
-    poll()
-    if late:
-        drv.stop()
-        raise MotionAbortedError(f"{', '.join(drv.labels[j] for j in late)} did not report target reached "
-                                 f"(statusword bit 10) within {timeout_s:.1f} s; every drive was quick-stopped")
-    for j in moving:
-        drv.commanded[j] = counts[j]
-    off = [j for j in moving if abs(m.position[j] - counts[j]) > max(2.0, window * o.counts_per_rad[j])]
+    drv.sync.after_next_sync(profile + _setpoints(drv, mv, CW_ENABLE_OPERATION | CW_NEW_SETPOINT))
+    return mv
+
+
+def _setpoints(drv: "CANopenDriver", mv: ProfileMove, controlword: int) -> list[tuple[int, bytes]]:
+    return [(RPDO1_COB + drv.options.node_ids[j], RPDO_SETPOINT.pack(controlword, mv.counts[j])) for j in mv.moving]
+
+
+def status(drv: "CANopenDriver", mv: ProfileMove) -> MoveStatus:
+    """One look at the drives' statuswords: the handshake's next step, target reached, or why it failed."""
+    _poll(drv)
+    m = drv.monitor
+    if mv.phase == "ack":
+        late = m.pending(lambda j, sw: bool(sw & SW_SETPOINT_ACK), mv.seq, mv.moving)
+        if not late:
+            mv.seq, mv.phase = list(m.seq), "reach"  # new-set-point bit low: the handshake's second half
+            drv.sync.after_next_sync(_setpoints(drv, mv, CW_ENABLE_OPERATION))
+        elif time.monotonic() > mv.ack_deadline:
+            return aborted(f"{', '.join(drv.labels[j] for j in late)} did not acknowledge the new set-point "
+                           "(statusword bit 12) in time; every drive was quick-stopped")
+        return RUNNING
+    if mv.phase == "reach" and m.pending(lambda j, sw: not sw & SW_SETPOINT_ACK and bool(sw & SW_TARGET_REACHED),
+                                         mv.seq, mv.moving):
+        return RUNNING
+    o = drv.options
+    for j in mv.moving:
+        drv.commanded[j] = mv.counts[j]
+    window = o.position_window_deg * DEG
+    off = [j for j in mv.moving if abs(m.position[j] - mv.counts[j]) > max(2.0, window * o.counts_per_rad[j])]
     if off:
         j = off[0]
-        raise MotionAbortedError(f"{drv.labels[j]} reported target reached {m.position[j] - counts[j]} counts away "
-                                 "from its target")
+        return aborted(f"{drv.labels[j]} reported target reached {m.position[j] - mv.counts[j]} counts away "
+                       "from its target")
+    return DONE
 
 
 def _forget_enabled(drv: "CANopenDriver") -> None:

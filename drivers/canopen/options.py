@@ -1,6 +1,6 @@
 """The ``driver`` section of a robot YAML for CANopen CiA 402 drives, as a typed dataclass.
 
-Parsed by ``configuration.options.parse_options`` (through ``CANopenDriver.parse_options``), then
+Parsed by ``configuration.options.parse_options`` (through ``CANopenOptions.parse``), then
 checked by ``check_options`` for what one field alone cannot say (unique node ids, directions of
 ±1, a known python-can interface), so ``plan`` refuses a bad section before any bus opens and the
 error names its key (``driver.node_ids[3]: node id 3 is already joint 3's``).
@@ -31,6 +31,7 @@ error names its key (``driver.node_ids[3]: node id 3 is already joint 3's``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from payload_agent.drivers.base import DriverOptions, option
 from payload_agent.errors import ConfigError
@@ -75,6 +76,12 @@ class CANopenOptions(DriverOptions):
     clear_faults: bool = option(False, help="reset a drive found in FAULT at connect (reported, never silent)")
     quick_stop_decel_rad_s2: float = option(10.0, gt=0, max=1000.0, help="quick stop deceleration (0x6085)")
     position_window_deg: float = option(0.02, gt=0, max=5.0, help="target reached window (0x6067)")
+
+    @classmethod
+    def parse(cls, data: Any, key_path: str = "driver", source: str | None = None) -> "CANopenOptions":
+        if isinstance(data, dict) and isinstance(data.get("channel"), int) and not isinstance(data["channel"], bool):
+            data = {**data, "channel": str(data["channel"])}  # kvaser & co. number their channels
+        return check_options(super().parse(data, key_path, source), key_path, source)
 
     @property
     def effort_unit(self) -> str:

@@ -3,9 +3,3 @@
 ``EliteECDriver`` (``driver``) fills the driver contract's hooks; ``EliteECOptions``
 (``options``) is its YAML ``driver`` section.
 """
-
-from payload_agent.drivers.elite_ec.driver import EliteECDriver
-from payload_agent.drivers.elite_ec.options import EliteECOptions
-from payload_agent.drivers.elite_ec.rpc import EliteRPCError
-
-__all__ = ["EliteECDriver", "EliteECOptions", "EliteRPCError"]

@@ -34,6 +34,7 @@ too short to hold the field, or for all-zero / non-finite values.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import threading
 import time
@@ -41,7 +42,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from payload_agent.drivers.base import Driver, MotionLimits, Supervision
+from payload_agent.drivers.base import DONE, RUNNING, Driver, MotionLimits, MoveStatus, Supervision, aborted, refused
 from payload_agent.drivers.elite_ec.monitor import PERIOD_S, MonitorFrame, MonitorStream
 from payload_agent.drivers.elite_ec.options import EliteECOptions
 from payload_agent.drivers.elite_ec.states import (MODE_NAMES, MODE_REMOTE, STATE_COLLISION, STATE_ERROR,
@@ -57,7 +58,15 @@ STOP_TIMEOUT_S = 0.3  # the supervision's stop: how long to wait for the reply
 STOP_LINE_WAIT_S = 0.02  # ... and for the command connection to be free
 FIRST_FRAME_WAIT_S = 0.5  # joint_temperatures_c() / flange_pose() right after connect(): wait for a frame
 START_GRACE_S = 1.0  # how long a real controller may take to report "running" after moveByJoint
-POLL_INTERVAL_S = 0.005  # robot-state polling while a move runs
+
+
+@dataclasses.dataclass
+class _EliteMove:
+    """The move under way: its target, when it was sent, whether the controller has reported it running."""
+
+    target: np.ndarray
+    t_start: float
+    seen_running: bool = False
 
 
 class EliteECDriver(Driver):
@@ -65,6 +74,7 @@ class EliteECDriver(Driver):
     options_class = EliteECOptions
     simulator = "payload_agent.fakes.elite_ec:FakeEliteController"
     reports_flange_pose = True
+    move_poll_s = 0.005  # robot-state polling while a move runs
 
     def __init__(self, options: EliteECOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
@@ -79,6 +89,7 @@ class EliteECDriver(Driver):
         self._latest_frame: MonitorFrame | None = None
         self._first_frame = threading.Event()
         self.frames_received = 0
+        self._move = _EliteMove(np.zeros(limits.n_joints), 0.0)
 
     def describe_endpoint(self) -> str:
         return f"{self.options.host}:{self.options.rpc_port}"
@@ -205,10 +216,7 @@ class EliteECDriver(Driver):
                 "Turn the teach pendant's mode key to REMOTE and try again.")
 
     # -- motion -------------------------------------------------------------------------------
-    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
-        st = self.state()
-        if not st.motion_allowed:
-            raise RobotNotReadyError(st.reason)
+    def _start_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
         o = self.options
         vmax = (np.radians(np.asarray(o.joint_max_speed_deg_s, float)) if o.joint_max_speed_deg_s is not None
                 else np.full(self.limits.n_joints, self.limits.max_joint_speed_rad_s))
@@ -219,58 +227,41 @@ class EliteECDriver(Driver):
         acc_pct = int(min(100, max(1, round(acc_pct))))
         target_deg = [float(v) for v in np.degrees(target)] + [0.0, 0.0]
         params = {"targetPos": target_deg, "speed": round(speed_pct, 3), "acc": acc_pct, "dec": acc_pct}
-        t_start = time.monotonic()
+        self._move = _EliteMove(target, time.monotonic())
         try:
             ok = self.call("moveByJoint", params)
         except EliteRPCError as e:
-            raise MotionAbortedError(f"the controller refused the joint move: {e.rpc_message} "
-                                     f"(JSON-RPC error {e.code})") from e
-        if ok is not True:
-            self.stop()
+            return refused(f"the controller refused the joint move: {e.rpc_message} (JSON-RPC error {e.code})")
+        if ok is not True:  # an answer no controller should give: it may have taken the move (the base stops it)
             raise MotionAbortedError(f"the controller refused the joint move (moveByJoint returned {ok!r}); "
                                      f"robot state: {self._describe_state()}")
-        try:
-            self._wait_motion_end(target, t_start, timeout_s)
-        except CommunicationError:
-            raise  # the base trips the supervision: it stops the arm over whatever channel still works
-        except BaseException:  # Ctrl-C, abort, timeout: the robot must not keep going
-            self.stop()
-            raise
+        return None
+
+    def _move_status(self) -> MoveStatus:
+        mv = self._move
+        rstate = self._int("getRobotState")
+        self.command_ok()  # the controller answers: the watchdog times the next reply from here
+        if rstate == STATE_RUNNING:
+            mv.seen_running = True
+            return RUNNING
+        if rstate != STATE_STOP:
+            return aborted(self._abort_text(rstate))
+        err = float(np.max(np.abs(self._joint_pos_rad() - mv.target)))
+        if err <= self.target_tolerance_rad:
+            return DONE
+        if not mv.seen_running and time.monotonic() - mv.t_start <= START_GRACE_S:
+            return RUNNING  # a real controller takes a moment to report "running" after moveByJoint
+        mode = self._int("getRobotMode")
+        if mode != MODE_REMOTE:  # the pendant took control back: the controller stopped the arm
+            return aborted(f"the joint move was cut short: {refusal(mode, True, False, 0)}")
+        return aborted(f"the joint move ended {math.degrees(err):.3f} deg away from the target (tolerance "
+                       f"{math.degrees(self.target_tolerance_rad):g} deg): it was stopped or cut short")
 
     def _describe_state(self) -> str:
         try:
             return STATE_NAMES.get(self._int("getRobotState"), "unknown")
         except Exception:
             return "unknown"
-
-    def _wait_motion_end(self, target: np.ndarray, t_start: float, timeout_s: float) -> None:
-        deadline = t_start + timeout_s
-        seen_running = False
-        tol = math.radians(self.options.target_tolerance_deg)
-        while True:
-            self.check_supervision()
-            now = time.monotonic()
-            if now > deadline:
-                raise MotionAbortedError(f"the joint move did not finish within {timeout_s:g} s; the robot was stopped")
-            rstate = self._int("getRobotState")
-            self.command_ok()  # the controller answers: the watchdog times the next reply from here
-            self.check_supervision()
-            if rstate == STATE_RUNNING:
-                seen_running = True
-            elif rstate == STATE_STOP:
-                err = float(np.max(np.abs(self._joint_pos_rad() - target)))
-                if err <= tol:
-                    return
-                if seen_running or now - t_start > min(START_GRACE_S, timeout_s):
-                    mode = self._int("getRobotMode")
-                    if mode != MODE_REMOTE:  # the pendant took control back: the controller stopped the arm
-                        raise MotionAbortedError(f"the joint move was cut short: {refusal(mode, True, False, 0)}")
-                    raise MotionAbortedError(
-                        f"the joint move ended {math.degrees(err):.3f} deg away from the target "
-                        f"(tolerance {self.options.target_tolerance_deg:g} deg): it was stopped or cut short")
-            else:
-                raise MotionAbortedError(self._abort_text(rstate))
-            time.sleep(POLL_INTERVAL_S)
 
     def _abort_text(self, rstate: int) -> str:
         if rstate == STATE_ERROR:  # the controller shows "e-stop" (2) only briefly before "error" (4)

@@ -43,4 +43,3 @@ class EliteECOptions(DriverOptions):
     tool_num: int = option(0, min=0, max=7, help="tool whose payload read_payload/write_payload use")
     joint_max_speed_deg_s: tuple[float, ...] | None = option(None, gt=0, length=6,
                                                              help="each joint's 100 % speed, deg/s")
-    target_tolerance_deg: float = option(0.1, min=0.0001, max=10.0, help="final position check after a move")

@@ -11,9 +11,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
 from typing import Sequence
 
+from payload_agent.drivers.modbus.options import Endpoint
 from payload_agent.drivers.modbus.registers import Block, Entry, group_writes
 from payload_agent.errors import CommunicationError, ConfigError
 
@@ -57,28 +57,6 @@ class StaleReply(ModbusTimeout):
 
 class ConnectionLost(CommunicationError):
     """The connection is closed or could not be opened."""
-
-
-@dataclass(frozen=True)
-class Endpoint:
-    """Where and how to connect (from the driver options)."""
-
-    transport: str  # "tcp" | "rtu"
-    host: str | None
-    port: int
-    serial_port: str | None
-    baudrate: int
-    parity: str
-    stopbits: int
-    bytesize: int
-    device_id: int
-    timeout_s: float
-    retries: int
-
-    def describe(self) -> str:
-        if self.transport == "tcp":
-            return f"{self.host}:{self.port} (Modbus TCP, unit {self.device_id})"
-        return f"{self.serial_port} (Modbus RTU {self.baudrate} baud, unit {self.device_id})"
 
 
 class ModbusBus:

@@ -10,8 +10,9 @@ supervision; this module fills the hooks:
   not a new sample (the device has not refreshed it yet, or it stalled); the watchdog then sees
   the gap. Decoded angles beyond ``max_abs_angle_deg`` and non-finite values are garbage: the
   stream fails and names the register.
-* ``_move_joints``: the handshake of ``handshake.py`` (fields first, sequence number last; wait
-  for busy, then done or error; heartbeat and safety state watched while waiting).
+* ``_start_move``: the handshake of ``handshake.py`` (fields first, sequence number last);
+  ``_move_status`` (``command.CommandWatch``): busy, then done or error; heartbeat and safety state
+  watched while waiting.
 * ``_stop_command`` writes ``stop_request`` over the command connection and waits for
   ``stop_ack``; ``_stop_fresh`` does the same over a new connection (for RTU, the serial port
   reopened).
@@ -30,10 +31,11 @@ import time
 import numpy as np
 
 from payload_agent.drivers.base import (ControllerInfo, ControllerState, Driver, FlangePose, MotionLimits,
-                                        PayloadSetting, Sample)
+                                        MoveStatus, PayloadSetting, Sample, refused)
 from payload_agent.drivers.modbus import handshake as hs
 from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
-from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, parse_modbus_options, resolve_map
+from payload_agent.drivers.modbus.command import CommandWatch
+from payload_agent.drivers.modbus.options import ModbusOptions, endpoint, resolve_map
 from payload_agent.drivers.modbus.pose import flange_from_tcp
 from payload_agent.drivers.modbus.registers import EncodingError, Entry, group_reads, int_range
 from payload_agent.drivers.modbus.regmap import si_factor
@@ -47,10 +49,7 @@ class ModbusDriver(Driver):
     name = "modbus"
     options_class = ModbusOptions
     simulator = "payload_agent.fakes.modbus.controller:SimulatedModbusRobot"
-
-    @classmethod
-    def parse_options(cls, data, key_path: str = "driver", source: str | None = None) -> ModbusOptions:
-        return parse_modbus_options(data, key_path, source)
+    default_target_tolerance_deg = 0.3  # the programs' own "arrived" check is 0.005 rad (docs/modbus.md)
 
     def __init__(self, options: ModbusOptions, limits: MotionLimits, supervision=None):
         super().__init__(options, limits, supervision)
@@ -62,7 +61,7 @@ class ModbusDriver(Driver):
         self.poll_period_s = 1.0 / options.sample_rate_hz
         self.nominal_period_s = max(self.poll_period_s, 1.0 / update if update else 0.0)
         rtu = options.transport == "rtu"
-        self.command_poll_s = options.command_poll_s or (0.05 if rtu else 0.01)
+        self.command_poll_s = self.move_poll_s = options.command_poll_s or (0.05 if rtu else 0.01)
         self.reports_flange_pose = self.map.has_all("tcp_position", "tcp_rotation")
         self.endpoint = endpoint(options)
         gaps = self.map.bridge_gaps
@@ -81,9 +80,9 @@ class ModbusDriver(Driver):
         self._t_wrap = 0.0
         self._round_trips: collections.deque[float] = collections.deque(maxlen=64)
         self._last_reply_t = 0.0
-        self._in_move = False
+        self._fields: list[tuple[Entry, list[float]]] = []
+        self._watch: CommandWatch | None = None
         self._t_last: float | None = None
-        self._tol_rad = math.radians(options.target_tolerance_deg)
         self._max_angle = math.radians(options.max_abs_angle_deg)
 
     def describe_endpoint(self) -> str:
@@ -132,7 +131,7 @@ class ModbusDriver(Driver):
             words = [self._stream.read(b) for b in self._sample_blocks]
         except ModbusTimeout as exc:  # a late reply is a gap; during a move, a long silence is named
             silent = time.monotonic() - self._last_reply_t
-            if self._in_move and silent > 0.8 * self.gap_limit_s:
+            if self.supervising and silent > 0.8 * self.gap_limit_s:
                 raise CommunicationError(f"the controller stopped answering: {exc} (no reply for "
                                          f"{1000 * silent:.0f} ms)") from None
             return None
@@ -200,91 +199,37 @@ class ModbusDriver(Driver):
         return self._decode(blocks, [self._cmd.read(b) for b in blocks])
 
     # -- motion -------------------------------------------------------------------------------
-    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+    def _prepare_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> None:
+        """Every field must fit its register (the safety state is watched during the move: state() would wait
+        a heartbeat period)."""
         m = self.map
-        fields: list[tuple[Entry, list[float]]] = [
-            (m["cmd_target"], list(target / si_factor(m["cmd_target"]))),
-            (m["cmd_speed"], [speed_rad_s / si_factor(m["cmd_speed"])]),
-            (m["cmd_accel"], [accel_rad_s2 / si_factor(m["cmd_accel"])])]
+        self._fields = [(m["cmd_target"], list(target / si_factor(m["cmd_target"]))),
+                        (m["cmd_speed"], [speed_rad_s / si_factor(m["cmd_speed"])]),
+                        (m["cmd_accel"], [accel_rad_s2 / si_factor(m["cmd_accel"])])]
         if "cmd_kind" in m:
-            fields.append((m["cmd_kind"], [hs.KIND_MOVE]))
-        self._in_move = True
+            self._fields.append((m["cmd_kind"], [hs.KIND_MOVE]))
         try:
-            self._move(target, fields, timeout_s)
-        finally:
-            self._in_move = False
-
-    def _move(self, target: np.ndarray, fields: list, timeout_s: float) -> None:
-        answer = self.handshake.read_answer(self._cmd)
-        if answer.status == hs.STATUS_BUSY:
-            raise MotionAbortedError(f"the robot program is still busy with command {answer.ack_seq}; nothing was sent")
-        try:
-            seq = self.handshake.send(self._cmd, fields)
+            for entry, values in self._fields:
+                entry.encode(values)
         except EncodingError as exc:
             raise MotionAbortedError(f"cannot send the move through the register map: {exc}; nothing was sent") \
                 from None
-        t_done = self._wait_command(seq, "move", timeout_s)
-        sample = self.wait_sample(max(1.0, 20 * self.nominal_period_s), after=t_done)
-        err = np.abs(np.asarray(sample.q) - target)
-        if float(err.max()) > self._tol_rad:
-            j = int(err.argmax())
-            raise MotionAbortedError(f"the robot program reported move {seq} done, but joint {j + 1} is "
-                                     f"{math.degrees(err[j]):.2f}° from the target (tolerance "
-                                     f"{self.options.target_tolerance_deg:g}°)")
 
-    def _wait_command(self, seq: int, what: str, timeout_s: float) -> float:
-        """Wait until the program reports command ``seq`` done; returns the time it did."""
-        t0 = time.monotonic()
-        taken = False
-        beat, beat_t = None, t0
-        last_answer = t0
-        while True:
-            self.check_supervision()
-            try:
-                ans = self.handshake.read_answer(self._cmd)
-            except ModbusTimeout:  # one lost reply is not a lost connection: the watchdog judges how long
-                if time.monotonic() - last_answer > self.options.heartbeat_timeout_s:
-                    raise
-                time.sleep(self.command_poll_s)
-                continue
-            if self.endpoint.transport == "tcp":  # RTU: the stream shares the line, its watchdog covers it
-                self.command_ok()
-            now = last_answer = ans.t
-            if ans.heartbeat is not None and ans.heartbeat != beat:
-                beat, beat_t = ans.heartbeat, now
-            if ans.ack_seq == seq:
-                if ans.status == hs.STATUS_DONE:
-                    return now
-                if ans.status == hs.STATUS_ERROR:
-                    if ans.error_code == hs.ERR_STOPPED and self._armed:
-                        # the watchdog may be stopping the arm right now: report its trip, not our abort
-                        self._tripped.wait(self.options.stop_ack_wait_s + 0.5)
-                        self.check_supervision()
-                    raise MotionAbortedError(f"the robot program ended {what} {seq} with "
-                                             f"{hs.error_text(ans.error_code)}")
-                taken = taken or ans.status == hs.STATUS_BUSY
-            try:
-                fault = self._safety_fault()
-            except ModbusTimeout:
-                fault = None
-            if fault:
-                self.stop()
-                raise MotionAbortedError(f"{what} {seq} aborted: {fault}")
-            if "heartbeat" in self.map and now - beat_t > self.options.heartbeat_timeout_s:
-                self.stop()
-                raise MotionAbortedError(f"the robot program stopped during {what} {seq}: its heartbeat "
-                                         f"(register {self.map['heartbeat'].address}) has not changed for "
-                                         f"{now - beat_t:.1f} s; check the pendant")
-            if not taken and now - t0 > self.options.ack_timeout_s:
-                self.stop()
-                raise MotionAbortedError(f"the robot program did not take {what} {seq} within "
-                                         f"{self.options.ack_timeout_s:g} s ({ans.describe()}): is "
-                                         f"payload-agent's handshake program running on the controller?")
-            if now - t0 > timeout_s:
-                self.stop()
-                raise MotionAbortedError(f"{what} {seq} did not finish within {timeout_s:.1f} s; the robot was "
-                                         f"told to stop")
-            time.sleep(self.command_poll_s)
+    def _start_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
+        answer = self.handshake.read_answer(self._cmd)  # supervised: a silent program trips the watchdog
+        if answer.status == hs.STATUS_BUSY:
+            return refused(f"the robot program is still busy with command {answer.ack_seq}; nothing was sent")
+        self._watch = self._command_watch(self.handshake.send(self._cmd, self._fields), "move")
+        return None
+
+    def _move_status(self) -> MoveStatus:
+        return self._watch.poll()
+
+    def _command_watch(self, seq: int, what: str) -> CommandWatch:
+        # RTU: the stream shares the line, the stream's watchdog covers its silence
+        on_reply = self.command_ok if self.endpoint.transport == "tcp" else (lambda: None)
+        return CommandWatch(seq, what, self.handshake, self._cmd, self.options, self.map, self._safety_fault,
+                            on_reply, self.wait_for_trip)
 
     def _stop_command(self) -> bool:
         # not behind a read that waits for its reply: then the base goes straight to a new connection
@@ -420,7 +365,7 @@ class ModbusDriver(Driver):
         except EncodingError as exc:
             raise RobotNotReadyError(f"cannot write the payload through the register map: {exc}") from None
         try:
-            self._wait_command(seq, "payload command", 5.0)
+            self._command_watch(seq, "payload command").wait(5.0, self.command_poll_s)
         except MotionAbortedError as exc:
             raise RobotNotReadyError(str(exc)) from None
 

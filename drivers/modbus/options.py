@@ -25,9 +25,30 @@ from typing import Any
 
 from payload_agent.configuration.options import option, parse_options
 from payload_agent.drivers.base import DriverOptions
-from payload_agent.drivers.modbus.bus import Endpoint
 from payload_agent.drivers.modbus.regmap import RegisterMap, build_map, load_preset
 from payload_agent.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where and how to connect (from the driver options)."""
+
+    transport: str  # "tcp" | "rtu"
+    host: str | None
+    port: int
+    serial_port: str | None
+    baudrate: int
+    parity: str
+    stopbits: int
+    bytesize: int
+    device_id: int
+    timeout_s: float
+    retries: int
+
+    def describe(self) -> str:
+        if self.transport == "tcp":
+            return f"{self.host}:{self.port} (Modbus TCP, unit {self.device_id})"
+        return f"{self.serial_port} (Modbus RTU {self.baudrate} baud, unit {self.device_id})"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -52,11 +73,14 @@ class ModbusOptions(DriverOptions):
     ack_timeout_s: float = option(1.0, gt=0, max=30, help="how long the program may take to take a command")
     heartbeat_timeout_s: float = option(0.5, gt=0, max=30)
     stop_ack_wait_s: float = option(0.5, gt=0, max=10)
-    target_tolerance_deg: float = option(0.3, gt=0, max=10)
     max_abs_angle_deg: float = option(720.0, gt=0, max=7200, help="a decoded angle beyond this is garbage")
     repeat_is_stale: bool = option(True, help="a sample identical to the previous one is not new")
     max_round_trip_s: float | None = option(None, gt=0, max=10, help="slower replies are not samples "
                                             "(default: 3 × the median round trip + 2 ms, at least 5 ms)")
+
+    @classmethod
+    def parse(cls, data: Any, key_path: str = "driver", source: str | None = None) -> "ModbusOptions":
+        return parse_modbus_options(data, key_path, source)
 
 
 def parse_modbus_options(data: Any, key_path: str = "driver", source: str | None = None) -> ModbusOptions:

@@ -37,23 +37,35 @@ Design notes:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import socket
-import threading
 import time
-from typing import Any, Callable, NoReturn, Sequence
+from typing import Any, Callable
 
 import numpy as np
-import rtde_receive
 
-from payload_agent.drivers.base import Driver, MotionLimits, Supervision
+from payload_agent.errors import ConfigError
+
+try:  # only this driver needs the wheel
+    import rtde_control  # noqa: F401
+    import rtde_receive
+except ImportError as _exc:
+    raise ConfigError(
+        "driver.type",
+        "the ur_rtde driver needs the ur-rtde package, which ships wheels for CPython 3.11 and 3.12 only; "
+        "install it with `pip install 'payload-agent[ur]'` on one of those Python versions "
+        f"(import failed: {_exc})",
+    ) from _exc
+
+from payload_agent.drivers.base import DONE, RUNNING, Driver, MotionLimits, MoveStatus, Supervision, aborted, refused
 from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S, ControlChannel
 from payload_agent.drivers.ur_rtde.dashboard import dashboard_identify, dashboard_query, dashboard_stop
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
 from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, controller_state, corrupt_status, runtime_name,
                                                   safety_stop)
-from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, SafetyError
+from payload_agent.errors import CommunicationError, RobotNotReadyError, SafetyError
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 RTDE_PORT = 30004
@@ -71,12 +83,22 @@ MAX_CURRENT_A = 100.0
 MAX_ACCEL_RAD_S2 = 40.0  # ur-rtde's limit for moveJ
 
 
+@dataclasses.dataclass
+class _URMove:
+    """The move under way: the script's operation id before it, and whether a new one has shown."""
+
+    op0: int
+    seen_new_op: bool = False
+    settle_until: float = 0.0
+
+
 class URRTDEDriver(URCapabilities, Driver):
     name = "ur_rtde"
     options_class = URRTDEOptions
     simulator = "payload_agent.fakes.ur:FakeURController"
     reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
     options: URRTDEOptions
+    move_poll_s = 0.002
 
     def __init__(self, options: URRTDEOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
@@ -84,14 +106,14 @@ class URRTDEDriver(URCapabilities, Driver):
         self.host = options.host.strip()
         self.frequency_hz: float = options.frequency_hz or 500.0  # CB3 (125 Hz) is known only at connect
         self.nominal_period_s = 1.0 / self.frequency_hz
-        self.target_tolerance_rad = math.radians(options.target_tolerance_deg)
         self._recv: Any = None
         self._control = ControlChannel(self.host, self.frequency_hz, options.upper_range_registers)
         self._info: ControllerInfo | None = None
         self._version: tuple[int, ...] = ()
         self._remote: bool | None = None
         self._has_payload_fields = False
-        self._abort = threading.Event()
+        self._script_dead = False  # the move just ended with ur-rtde's script gone: stop from the dashboard
+        self._move = _URMove(0)
         self._last_ts: float | None = None
         self._last_conn_check = 0.0
         self._heartbeat_t = 0.0
@@ -133,7 +155,6 @@ class URRTDEDriver(URCapabilities, Driver):
         self._info, self._version, self._remote = ident.info, ident.version, ident.remote
 
     def _close(self) -> None:
-        self._abort.set()
         self._control.close(STOP_REPLY_S * 4)
         recv, self._recv = self._recv, None
         if recv is not None:
@@ -156,7 +177,7 @@ class URRTDEDriver(URCapabilities, Driver):
                 self._wait_receive_playing()
 
     def _wait_receive_playing(self) -> None:
-        """The receive interface's packages may predate the script start: _move_joints reads the
+        """The receive interface's packages may predate the script start: _move_status reads the
         runtime state from them and would take STOPPED for a dead script."""
         r = self._receive()
         self._wait(lambda: r.getRuntimeState() == RUNTIME_PLAYING, 2.0,
@@ -239,13 +260,7 @@ class URRTDEDriver(URCapabilities, Driver):
                                      "the data is corrupt")
 
     # -- motion ----------------------------------------------------------------------------------
-    def move_joints(self, target_rad: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
-                    timeout_s: float) -> None:
-        if self._connected and self._stream_error is None:
-            self._ensure_control()  # may start the control interface and upload its script: before arming
-        super().move_joints(target_rad, speed_rad_s, accel_rad_s2, timeout_s)
-
-    def _move_joints(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float, timeout_s: float) -> None:
+    def _prepare_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> None:
         if speed_rad_s > self.limits.max_joint_speed_rad_s + 1e-12:
             raise SafetyError(f"joint speed {speed_rad_s} rad/s above the robot's {self.limits.max_joint_speed_rad_s} "
                               "rad/s (robot.max_joint_speed_deg_s)")
@@ -254,58 +269,28 @@ class URRTDEDriver(URCapabilities, Driver):
         state = self._state(refresh_remote=False)
         if not state.motion_allowed:
             raise RobotNotReadyError(f"UR controller {self.host}: {state.reason} ({state.detail})")
-        self._abort.clear()
-        r = self._receive()
-        self._ensure_control()
+        self._ensure_control()  # may start the control interface and upload its script: before arming
+
+    def _start_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
+        self._script_dead = False
         ctl = self._control
         with ctl.lock:
-            t_start = time.monotonic()
             op0 = ctl.request("progress", timeout_s=COMMAND_TIMEOUT_S)[0]
             self.command_ok()  # from here on the reply watchdog wants the script's answers (moveJ, heartbeats)
             ok = ctl.request("moveJ", target.tolist(), speed_rad_s, accel_rad_s2, True, timeout_s=COMMAND_TIMEOUT_S)
             self.command_ok()
             self._heartbeat_t = time.monotonic()
+        self._move = _URMove(op0)
         if not ok:
-            raise MotionAbortedError(f"UR controller {self.host}: the controller refused the move "
-                                     f"({self._why_not_running()})")
-        seen_new_op = False
-        while True:
-            op_id, running = self._poll_move(r)
-            seen_new_op = seen_new_op or op_id != op0
-            if seen_new_op and not running:
-                break
-            if time.monotonic() - t_start > timeout_s:
-                self._abort_move(lambda: f"move did not finish within {timeout_s:.1f} s; the arm was stopped")
-            time.sleep(0.002)
-        # The receive interface's packages may trail the control interface's by a cycle or
-        # two: wait until they show the arm at rest, then check the position.
-        deadline = time.monotonic() + 10.0 / self.frequency_hz + 0.05 + self.gap_limit_s
-        while True:
-            self._poll_move(r)
-            err = float(np.max(np.abs(np.asarray(r.getActualQ()) - target)))
-            at_rest = float(np.max(np.abs(np.asarray(r.getActualQd())))) < 1e-4
-            if err <= self.target_tolerance_rad and at_rest:
-                return
-            if time.monotonic() > deadline:
-                if err <= self.target_tolerance_rad:
-                    raise MotionAbortedError("the controller reported the move finished but the arm is still moving")
-                raise MotionAbortedError(f"move ended {math.degrees(err):.3f} deg from its target "
-                                         f"(tolerance {self.options.target_tolerance_deg:.3f} deg)")
-            time.sleep(0.002)
+            return refused(lambda: f"UR controller {self.host}: the controller refused the move "
+                                   f"({self._why_not_running()})")
+        return None
 
-    def _poll_move(self, r) -> tuple[int, bool]:
-        """One look at the controller during a move: (async operation id, running); aborts on any stop."""
-        self.check_supervision()
-        if self._abort.is_set():
-            self._abort_move(lambda: "move stopped on request")
-        bits, safety_mode, runtime = r.getSafetyStatusBits(), r.getSafetyMode(), r.getRuntimeState()
-        corrupt = corrupt_status(r.getRobotMode(), safety_mode, bits, runtime)
-        if corrupt:  # garbage that parsed: not a safety stop, a broken stream
-            raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "
-                                     "sends: the data is corrupt")
-        fault = safety_stop(bits, safety_mode)
-        if fault:  # the safety system ended the script too: the dashboard's stop is the one that can still go
-            self._abort_move(lambda: f"UR controller {self.host} stopped the move: {fault}", script_dead=True)
+    def _move_status(self) -> MoveStatus:
+        r, mv = self._receive(), self._move
+        problem = self._safety_problem(r)
+        if problem is not None:
+            return problem
         op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
         if not r.isConnected() or not self._control.connected:
             raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
@@ -313,27 +298,34 @@ class URRTDEDriver(URCapabilities, Driver):
             self._control.request("isSteady", timeout_s=POLL_TIMEOUT_S, what="isSteady (heartbeat)")
             self._heartbeat_t = time.monotonic()
             self.command_ok()
-        if runtime != RUNTIME_PLAYING:
-            self._abort_move(lambda: f"UR controller {self.host}: the control script stopped during the move "
-                                     f"({self._why_not_running()})", script_dead=True)
-        return op_id, running
+        if r.getRuntimeState() != RUNTIME_PLAYING:
+            self._script_dead = True
+            return aborted(lambda: f"UR controller {self.host}: the control script stopped during the move "
+                                   f"({self._why_not_running()})")
+        mv.seen_new_op = mv.seen_new_op or op_id != mv.op0
+        if not mv.seen_new_op or running:
+            return RUNNING
+        # the receive interface's packages may trail the control interface's by a cycle or two: done once they
+        # show the arm at rest (the base then checks that it stands at the target)
+        now = time.monotonic()
+        mv.settle_until = mv.settle_until or now + 10.0 / self.frequency_hz + 0.05 + self.gap_limit_s
+        if float(np.max(np.abs(np.asarray(r.getActualQd())))) < 1e-4:
+            return DONE
+        return aborted("the controller reported the move finished but the arm is still moving") \
+            if now > mv.settle_until else RUNNING
 
-    def _abort_move(self, message: Callable[[], str], script_dead: bool = False) -> NoReturn:
-        """Stop the arm and end the move with MotionAbortedError(message()).
-
-        The controller has just answered; the stop and the explanation (a dashboard round trip)
-        may take a while, which the reply watchdog must not take for a silent controller.
-        ``script_dead``: ur-rtde's script no longer runs, so stopJ cannot go; stop from the dashboard.
-        """
-        self.command_ok()
-        if script_dead:
-            self._stop_fresh()
-        else:
-            self._stop_now()
-        self.command_ok()
-        text = message()
-        self.command_ok()
-        raise MotionAbortedError(text)
+    def _safety_problem(self, r) -> MoveStatus | None:
+        """A safety stop (the script ended too: only the dashboard's stop can still go) or a corrupt status."""
+        bits, safety_mode, runtime = r.getSafetyStatusBits(), r.getSafetyMode(), r.getRuntimeState()
+        corrupt = corrupt_status(r.getRobotMode(), safety_mode, bits, runtime)
+        if corrupt:  # garbage that parsed: not a safety stop, a broken stream
+            raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "
+                                     "sends: the data is corrupt")
+        fault = safety_stop(bits, safety_mode)
+        if not fault:
+            return None
+        self._script_dead = True
+        return aborted(f"UR controller {self.host} stopped the move: {fault}")
 
     def _why_not_running(self) -> str:
         try:
@@ -342,32 +334,22 @@ class URRTDEDriver(URCapabilities, Driver):
             return str(exc)
         return st.reason or f"runtime state {runtime_name(self._recv.getRuntimeState())}; {st.detail}"
 
-    def _stop_now(self) -> None:
-        try:
-            if not (self._command_alive() and self._stop_command()):
-                self._stop_fresh()
-        except Exception:
-            pass
-
     def _stop_command(self) -> bool:
         """stopJ (asynchronous: done once the script took it) over the control interface, if it runs.
 
         Not when the receive interface has lost its connection: then the link to the controller is
         likely gone, ur-rtde's control interface would try to reconnect before sending, and the
-        dashboard's stop (``_stop_fresh``) is the quicker and surer way.
+        dashboard's stop (``_stop_fresh``) is the quicker and surer way. Nor when the move just ended in a
+        safety stop or the script stopped: stopJ cannot go then.
         """
         r = self._recv
-        if r is None or not r.isConnected():
+        if r is None or not r.isConnected() or self._script_dead:
             return False
         return self._control.stop(self.options.stop_decel_rad_s2, STOP_REPLY_S)
 
     def _stop_fresh(self) -> bool:
         """The dashboard's ``stop`` on a new connection: independent of RTDE and of the script's state."""
         return dashboard_stop(self.host, min(self.options.connect_timeout_s, DASHBOARD_STOP_TIMEOUT_S))
-
-    def stop(self) -> bool:
-        self._abort.set()  # ends our own move loop, if one is waiting
-        return super().stop()
 
     def _wait(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s

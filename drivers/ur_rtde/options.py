@@ -29,6 +29,5 @@ class URRTDEOptions(DriverOptions):
     connect_timeout_s: float = option(5.0, gt=0.0, max=120.0,
                                       help="reachability check before ur-rtde's own (blocking) connect")
     upper_range_registers: bool = option(False, help="ur-rtde's FLAG_UPPER_RANGE_REGISTERS (registers 24..47)")
-    target_tolerance_deg: float = option(0.1, gt=0.0, max=5.0, help="final position check after a move")
     stop_decel_rad_s2: float = option(2.0, gt=0.0, max=40.0, help="stopJ deceleration of stops and aborted moves")
     poll_interval_s: float = option(0.0002, gt=0.0, max=0.01, help="sample poll period (well below 1/frequency)")
