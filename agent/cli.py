@@ -21,6 +21,7 @@ from payload_agent.version import __version__
 from payload_agent.cli_commands import COMMANDS
 from payload_agent.errors import PayloadAgentError, Terminated
 from payload_agent.output.console import Console, setup_logging
+from payload_agent.tools.library import tool_name_arg
 
 DESCRIPTION = ("Identify the mass and centre of mass of the tool on a robot's flange from point-to-point "
                "joint moves and the joint angles and motor currents the controller reports (no force sensor, "
@@ -135,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     _session_args(run)
     run.add_argument("--apply", action="store_true",
                      help="write the result to the controller (only if the quality checks pass), then read it back")
-    run.add_argument("--tool", help="a label for the mounted tool (history compares results per tool)")
+    run.add_argument("--tool", type=tool_name_arg, help="the mounted tool's name: history compares results per "
+                                                         "tool, and a result that passes is stored in the tool library")
     run.add_argument("--result", metavar="PATH", help="also write the result JSON to this path")
     run.add_argument("--solver", choices=["three-step", "general"], help="override procedure.solver")
     run.add_argument("--resume", metavar="RUN_DIR",
@@ -201,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(doc)
     doc.add_argument("--seconds", type=float, default=2.0, metavar="S",
                      help="how long to measure the sample stream (default 2)")
+    from payload_agent.tools.commands import add_parsers as add_tool_parsers
+
+    add_tool_parsers(add, _robot_arg)
     return p
 
 
