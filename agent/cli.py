@@ -47,7 +47,8 @@ exit codes:
   3    robot not ready (state, mode, stored baseline or calibration; doctor: not ready)
   4    motion aborted (e-stop, protective stop, supervision trip, Ctrl-C or SIGTERM during motion)
   5    quality gate or data failure (result kept, nothing written to the controller)
-  6    communication failure (controller unreachable or answering nonsense)
+  6    communication failure (controller unreachable or answering nonsense; a payload write that did not take)
+  7    verify: the mounted tool does not match the expected payload (what differs is printed)
   130  interrupted by Ctrl-C while nothing moved
   143  terminated by SIGTERM while nothing moved
 """
@@ -204,8 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     doc.add_argument("--seconds", type=float, default=2.0, metavar="S",
                      help="how long to measure the sample stream (default 2)")
     from payload_agent.tools.commands import add_parsers as add_tool_parsers
+    from payload_agent.verify_command import add_parser as add_verify_parser
 
     add_tool_parsers(add, _robot_arg)
+    add_verify_parser(add, _robot_arg)
     return p
 
 
