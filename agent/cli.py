@@ -171,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     watch = add("watch", "wait for the configured tool-change signal, then run unattended with --apply")
     _robot_arg(watch)
     watch.add_argument("--max-runs", type=int, metavar="N", help="stop after this many runs (default: until SIGTERM)")
-    watch.add_argument("--tool", help="tool label recorded with each run")
+    watch.add_argument("--tool", help="the tool assumed when the trigger names none (a trigger file's first line "
+                                      "names the tool): a library tool is verified, a new one identified")
 
     plan = add("plan", "print every move and the safety verdict; checks everything run checks, never moves",
                json_ok=True)

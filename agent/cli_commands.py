@@ -174,8 +174,14 @@ def cmd_watch(args, con: Console) -> int:
         run_identification(config, RunOptions(unattended=True, apply=True, tool=args.tool, cell=cell, out=con.say))
         return 0
 
+    def run_tool(name: str | None) -> int:  # the trigger named the tool: verify a known one, identify a new one
+        from payload_agent.session.tool_change import change_tool
+
+        con.say(f"Tool change: {change_tool(config, name or args.tool, cell=cell, out=con.say).detail}")
+        return 0
+
     try:
-        return watch(config, run_once, max_runs=args.max_runs,
+        return watch(config, run_once, max_runs=args.max_runs, run_tool=run_tool,
                      driver_factory=lambda: build_driver(config, cell.options if cell else None))
     finally:
         if cell is not None:

@@ -135,3 +135,41 @@ def test_a_write_that_did_not_take_fails_loudly_with_the_likely_cause():
     text = str(exc.value)
     assert "did NOT take" in text and "reads back 1.000 kg" in text and "Likely cause" in text and "LOCAL mode" in text
     assert exc.value.exit_code == 6
+
+
+def test_tool_changes_through_watch_verify_known_and_identify_new_tools(identified, tmp_path):
+    """watch names the tool from the trigger file: a library tool is verified (robot time within 8 s once the arm
+    stands at the verify start), a new name is identified and stored, a wrong tool is re-identified."""
+    from dataclasses import replace
+
+    from payload_agent.configuration.config import WatchConfig
+    from payload_agent.session.tool_change import change_tool
+    from payload_agent.session.watch import watch
+
+    config, cell, _ = identified
+    db = library.tool_library_path(RobotState.for_config(config).root)
+    trig = tmp_path / "tool-changed"
+    wcfg = replace(config, watch=WatchConfig("file", trig, None, 0.01))
+    mounted = {"gripper": TRUTH, "vacuum": (1.2, (0.0, 10.0, 60.0)), "3": TRUTH}
+    results = []
+
+    def run_tool(name):
+        results.append(change_tool(config, name, cell=cell, out=lambda s: None, mount=_mount(*mounted[name])))
+        return 0
+
+    for name in ("gripper", "gripper", "vacuum"):
+        trig.write_text(name + "\n")
+        assert watch(wcfg, lambda: 1 / 0, run_tool=run_tool, out=lambda s: None, max_runs=1) == 0
+    assert [r.action for r in results] == ["verified", "verified", "identified-new"]
+    assert results[1].robot_time_s <= 8.0 and results[1].applied
+    vac = library.require(db, config.robot.name, "vacuum")
+    assert abs(vac.mass_kg - 1.2) < 0.03 and results[2].run_dirs
+    # a tool number names the tool too; a wrong tool under a known name is identified again and stored
+    grip = library.require(db, config.robot.name, "gripper")
+    library.store(db, config.robot.name, replace(grip, number=3, time_utc=""))
+    assert change_tool(config, "3", cell=cell, out=lambda s: None, mount=_mount(*TRUTH)).action == "verified"
+    wrong = change_tool(config, "gripper", cell=cell, out=lambda s: None, mount=_mount(2.5, TRUTH[1]))
+    assert wrong.action == "identified-mismatch" and len(wrong.run_dirs) == 2
+    assert abs(library.require(db, config.robot.name, "gripper").mass_kg - 2.5) < 0.03
+    with pytest.raises(Exception, match="tool number 9"):
+        change_tool(config, "9", cell=cell, out=lambda s: None)
