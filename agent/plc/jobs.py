@@ -86,13 +86,15 @@ class RobotJobs:
     changed: threading.Event = field(default_factory=threading.Event)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _thread: threading.Thread | None = None
+    _number: int | None = None
 
     @property
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def start(self, command: str, tool: str) -> tuple[bool, int, str]:
-        """Start ``command``; (started, error id, message). Refused while another job runs."""
+    def start(self, command: str, tool: str, number: int | None = None) -> tuple[bool, int, str]:
+        """Start ``command``; (started, error id, message). Refused while another job runs. ``number``: the
+        tool number to give a tool that Identify adds to the library (a PLC names tools by number)."""
         if command not in COMMANDS:
             return False, ERROR_BAD_REQUEST, f"unknown command {command!r} ({', '.join(COMMANDS)})"
         with self._lock:
@@ -105,6 +107,7 @@ class RobotJobs:
                 return False, ERROR_BUSY, hs.message
             hs.busy, hs.done, hs.error, hs.error_id, hs.message = True, False, False, 0, ""
             self.state = f"busy: {command}"
+            self._number = number
             self._thread = threading.Thread(target=self._run, args=(command, tool.strip()), daemon=True,
                                             name=f"plc-{command}-{self.config.robot.name}")
             self._thread.start()
@@ -158,6 +161,16 @@ class RobotJobs:
         self.last = LastResult("Identify", tool or "", "identified", float(est.mass_kg),
                                tuple(float(c) for c in est.cog_mm), float(est.mass_std_kg or float("nan")),
                                cog_std, str(outcome.run_dir), _now())  # type: ignore[arg-type]
+        if tool and self._number:
+            from dataclasses import replace
+
+            from payload_agent.recording.state import RobotState
+            from payload_agent.tools import library
+
+            db = library.tool_library_path(RobotState.for_config(self.config).root)
+            entry = library.get(db, self.config.robot.name, tool)
+            if entry is not None and entry.number is None:
+                library.store(db, self.config.robot.name, replace(entry, number=self._number, time_utc=""))
         if outcome.applied is not None:
             self.load = FlangeLoad(outcome.applied.mass_kg, tuple(1000 * c for c in outcome.applied.cog_m),
                                    None, tool or "")  # type: ignore[arg-type]
