@@ -207,9 +207,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="how long to measure the sample stream (default 2)")
     from payload_agent.tools.commands import add_parsers as add_tool_parsers
     from payload_agent.verify_command import add_parser as add_verify_parser
+    from payload_agent.plc.commands import add_parser as add_serve_parser
 
     add_tool_parsers(add, _robot_arg)
     add_verify_parser(add, _robot_arg)
+    add_serve_parser(add, _robot_arg)
     return p
 
 
@@ -219,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     con = Console(verbosity, bool(getattr(args, "json", False)))
     setup_logging(verbosity, con.stderr)
     previous = None
-    if args.command != "watch":  # watch handles its signals itself (one run at a time, clean exit)
+    if args.command not in ("watch", "serve"):  # watch and serve handle their signals themselves (one run at a time, clean exit)
         previous = _install_sigterm()
     try:
         return COMMANDS[args.command](args, con)

@@ -19,6 +19,7 @@ from payload_agent.errors import CommunicationError, ConfigError, QualityGateErr
 from payload_agent.output.console import Console
 from payload_agent.tools.commands import TOOL_COMMANDS
 from payload_agent.verify_command import VERIFY_COMMANDS
+from payload_agent.plc.commands import SERVE_COMMANDS
 
 NO_TERMINAL_HINT = {
     "identify": "Pass --yes to accept the plan without asking (tool changes are still asked for), or --unattended "
@@ -386,5 +387,5 @@ def cmd_solve(args, con: Console) -> int:
 COMMANDS: dict[str, Callable[[Any, Console], int]] = {
     "run": cmd_run, "baseline": cmd_baseline, "calibrate": cmd_calibrate, "watch": cmd_watch, "plan": cmd_plan,
     "doctor": cmd_doctor, "history": cmd_history, "report": cmd_report, "solve": cmd_solve,
-    **TOOL_COMMANDS, **VERIFY_COMMANDS,
+    **TOOL_COMMANDS, **VERIFY_COMMANDS, **SERVE_COMMANDS,
 }

@@ -88,9 +88,25 @@ class RobotJobs:
     _thread: threading.Thread | None = None
     _number: int | None = None
 
+    inline: bool = False  # jobs run on the thread that calls ``run_pending`` (serve's main thread: signals stop them)
+    _pending: tuple[str, str] | None = None
+    _wake: threading.Event = field(default_factory=threading.Event)
+
     @property
     def busy(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._pending is not None or (self._thread is not None and self._thread.is_alive())
+
+    def run_pending(self, timeout_s: float) -> None:
+        """``inline`` mode: run the started job here, if there is one (waits up to ``timeout_s`` for one)."""
+        if self._wake.wait(timeout_s):
+            self._wake.clear()
+            job = self._pending
+            if job is not None:
+                try:
+                    self._run(*job)
+                finally:
+                    self._pending = None
+                    self.changed.set()
 
     def start(self, command: str, tool: str, number: int | None = None) -> tuple[bool, int, str]:
         """Start ``command``; (started, error id, message). Refused while another job runs. ``number``: the
@@ -108,9 +124,13 @@ class RobotJobs:
             hs.busy, hs.done, hs.error, hs.error_id, hs.message = True, False, False, 0, ""
             self.state = f"busy: {command}"
             self._number = number
-            self._thread = threading.Thread(target=self._run, args=(command, tool.strip()), daemon=True,
-                                            name=f"plc-{command}-{self.config.robot.name}")
-            self._thread.start()
+            if self.inline:
+                self._pending = (command, tool.strip())
+                self._wake.set()
+            else:
+                self._thread = threading.Thread(target=self._run, args=(command, tool.strip()), daemon=True,
+                                                name=f"plc-{command}-{self.config.robot.name}")
+                self._thread.start()
             self.changed.set()
             return True, 0, "started"
 
@@ -140,6 +160,13 @@ class RobotJobs:
                 self._record_verify(command, outcome, "mismatch")
         except PayloadAgentError as exc:
             code, message = exc.exit_code, str(exc)
+        except KeyboardInterrupt:  # SIGTERM / Ctrl-C on serve's main thread: the session stopped the robot
+            with self._lock:
+                hs.busy, hs.error, hs.error_id = False, True, 4
+                hs.message = "interrupted (serve is stopping): the robot was stopped, recorded data kept"
+                self.state = "stopped"
+                self.changed.set()
+            raise
         except BaseException as exc:  # a bug: reported as such, never a dead server
             code, message = 1, f"unexpected error: {type(exc).__name__}: {exc}"
         self.log(f"{command}({tool!r}): " + ("done" if code == 0 else f"error {code}: {message}"))
