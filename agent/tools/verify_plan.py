@@ -28,6 +28,10 @@ from payload_agent.tools import verify_stats as vs
 from payload_agent.types import SweepKey
 
 LENGTHS_DEG = (5.0, 7.0, 10.0, 14.0, 20.0, 25.0, 30.0)
+# The motion is chosen for limits this much tighter than the targets: the predicted limits assume white noise
+# and an exact library entry; benchmarks/verify_power.py measured detection at the predicted limit about
+# 15-20 % short of 95 % (the entry's own error, the χ² inflation), so the margin keeps the stated targets true.
+DESIGN_MARGIN = 0.8
 
 
 @dataclass(frozen=True)
@@ -137,7 +141,7 @@ def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepDa
             continue
         lim = vs.predict_limits(bins, config.robot.kinematics, theta0, S0)
         cand = Candidate(segs_, plan, t, lim, motion)
-        if lim.meets(mass_limit_percent, cog_limit_mm):
+        if lim.meets(DESIGN_MARGIN * mass_limit_percent, DESIGN_MARGIN * cog_limit_mm):
             return cand
         score = max(lim.mass_percent / mass_limit_percent, max(lim.cog_mm) / cog_limit_mm)
         if best is None or score < best[0]:
