@@ -11,7 +11,7 @@ $(VENV)/.installed: export PYTHONWARNINGS = ignore:Editable installation
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,test]'
+	$(PY) -m pip install -q -e '.[sim,ur,modbus,canopen,report,plc,test]'
 	touch $@
 
 # Identify the payload of the simulated EC66 end to end (real JSON-RPC protocol on loopback).

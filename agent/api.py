@@ -17,6 +17,7 @@ from typing import Callable
 
 from payload_agent.configuration.config import Config, load_config
 from payload_agent.configuration.paths import find_robot
+from payload_agent.session.preflight import preflight
 from payload_agent.session.runner import RunOptions, run_identification
 from payload_agent.solvers.results import RunResult
 
@@ -35,3 +36,27 @@ def identify(robot: str | Path | Config, *, unattended: bool = True, apply: bool
     options = RunOptions(unattended=unattended, assume_yes=not unattended, apply=apply, tool=tool, solver=solver,
                          fresh_baseline=fresh_baseline, progress=False, out=out or (lambda _text: None))
     return run_identification(config, options).result
+
+
+def verify(robot: str | Path | Config, tool: str | None = None, *, apply: bool = False,
+           out: Callable[[str], None] | None = None):
+    """`payload-agent verify`: seconds of motion testing whether the mounted tool is ``tool`` (a library name;
+    None: the controller's current payload setting). Returns the ``session.verify.VerifyOutcome``; raises
+    ``ToolMismatchError`` (exit code 7) when it is not, naming what differs."""
+    from payload_agent.session.verify import VerifyOptions, verify_tool
+
+    config = robot if isinstance(robot, Config) else load_config(find_robot(robot))
+    preflight(config, calibration=True, apply=apply).require()
+    return verify_tool(config, VerifyOptions(tool=tool, unattended=True, apply=apply,
+                                             out=out or (lambda _text: None)))
+
+
+def tool_changed(robot: str | Path | Config, tool: str | None, *, out: Callable[[str], None] | None = None):
+    """A tool change named by the cell (a library name or tool number): a known tool is verified and its stored
+    payload written; a new or mismatching one is identified, written and stored. Returns a
+    ``session.tool_change.ToolChangeResult``."""
+    from payload_agent.session.tool_change import change_tool
+
+    config = robot if isinstance(robot, Config) else load_config(find_robot(robot))
+    preflight(config, calibration=True, apply=True).require()
+    return change_tool(config, tool, out=out or (lambda _text: None))

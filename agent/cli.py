@@ -21,6 +21,7 @@ from payload_agent.version import __version__
 from payload_agent.cli_commands import COMMANDS
 from payload_agent.errors import PayloadAgentError, Terminated
 from payload_agent.output.console import Console, setup_logging
+from payload_agent.tools.library import tool_name_arg
 
 DESCRIPTION = ("Identify the mass and centre of mass of the tool on a robot's flange from point-to-point "
                "joint moves and the joint angles and motor currents the controller reports (no force sensor, "
@@ -46,7 +47,8 @@ exit codes:
   3    robot not ready (state, mode, stored baseline or calibration; doctor: not ready)
   4    motion aborted (e-stop, protective stop, supervision trip, Ctrl-C or SIGTERM during motion)
   5    quality gate or data failure (result kept, nothing written to the controller)
-  6    communication failure (controller unreachable or answering nonsense)
+  6    communication failure (controller unreachable or answering nonsense; a payload write that did not take)
+  7    verify: the mounted tool does not match the expected payload (what differs is printed)
   130  interrupted by Ctrl-C while nothing moved
   143  terminated by SIGTERM while nothing moved
 """
@@ -135,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     _session_args(run)
     run.add_argument("--apply", action="store_true",
                      help="write the result to the controller (only if the quality checks pass), then read it back")
-    run.add_argument("--tool", help="a label for the mounted tool (history compares results per tool)")
+    run.add_argument("--tool", type=tool_name_arg, help="the mounted tool's name: history compares results per "
+                                                         "tool, and a result that passes is stored in the tool library")
     run.add_argument("--result", metavar="PATH", help="also write the result JSON to this path")
     run.add_argument("--solver", choices=["three-step", "general"], help="override procedure.solver")
     run.add_argument("--resume", metavar="RUN_DIR",
@@ -168,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     watch = add("watch", "wait for the configured tool-change signal, then run unattended with --apply")
     _robot_arg(watch)
     watch.add_argument("--max-runs", type=int, metavar="N", help="stop after this many runs (default: until SIGTERM)")
-    watch.add_argument("--tool", help="tool label recorded with each run")
+    watch.add_argument("--tool", help="the tool assumed when the trigger names none (a trigger file's first line "
+                                      "names the tool): a library tool is verified, a new one identified")
 
     plan = add("plan", "print every move and the safety verdict; checks everything run checks, never moves",
                json_ok=True)
@@ -214,6 +218,13 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(doc)
     doc.add_argument("--seconds", type=float, default=2.0, metavar="S",
                      help="how long to measure the sample stream (default 2)")
+    from payload_agent.tools.commands import add_parsers as add_tool_parsers
+    from payload_agent.verify_command import add_parser as add_verify_parser
+    from payload_agent.plc.commands import add_parser as add_serve_parser
+
+    add_tool_parsers(add, _robot_arg)
+    add_verify_parser(add, _robot_arg)
+    add_serve_parser(add, _robot_arg)
     return p
 
 
@@ -223,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     con = Console(verbosity, bool(getattr(args, "json", False)))
     setup_logging(verbosity, con.stderr)
     previous = None
-    if args.command != "watch":  # watch handles its signals itself (one run at a time, clean exit)
+    if args.command not in ("watch", "serve"):  # watch and serve handle their signals themselves (one run at a time, clean exit)
         previous = _install_sigterm()
     try:
         return COMMANDS[args.command](args, con)

@@ -17,6 +17,9 @@ from payload_agent.cli_import import cmd_import, load_robot
 from payload_agent.configuration.config import Config
 from payload_agent.errors import CommunicationError, ConfigError, QualityGateError
 from payload_agent.output.console import Console
+from payload_agent.tools.commands import TOOL_COMMANDS
+from payload_agent.verify_command import VERIFY_COMMANDS
+from payload_agent.plc.commands import SERVE_COMMANDS
 
 NO_TERMINAL_HINT = {
     "identify": "Pass --yes to accept the plan without asking (tool changes are still asked for), or --unattended "
@@ -166,8 +169,14 @@ def cmd_watch(args, con: Console) -> int:
         run_identification(config, RunOptions(unattended=True, apply=True, tool=args.tool, cell=cell, out=con.say))
         return 0
 
+    def run_tool(name: str | None) -> int:  # the trigger named the tool: verify a known one, identify a new one
+        from payload_agent.session.tool_change import change_tool
+
+        con.say(f"Tool change: {change_tool(config, name or args.tool, cell=cell, out=con.say).detail}")
+        return 0
+
     try:
-        return watch(config, run_once, max_runs=args.max_runs,
+        return watch(config, run_once, max_runs=args.max_runs, run_tool=run_tool,
                      driver_factory=lambda: build_driver(config, cell.options if cell else None))
     finally:
         if cell is not None:
@@ -379,4 +388,5 @@ def cmd_solve(args, con: Console) -> int:
 COMMANDS: dict[str, Callable[[Any, Console], int]] = {
     "run": cmd_run, "baseline": cmd_baseline, "calibrate": cmd_calibrate, "watch": cmd_watch, "plan": cmd_plan,
     "doctor": cmd_doctor, "history": cmd_history, "report": cmd_report, "solve": cmd_solve, "import": cmd_import,
+    **TOOL_COMMANDS, **VERIFY_COMMANDS, **SERVE_COMMANDS,
 }

@@ -119,3 +119,12 @@ class MotionNotFinished(MotionAbortedError):
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread like Ctrl-C so every session stops the robot the same way."""
+
+
+class ToolMismatchError(PayloadAgentError):
+    """`verify`: the mounted tool does not match the expected payload (library entry or controller setting).
+
+    The message says what differs and by how much; nothing is written to the controller.
+    """
+
+    exit_code = 7

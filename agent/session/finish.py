@@ -55,6 +55,12 @@ def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir
     outcome = RunOutcome(Path(run_dir), result, truth, calibration=calibration)
     outcome.history_id = _record_history(config, opts, state, result, stored, out)
     passed = bool(result.quality.get("passed", False))
+    if opts.tool and opts.mode == "identify" and passed:  # the tool library keeps tools that passed only
+        from payload_agent.tools.library import store_result, tool_library_path
+
+        entry = store_result(tool_library_path(state.ensure().root), config.robot.name, opts.tool,
+                             result.to_json(), outcome.history_id)
+        out(f"Tool library: stored {entry.describe()}")
     if opts.apply and opts.mode == "identify" and passed:
         written = PayloadSetting(float(result.primary.mass_kg), tuple(float(c) for c in result.primary.cog_m))
         outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,

@@ -44,6 +44,7 @@ from typing import Callable
 from payload_agent.configuration.config import Config, WatchConfig
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import ConfigError, PayloadAgentError, UnsupportedCapability
+from payload_agent.tools.library import NAME_PATTERN
 
 EXIT_MEANING = {0: "success", 1: "unexpected error", 2: "configuration/plan/safety refusal", 3: "robot not ready",
                 4: "motion aborted", 5: "data or quality failure", 6: "communication failure",
@@ -65,7 +66,7 @@ def _stamp() -> str:
 
 def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callable[[], Driver] | None = None,
           stop_event: threading.Event | None = None, out: Callable[[str], None] = print,
-          max_runs: int | None = None) -> int:
+          max_runs: int | None = None, run_tool: Callable[[str | None], int] | None = None) -> int:
     """Wait for ``config.watch``'s trigger, call ``run_once()`` (an unattended run, returning its
     exit code), repeat until stopped or ``max_runs`` runs were made; returns an exit code.
 
@@ -73,6 +74,10 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
     for the ``digital_input`` trigger only (``watch`` connects and closes it).
     Raises ConfigError when the config has no usable ``watch`` section, UnsupportedCapability
     when the driver cannot read digital inputs.
+
+    ``run_tool(name)``, when given, is called instead of ``run_once`` with the tool the trigger names
+    (a file trigger: the file's first line, a library name or tool number; None when the trigger names
+    none): ``session.tool_change.change_tool`` verifies a known tool and identifies only a new one.
     """
     wc = config.watch
     if wc is None:
@@ -119,7 +124,7 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
             out(f"{_stamp()} watch: trigger: {fired}; starting run {runs}")
             state.in_run = True
             try:
-                last_code = int(run_once())
+                last_code = int(run_once() if run_tool is None else run_tool(trigger.tool))
             except KeyboardInterrupt:
                 last_code = 143 if state.interrupted_by == signal.SIGTERM else 130
                 out(f"{_stamp()} watch: run {runs} interrupted; the runner stopped the robot and kept the data")
@@ -177,6 +182,8 @@ def _install_signal_handlers(state: _State, out: Callable[[str], None]) -> Calla
 
 # -- triggers ---------------------------------------------------------------------------------
 class _Trigger:
+    tool: str | None = None  # the tool the last trigger named, if it names one
+
     def describe(self) -> str:
         raise NotImplementedError
 
@@ -213,6 +220,8 @@ class _FileTrigger(_Trigger):
             note = self.path.read_text(encoding="utf-8", errors="replace").strip()[:200]
         except OSError:
             note = ""
+        first = note.splitlines()[0].strip() if note else ""
+        self.tool = first if NAME_PATTERN.match(first) else None  # a first line that is a tool name (or number)
         return f"file {self.path} appeared" + (f" ({note!r})" if note else "")
 
     def before_run(self) -> None:

@@ -1,0 +1,1 @@
+"""The cell's PLC in charge: `payload-agent serve` over OPC UA (asyncua) and Modbus registers (pymodbus)."""

@@ -1,0 +1,132 @@
+"""Power and false alarms of `payload-agent verify` on the simulated EC66 and UR5e (issue 23).
+
+    python -m benchmarks.verify_power [--trials 120] [--robots sim-ec66,sim-ur5e]
+
+Per robot: the robot YAML's simulated arm (its friction, noise, effects) is driven in-process through
+the identification plan with an empty flange (the stored baseline) and then, per trial, through the
+verify motion that ``tools.verify_plan.choose`` picks, with the right tool or a wrong one mounted,
+a fresh friction drift (±``DRIFT`` uniform, as between a baseline and a tool run) and fresh noise. The
+physics and the samples are the simulated controller's own (``fakes.offline.record_plan``); only the
+protocol is skipped, so thousands of verify motions take minutes. The statistics are exactly
+``tools.verify_stats``. The library entry of the right tool is its truth plus an identification error
+drawn from its stated σ (``ENTRY_STD``: what a full run on these simulators reports, order of magnitude).
+
+Prints per robot: the chosen motion and its robot time, the predicted detection limits, the false-alarm
+rate on the right tool (with its 95 % Clopper-Pearson upper bound), and the detection rate against mass
+errors (same centre of mass) and centre-of-mass shifts along x, y and z (same mass).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+TOOL = (2.0, (40.0, -25.0, 70.0))
+ENTRY_STD = (0.003, (0.6, 0.6, 0.8))  # kg, mm
+DRIFT = 0.05
+MASS_ERRORS_PERCENT = (2.5, 5.0)
+COG_ERRORS_MM = (5.0, 10.0)
+
+
+def _config(name: str):
+    from payload_agent.configuration.config import parse_config
+
+    return parse_config(yaml.safe_load((ROOT / "configs" / f"{name}.yaml").read_text()))
+
+
+def _robot(config, seed: int):
+    from payload_agent.fakes.arms import SPECS
+    from payload_agent.fakes.base import sim_robot_kwargs
+    from payload_agent.fakes.sim_robot import SimRobot
+
+    kw = sim_robot_kwargs(config)
+    kw["seed"] = seed
+    tick = 0.008 if config.driver_type == "elite_ec" else 0.002
+    return SimRobot(SPECS[config.simulation.arm](), tick_s=tick, **kw)
+
+
+def _trial(robot, config, cand, baseline, sigma, theta0, S0, truth, rng) -> bool:
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.fakes.physics import PayloadTruth
+    from payload_agent.tools import verify_stats as vs
+
+    robot.set_payload(PayloadTruth.point(truth[0], truth[1]))
+    robot.set_friction_scale(1.0 + rng.uniform(-DRIFT, DRIFT))
+    # every trial starts where the verify motion starts (the approach is the same each time)
+    loaded, _ = record_plan(robot, cand.plan)
+    windows = {(s.pose, s.joint): s.window for s in cand.segments}
+    bins = vs.make_bins(windows, baseline, sigma, cand.segments[0].speed_rad_s, loaded)
+    return vs.glrt(bins, config.robot.kinematics, theta0, S0).matches
+
+
+def _upper95(k: int, n: int) -> float:
+    return 1.0 if k == n else float(stats.beta.ppf(0.975, k + 1, n - k))
+
+
+def run_robot(name: str, trials: int, seed: int = 23) -> None:
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.motion.planner import make_plan
+    from payload_agent.tools import verify_plan, verify_stats as vs
+
+    config = _config(name)
+    rng = np.random.default_rng(seed)
+    robot = _robot(config, seed)
+    t0 = time.monotonic()
+    baseline, _ = record_plan(robot, make_plan(config))
+    sigma = vs.noise_std(baseline)
+    m, c = TOOL
+    entry_m = m + rng.normal(0, ENTRY_STD[0])
+    entry_c = tuple(ci + rng.normal(0, si) for ci, si in zip(c, ENTRY_STD[1]))
+    theta0 = vs.theta_of(entry_m, entry_c)
+    S0 = vs.theta_cov(entry_m, entry_c, ENTRY_STD[0], ENTRY_STD[1])
+    start_q = np.asarray(robot.snapshot().q_true, float)
+    cand = verify_plan.choose(config, start_q, baseline, sigma, theta0, S0, 5.0, 10.0)
+    print(f"\n== {name} ({config.simulation.arm}, {config.driver_type}); baseline and choice in "
+          f"{time.monotonic() - t0:.1f} s wall")
+    print(f"noise σ joints 2-6: {', '.join(f'{s:.3f}' for s in sigma[1:])} N·m")
+    print(f"motion: {cand.describe()}")
+    print(f"robot time: {cand.motion_time_s:.2f} s from the verify start (every trial); {cand.robot_time_s:.2f} s from "
+          "where the baseline ended (the approach at the approach speed included)")
+    t0 = time.monotonic()
+    alarms = sum(not _trial(robot, config, cand, baseline, sigma, theta0, S0, (m, c), rng) for _ in range(trials))
+    print(f"right tool: {alarms}/{trials} false alarms ({100 * alarms / trials:.1f} %, 95 % upper bound "
+          f"{100 * _upper95(alarms, trials):.1f} %)  [{time.monotonic() - t0:.0f} s wall]")
+    print(f"{'error':>22} | detected")
+    for pct in MASS_ERRORS_PERCENT:
+        hits = sum(not _trial(robot, config, cand, baseline, sigma, theta0, S0,
+                              (m * (1 + rng.choice([-1, 1]) * pct / 100), c), rng) for _ in range(trials))
+        print(f"{f'mass ±{pct:g} %':>22} | {hits}/{trials} = {100 * hits / trials:.1f} %")
+    for d in COG_ERRORS_MM:
+        for axis in range(3):
+            shift = np.zeros(3)
+            shift[axis] = d
+            hits = sum(not _trial(robot, config, cand, baseline, sigma, theta0, S0,
+                                  (m, tuple(np.asarray(c) + rng.choice([-1, 1]) * shift)), rng) for _ in range(trials))
+            label = f"CoM {'xyz'[axis]} ±{d:g} mm"
+            print(f"{label:>22} | {hits}/{trials} = {100 * hits / trials:.1f} %")
+    sys.stdout.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--trials", type=int, default=120)
+    p.add_argument("--robots", default="sim-ec66,sim-ur5e")
+    args = p.parse_args(argv)
+    print(f"verify: α = 1 %, power target 95 %; {args.trials} trials per row; right tool {TOOL[0]} kg at "
+          f"{list(TOOL[1])} mm; library entry = truth + N(0, σ = {ENTRY_STD[0] * 1000:g} g, {list(ENTRY_STD[1])} mm); "
+          f"friction drift ±{100 * DRIFT:g} % per verify")
+    for name in args.robots.split(","):
+        run_robot(name.strip(), args.trials)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

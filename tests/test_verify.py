@@ -1,0 +1,175 @@
+"""`payload-agent verify` against the simulated EC66 over its real protocol: the library tool matches, a wrong
+tool is found and named, the controller's payload setting is compared and written, the lock is respected."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, tweak
+from payload_agent.cli import main
+from payload_agent.configuration.config import parse_config
+from payload_agent.errors import CommunicationError, RobotBusyError, ToolMismatchError
+from payload_agent.recording.rundata import load_manifest
+from payload_agent.recording.state import RobotState
+from payload_agent.session.robot_lock import robot_lock
+from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.simulation import SimulatedCell
+from payload_agent.session.verify import VerifyOptions, verify_tool, write_and_check
+from payload_agent.tools import library
+from payload_agent.tools.library import ToolEntry
+from payload_agent.types import PayloadSetting
+
+TRUTH = (2.0, (40.0, -25.0, 70.0))
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory):
+    """A simulated EC66 whose baseline is stored and whose tool 'gripper' was identified by `run --tool`."""
+    tmp = tmp_path_factory.mktemp("verify")
+    data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    data = tweak(data, "driver.rpc_port", 0)
+    data = tweak(data, "driver.monitor_port", 0)
+    data = tweak(data, "storage", {"runs_dir": str(tmp / "runs"), "state_dir": str(tmp / "state")})
+    data = tweak(data, "simulation.payload", {"mass_kg": TRUTH[0], "cog_mm": list(TRUTH[1])})
+    cfg_path = tmp / "robot.yaml"
+    cfg_path.write_text(yaml.safe_dump(data))
+    config = parse_config(data, source=str(cfg_path))
+    cell = SimulatedCell(config).start()
+    try:
+        run_identification(config, RunOptions(assume_yes=True, tool="gripper", cell=cell, report=False,
+                                              progress=False, out=lambda s: None))
+        yield config, cell, cfg_path
+    finally:
+        cell.close()
+
+
+def _mount(mass, cog):
+    def mount(cell):
+        cell.change_tool(mass, cog)
+        cell.mount_tool(True)
+    return mount
+
+
+def test_run_tool_stores_into_the_library_and_verify_matches(identified):
+    config, cell, _ = identified
+    db = library.tool_library_path(RobotState.for_config(config).root)
+    entry = library.require(db, config.robot.name, "gripper")
+    assert entry.source == "identified" and entry.run_dir and entry.history_id is not None
+    assert abs(entry.mass_kg - TRUTH[0]) < 0.03 and entry.mass_std_kg > 0
+    lines = []
+    outcome = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lines.append,
+                                                detail=lambda s: None, mount=_mount(*TRUTH)))
+    res = outcome.result
+    assert res.matches and res.statistic <= res.threshold
+    assert outcome.robot_time_s > 0 and abs(res.mass_kg - TRUTH[0]) < 0.05
+    assert res.limits.mass_percent <= 5.0 and max(res.limits.cog_mm) <= 10.0  # the stated detection limit
+    manifest = load_manifest(outcome.run_dir)
+    assert manifest["mode"] == "verify" and manifest["status"] == "complete"
+    assert all(s["status"] == "complete" for s in manifest["phases"]["loaded"]["sweeps"])
+    assert json.loads((outcome.run_dir / "verify.json").read_text())["test"]["matches"] is True
+    assert "MATCHES tool 'gripper'" in "\n".join(lines)
+
+
+def test_wrong_tool_is_a_mismatch_naming_the_difference(identified):
+    config, cell, _ = identified
+    with pytest.raises(ToolMismatchError) as exc:
+        verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lambda s: None,
+                                          detail=lambda s: None, mount=_mount(2.4, TRUTH[1])))
+    err = exc.value
+    assert err.exit_code == 7 and "DOES NOT MATCH tool 'gripper'" in str(err)
+    assert err.outcome.result.mass_diff_kg == pytest.approx(0.4, abs=0.1)  # what differs, and by how much
+    assert "Nothing was written" in str(err)
+
+
+def test_cli_verify_apply_writes_the_library_payload_and_exit_codes(identified, capsys):
+    config, cell, cfg_path = identified
+    # the controller's setting differs from the library: verify --apply writes it and reads it back
+    cell.change_tool(*TRUTH)
+    assert main(["verify", "--robot", str(cfg_path), "--tool", "nope", "--yes"]) == 5  # unknown tool: no motion
+    assert "no tool 'nope'" in capsys.readouterr().err
+    lock_state = RobotState.for_config(config)
+    with robot_lock(lock_state, "test holds it", config.robot.name):
+        with pytest.raises(RobotBusyError):
+            verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lambda s: None))
+    moves_before = cell.robot.snapshot().move_id
+    outcome = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, apply=True, cell=cell,
+                                                out=lambda s: None, detail=lambda s: None, mount=_mount(*TRUTH)))
+    assert cell.robot.snapshot().move_id > moves_before
+    entry = library.require(library.tool_library_path(lock_state.root), config.robot.name, "gripper")
+    if outcome.setting_matches is False:
+        assert outcome.applied is not None and abs(outcome.applied.mass_kg - entry.mass_kg) < 0.001
+    back = outcome.applied or outcome.setting
+    # the controller now holds the library's payload: a second verify finds the setting matching
+    again = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lambda s: None,
+                                              detail=lambda s: None, mount=_mount(*TRUTH)))
+    assert again.setting_matches is True and again.applied is None and back is not None
+
+
+class _DeafController:
+    """A driver whose controller accepts the payload write and keeps its old setting (remote mode off, a
+    program that sets its own payload)."""
+
+    def __init__(self):
+        self.setting = PayloadSetting(1.0, (0.0, 0.0, 0.05))
+
+    def read_payload(self):
+        return self.setting
+
+    def write_payload(self, payload):
+        pass
+
+    def state(self):
+        from payload_agent.types import ControllerState
+
+        return ControllerState(True, detail="LOCAL mode")
+
+
+def test_a_write_that_did_not_take_fails_loudly_with_the_likely_cause():
+    entry = ToolEntry("gripper", 2.0, (40.0, -25.0, 70.0))
+    with pytest.raises(CommunicationError) as exc:
+        write_and_check(_DeafController(), entry, lambda s: None)
+    text = str(exc.value)
+    assert "did NOT take" in text and "reads back 1.000 kg" in text and "Likely cause" in text and "LOCAL mode" in text
+    assert exc.value.exit_code == 6
+
+
+def test_tool_changes_through_watch_verify_known_and_identify_new_tools(identified, tmp_path):
+    """watch names the tool from the trigger file: a library tool is verified (robot time within 8 s once the arm
+    stands at the verify start), a new name is identified and stored, a wrong tool is re-identified."""
+    from dataclasses import replace
+
+    from payload_agent.configuration.config import WatchConfig
+    from payload_agent.session.tool_change import change_tool
+    from payload_agent.session.watch import watch
+
+    config, cell, _ = identified
+    db = library.tool_library_path(RobotState.for_config(config).root)
+    trig = tmp_path / "tool-changed"
+    wcfg = replace(config, watch=WatchConfig("file", trig, None, 0.01))
+    mounted = {"gripper": TRUTH, "vacuum": (1.2, (0.0, 10.0, 60.0)), "3": TRUTH}
+    results = []
+
+    def run_tool(name):
+        results.append(change_tool(config, name, cell=cell, out=lambda s: None, mount=_mount(*mounted[name])))
+        return 0
+
+    for name in ("gripper", "gripper", "vacuum"):
+        trig.write_text(name + "\n")
+        assert watch(wcfg, lambda: 1 / 0, run_tool=run_tool, out=lambda s: None, max_runs=1) == 0
+    assert [r.action for r in results] == ["verified", "verified", "identified-new"]
+    assert results[1].robot_time_s <= 8.0 and results[1].applied
+    vac = library.require(db, config.robot.name, "vacuum")
+    assert abs(vac.mass_kg - 1.2) < 0.03 and results[2].run_dirs
+    # a tool number names the tool too; a wrong tool under a known name is identified again and stored
+    grip = library.require(db, config.robot.name, "gripper")
+    library.store(db, config.robot.name, replace(grip, number=3, time_utc=""))
+    assert change_tool(config, "3", cell=cell, out=lambda s: None, mount=_mount(*TRUTH)).action == "verified"
+    wrong = change_tool(config, "gripper", cell=cell, out=lambda s: None, mount=_mount(2.5, TRUTH[1]))
+    assert wrong.action == "identified-mismatch" and len(wrong.run_dirs) == 2
+    assert abs(library.require(db, config.robot.name, "gripper").mass_kg - 2.5) < 0.03
+    with pytest.raises(Exception, match="tool number 9"):
+        change_tool(config, "9", cell=cell, out=lambda s: None)
