@@ -94,6 +94,30 @@ def _align(loaded: ExcitationRecord, empty: ExcitationRecord) -> tuple[np.ndarra
     return inside, e
 
 
+def joint_groups(W: np.ndarray, qd: np.ndarray, dtau_nm: np.ndarray, joints: Sequence[int], moving: Sequence[int],
+                 label: str, min_rows: int = 1) -> list[Group]:
+    """The fit's rows, one group per joint (``label``/j<n>): its ten regressor columns and, for a joint in
+    ``moving``, a Coulomb and a viscous friction change column of its own; a moving joint's samples slower than
+    ``MIN_SPEED_RAD_S`` (sign(q̇) unsure) are left out of its rows. A joint the payload does not load, or with
+    fewer than ``min_rows`` rows, gets none."""
+    moving = list(moving)
+    n, n_par = len(qd), 10 + 2 * len(moving)
+    groups = []
+    for j in joints:
+        Y = np.zeros((n, n_par))
+        Y[:, :10] = W[:, j]
+        keep = np.ones(n, bool)
+        if j in moving:
+            c = 10 + 2 * moving.index(j)
+            Y[:, c], Y[:, c + 1] = np.sign(qd[:, j]), qd[:, j]
+            keep = np.abs(qd[:, j]) >= MIN_SPEED_RAD_S
+        if keep.sum() < max(min_rows, 1) or np.max(np.abs(Y[keep, :10])) < 1e-9:
+            continue
+        # one "sweep" per joint: the rows kept differ between joints (slow samples dropped)
+        groups.append(Group(f"{label}/j{j + 1}", f"{label}/j{j + 1}", Y[keep], dtau_nm[keep, j], joint=j))
+    return groups
+
+
 def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
           joints: Sequence[int] | None = None, friction: bool = True, sg_window_s: float = SG_WINDOW_S,
           sg_order: int = SG_ORDER) -> Estimate:
@@ -110,23 +134,8 @@ def solve(loaded: ExcitationRecord, empty: ExcitationRecord, kin: Kinematics, *,
     q, qd, qdd = derivatives(loaded.t, loaded.q, sg_window_s, sg_order)
     q, qd, qdd = q[inside], qd[inside], qdd[inside]
     dtau = loaded.effort_nm[inside] - e_empty
-    W = payload_regressor(kin, q, qd, qdd)
     moving = [j for j in joints if np.ptp(loaded.q[:, j]) > MOVING_RANGE_RAD] if friction else []
-    n_par = 10 + 2 * len(moving)
-    groups = []
-    for j in joints:
-        Y = np.zeros((len(q), n_par))
-        Y[:, :10] = W[:, j]
-        keep = np.ones(len(q), bool)
-        if j in moving:
-            c = 10 + 2 * moving.index(j)
-            Y[:, c] = np.sign(qd[:, j])
-            Y[:, c + 1] = qd[:, j]
-            keep = np.abs(qd[:, j]) >= MIN_SPEED_RAD_S
-        if np.max(np.abs(Y[keep, :10])) < 1e-9:
-            continue
-        # one "sweep" per joint: the rows kept differ between joints (slow samples dropped)
-        groups.append(Group(f"excitation/j{j + 1}", f"excitation/j{j + 1}", Y[keep], dtau[keep, j]))
+    groups = joint_groups(payload_regressor(kin, q, qd, qdd), qd, dtau, joints, moving, "excitation")
     res = fit(groups)
     theta, cov = res.theta, res.cov
     mass = float(theta[0])

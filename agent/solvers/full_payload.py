@@ -28,9 +28,9 @@ import numpy as np
 
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers.dynamic import MIN_SPEED_RAD_S, MOVING_RANGE_RAD, SG_ORDER, SG_WINDOW_S, derivatives
+from payload_agent.solvers.dynamic import MOVING_RANGE_RAD, SG_ORDER, SG_WINDOW_S, derivatives, joint_groups
 from payload_agent.solvers.regressor import payload_regressor
-from payload_agent.solvers.wls import Group, cog_with_covariance, fit
+from payload_agent.solvers.wls import cog_with_covariance, fit
 
 NAME = "full-payload"
 PARAMS = ("m", "m*cx", "m*cy", "m*cz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
@@ -102,22 +102,9 @@ def solve(t: np.ndarray, q: np.ndarray, dtau_effort: np.ndarray, kin: Kinematics
     if not joints:
         raise DataError("full payload: no joint has a usable current-to-torque constant")
     qs, qd, qdd = derivatives(t, q, sg_window_s, sg_order)
-    W = payload_regressor(kin, qs, qd, qdd)  # (n, 6, 10)
     moving = [j for j in joints if np.ptp(q[:, j]) > MOVING_RANGE_RAD] if friction else []
-    n_par = 10 + 2 * len(moving)
-    groups = []
-    for j in joints:
-        Y = np.zeros((len(t), n_par))
-        Y[:, :10] = W[:, j]
-        keep = np.ones(len(t), bool)
-        if j in moving:
-            c = 10 + 2 * moving.index(j)
-            Y[:, c], Y[:, c + 1] = np.sign(qd[:, j]), qd[:, j]
-            keep = np.abs(qd[:, j]) >= MIN_SPEED_RAD_S
-        if keep.sum() < 20 or np.max(np.abs(Y[keep, :10])) < 1e-9:
-            continue
-        groups.append(Group(f"motion/j{j + 1}", f"motion/j{j + 1}", Y[keep], dtau_effort[keep, j] * gains_nm_per_unit[j],
-                            joint=j))
+    dtau_nm = np.column_stack([dtau_effort[:, j] * (g if g is not None else 0.0) for j, g in enumerate(gains_nm_per_unit)])
+    groups = joint_groups(payload_regressor(kin, qs, qd, qdd), qd, dtau_nm, joints, moving, "motion", min_rows=20)
     if not groups:
         raise DataError("full payload: no joint's torque depends on the payload along this motion")
     rel = None
