@@ -7,6 +7,7 @@ before its reason is read, done clears what this session commanded, a missed tar
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -15,6 +16,7 @@ import pytest
 
 from payload_agent.configuration.options import option
 from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MotionLimits, aborted, refused
+from payload_agent.drivers.settings import Supervision
 from payload_agent.errors import MotionAbortedError, RobotNotReadyError
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
@@ -33,8 +35,10 @@ class Stub(Driver):
     name = "stub"
     options_class = StubOptions
 
-    def __init__(self, start=None, statuses=(), q_at_done=TARGET):
-        super().__init__(StubOptions(type="stub"), LIMITS)
+    def __init__(self, start=None, statuses=(), q_at_done=TARGET, supervision=None):
+        # generous limits: a loaded machine's pauses must not trip what these tests do not test
+        super().__init__(StubOptions(type="stub"), LIMITS,
+                         supervision or Supervision(max_stream_gap_s=1.0, max_reply_wait_s=1.0))
         self.effort_unit, self.nominal_period_s = "Nm", 0.005
         self.q = np.zeros(6)
         self.start, self.statuses, self.q_at_done = start, list(statuses), q_at_done
@@ -59,6 +63,7 @@ class Stub(Driver):
         return self.start
 
     def _move_status(self):
+        self.command_ok()  # a polled controller: the reply watchdog runs while the move does
         status = self.statuses.pop(0) if self.statuses else RUNNING
         if status is DONE:
             self.q = np.asarray(self.q_at_done, float)
@@ -131,3 +136,15 @@ def test_motion_not_allowed_refuses_before_anything_is_sent():
     with pytest.raises(RobotNotReadyError, match="the stub says no"):
         _run(drv)
     assert drv.log == []
+
+
+def test_the_reply_watchdog_ends_when_the_controller_reports_done():
+    """After DONE the driver stops polling; the stream may still trail the controller while the base waits
+    for a sample at the target: that wait is no silent controller."""
+    drv = Stub(statuses=[RUNNING, DONE], q_at_done=TARGET - 0.01,
+               supervision=Supervision(max_stream_gap_s=1.0, max_reply_wait_s=0.02))
+    timer = threading.Timer(0.2, lambda: setattr(drv, "q", TARGET.copy()))  # the stream catches up
+    timer.start()
+    _run(drv)
+    timer.join()
+    assert drv.log == ["move"] and drv.last_stop_report is None
