@@ -27,7 +27,13 @@ class MoveStatus:
         return self.state == "done"
 
     def describe(self) -> str:
-        return self.reason() if callable(self.reason) else self.reason
+        """The reason as text; a reason that cannot be read (the controller went away meanwhile) says so."""
+        if not callable(self.reason):
+            return self.reason
+        try:
+            return self.reason()
+        except Exception as exc:
+            return f"the move was {self.state} (why could not be read: {type(exc).__name__}: {exc})"
 
 
 RUNNING = MoveStatus("running")

@@ -88,9 +88,11 @@ class Supervisor:
         self._stop_requested.clear()
 
     def finished(self) -> None:
-        """The controller reported the move finished: nothing of ours runs, and the never-finished check ends."""
+        """The controller reported the move finished: nothing of ours runs, the never-finished check ends, and
+        so does the reply check (the driver stops polling its controller; the stream checks go on)."""
         self.commanded = False
         self._target = None
+        self._last_command_ok = None
 
     def disarm(self) -> None:
         self.armed = False

@@ -169,11 +169,6 @@ class EliteECDriver(Driver):
         return Sample(t_ctrl=None, t_recv=time.monotonic(), q=tuple(math.radians(v) for v in q),
                       effort=tuple(tq))
 
-    @property
-    def latest_monitor(self) -> MonitorFrame | None:
-        """The newest decoded monitor frame (monitor source only)."""
-        return self._latest_frame
-
     def _fresh_frame(self) -> MonitorFrame | None:
         """The newest monitor frame, waiting briefly for the first one; None if the stream cannot give one."""
         if self.options.sample_source != "monitor" or self._rpc is None or self.stream_error is not None:

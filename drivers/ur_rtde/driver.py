@@ -288,7 +288,8 @@ class URRTDEDriver(URCapabilities, Driver):
 
     def _move_status(self) -> MoveStatus:
         r, mv = self._receive(), self._move
-        problem = self._safety_problem(r)
+        runtime = r.getRuntimeState()  # one reading with the safety state, checked for corruption together
+        problem = self._safety_problem(r, runtime)
         if problem is not None:
             return problem
         op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
@@ -298,7 +299,7 @@ class URRTDEDriver(URCapabilities, Driver):
             self._control.request("isSteady", timeout_s=POLL_TIMEOUT_S, what="isSteady (heartbeat)")
             self._heartbeat_t = time.monotonic()
             self.command_ok()
-        if r.getRuntimeState() != RUNTIME_PLAYING:
+        if runtime != RUNTIME_PLAYING:
             self._script_dead = True
             return aborted(lambda: f"UR controller {self.host}: the control script stopped during the move "
                                    f"({self._why_not_running()})")
@@ -314,9 +315,9 @@ class URRTDEDriver(URCapabilities, Driver):
         return aborted("the controller reported the move finished but the arm is still moving") \
             if now > mv.settle_until else RUNNING
 
-    def _safety_problem(self, r) -> MoveStatus | None:
+    def _safety_problem(self, r, runtime: int) -> MoveStatus | None:
         """A safety stop (the script ended too: only the dashboard's stop can still go) or a corrupt status."""
-        bits, safety_mode, runtime = r.getSafetyStatusBits(), r.getSafetyMode(), r.getRuntimeState()
+        bits, safety_mode = r.getSafetyStatusBits(), r.getSafetyMode()
         corrupt = corrupt_status(r.getRobotMode(), safety_mode, bits, runtime)
         if corrupt:  # garbage that parsed: not a safety stop, a broken stream
             raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "

@@ -1,0 +1,150 @@
+"""The base's move loop on a scripted driver: what it sends, and when it stops, for each answer of the hooks.
+
+No protocol here (tests/test_driver_conformance.py runs the families); the stub's hooks answer from a
+script so each rule of the template shows on its own: a refused start sends no stop, an abort stops
+before its reason is read, done clears what this session commanded, a missed target is named.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from payload_agent.configuration.options import option
+from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MotionLimits, aborted, refused
+from payload_agent.drivers.settings import Supervision
+from payload_agent.errors import MotionAbortedError, RobotNotReadyError
+from payload_agent.types import ControllerInfo, ControllerState, Sample
+
+LIMITS = MotionLimits(1.0, 5.0)
+TARGET = np.full(6, 0.2)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StubOptions(DriverOptions):
+    allowed: bool = option(True)
+
+
+class Stub(Driver):
+    """Samples at ``self.q`` every 5 ms; ``_start_move`` / ``_move_status`` answer from ``self.script``."""
+
+    name = "stub"
+    options_class = StubOptions
+
+    def __init__(self, start=None, statuses=(), q_at_done=TARGET, supervision=None):
+        # generous limits: a loaded machine's pauses must not trip what these tests do not test
+        super().__init__(StubOptions(type="stub"), LIMITS,
+                         supervision or Supervision(max_stream_gap_s=1.0, max_reply_wait_s=1.0))
+        self.effort_unit, self.nominal_period_s = "Nm", 0.005
+        self.q = np.zeros(6)
+        self.start, self.statuses, self.q_at_done = start, list(statuses), q_at_done
+        self.log: list[str] = []
+
+    def _open(self) -> None: ...
+
+    def _close(self) -> None: ...
+
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        time.sleep(0.005)
+        return Sample(None, time.monotonic(), tuple(self.q), (0.0,) * 6)
+
+    def identify(self) -> ControllerInfo:
+        return ControllerInfo("stub", "stub", "1")
+
+    def state(self) -> ControllerState:
+        return ControllerState(self.options.allowed, "" if self.options.allowed else "the stub says no")
+
+    def _start_move(self, target, speed_rad_s, accel_rad_s2):
+        self.log.append("move")
+        return self.start
+
+    def _move_status(self):
+        self.command_ok()  # a polled controller: the reply watchdog runs while the move does
+        status = self.statuses.pop(0) if self.statuses else RUNNING
+        if status is DONE:
+            self.q = np.asarray(self.q_at_done, float)
+        return status
+
+    def _stop_command(self) -> bool:
+        self.log.append("stop")
+        return True
+
+
+def _run(drv: Stub, timeout_s: float = 5.0) -> None:
+    with drv:
+        drv.wait_sample(2.0)
+        drv.move_joints(TARGET, 0.5, 2.0, timeout_s)
+
+
+def test_done_at_the_target_returns_and_nothing_of_ours_runs():
+    drv = Stub(statuses=[RUNNING, RUNNING, DONE])
+    _run(drv)
+    assert drv.log == ["move"] and not drv.motion_commanded and drv.stop() is False
+
+
+def test_a_refused_start_sends_no_stop():
+    drv = Stub(start=refused("the program is busy with command 7; nothing was sent"))
+    with pytest.raises(MotionAbortedError, match="busy with command 7"):
+        _run(drv)
+    assert drv.log == ["move"] and not drv.motion_commanded
+
+
+def test_an_abort_stops_first_and_then_reads_its_reason():
+    drv = Stub()
+
+    def reason():
+        assert drv.log[-1] == "stop"  # the stop went out before the reason's round trip
+        return "the controller stopped the move: protective stop"
+
+    drv.statuses = [RUNNING, aborted(reason)]
+    with pytest.raises(MotionAbortedError, match="protective stop"):
+        _run(drv)
+    assert drv.log == ["move", "stop"] and not drv.motion_commanded
+
+
+def test_an_unreadable_abort_reason_still_ends_the_move_as_aborted():
+    def gone():
+        raise OSError("connection reset")
+
+    drv = Stub(statuses=[aborted(gone)])
+    with pytest.raises(MotionAbortedError, match="aborted.*could not be read.*connection reset"):
+        _run(drv)
+    assert drv.log == ["move", "stop"]
+
+
+def test_the_timeout_stops_the_arm():
+    drv = Stub()  # RUNNING for ever
+    with pytest.raises(MotionAbortedError, match="did not finish within 0.2 s"):
+        _run(drv, timeout_s=0.2)
+    assert drv.log == ["move", "stop"]
+
+
+def test_done_away_from_the_target_names_the_joint_and_sends_no_stop():
+    drv = Stub(statuses=[DONE], q_at_done=TARGET + np.radians([0, 0, 2.0, 0, 0, 0]))
+    with pytest.raises(MotionAbortedError, match=r"joint 3 is 2\.000° from the target \(tolerance 0\.1°\)"):
+        _run(drv)
+    assert drv.log == ["move"]  # the controller had reported it finished: nothing of ours to stop
+
+
+def test_motion_not_allowed_refuses_before_anything_is_sent():
+    drv = Stub()
+    drv.options = StubOptions(type="stub", allowed=False)
+    with pytest.raises(RobotNotReadyError, match="the stub says no"):
+        _run(drv)
+    assert drv.log == []
+
+
+def test_the_reply_watchdog_ends_when_the_controller_reports_done():
+    """After DONE the driver stops polling; the stream may still trail the controller while the base waits
+    for a sample at the target: that wait is no silent controller."""
+    drv = Stub(statuses=[RUNNING, DONE], q_at_done=TARGET - 0.01,
+               supervision=Supervision(max_stream_gap_s=1.0, max_reply_wait_s=0.02))
+    timer = threading.Timer(0.2, lambda: setattr(drv, "q", TARGET.copy()))  # the stream catches up
+    timer.start()
+    _run(drv)
+    timer.join()
+    assert drv.log == ["move"] and drv.last_stop_report is None
