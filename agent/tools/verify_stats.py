@@ -274,3 +274,14 @@ def glrt(bins: Bins, kin: Kinematics, theta0: np.ndarray, S0: np.ndarray) -> Tes
     return TestResult(T <= thr, T, thr, float(stats.chi2.sf(T, DOF)), m, tuple(1000 * cog),
                       m - float(theta0[0]), tuple(1000 * (cog - cog0)), float(math.sqrt(max(S_fit[0, 0], 0.0))),
                       tuple(1000 * cog_std), red, limits(S_inv, theta0), len(bins.q))  # type: ignore[arg-type]
+
+
+def fit_theta(bins: Bins, kin: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+    """θ and its covariance by weighted least squares on bins (the benchmark's stand-in for a library entry
+    identified with the same model: a full sweep's bins give what `run` would store, biases included)."""
+    Y, dtau, w = design(bins, kin)
+    A = Y.T @ (w[:, None] * Y)
+    cov = np.linalg.pinv(A)
+    theta = cov @ (Y.T @ (w * dtau))
+    red = float((w * (dtau - Y @ theta) ** 2).sum() / max(1, len(dtau) - DOF))
+    return theta, cov * max(1.0, red)
