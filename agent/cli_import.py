@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from payload_agent.configuration.config import Config, load_config
+from payload_agent.configuration.config import Config, config_snapshot, load_config
 from payload_agent.configuration.paths import find_robot
 from payload_agent.errors import ConfigError, DataError
 from payload_agent.output.console import Console
@@ -100,7 +100,7 @@ def cmd_import(args, con: Console) -> int:
 
     for key, path in (("--empty", args.empty), ("--loaded", args.loaded)):  # read once before a folder is made
         read_motion_csv(path, args.columns)
-    run = create_imported_run(Path(config.storage.runs_dir), config.robot.name, config.raw,
+    run = create_imported_run(Path(config.storage.runs_dir), config.robot.name, config_snapshot(config),
                               {"empty": Path(args.empty), "loaded": Path(args.loaded)}, args.columns, gains)
     con.detail(f"Run folder: {run.run_dir}")
     try:

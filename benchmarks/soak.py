@@ -53,7 +53,8 @@ def _du_kb(path: Path) -> int:
 
 
 def _config(tmp: Path, time_scale: float):
-    from payload_agent.configuration.config import WatchConfig, parse_config
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.configuration.watch import WatchConfig
 
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     data["driver"]["rpc_port"] = 0

@@ -143,7 +143,7 @@ def test_tool_changes_through_watch_verify_known_and_identify_new_tools(identifi
     stands at the verify start), a new name is identified and stored, a wrong tool is re-identified."""
     from dataclasses import replace
 
-    from payload_agent.configuration.config import WatchConfig
+    from payload_agent.configuration.watch import WatchConfig
     from payload_agent.session.tool_change import change_tool
     from payload_agent.session.watch import watch
 

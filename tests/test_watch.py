@@ -13,7 +13,8 @@ import pytest
 import yaml
 
 from conftest import ROOT
-from payload_agent.configuration.config import WatchConfig, parse_config
+from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.watch import WatchConfig
 from payload_agent.errors import CommunicationError, ConfigError, MotionAbortedError, UnsupportedCapability
 from payload_agent.session.watch import watch
 

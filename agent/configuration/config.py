@@ -19,6 +19,7 @@ from payload_agent.configuration import units
 from payload_agent.configuration.paths import resolve_against, state_home
 from payload_agent.configuration.procedure import load_procedure
 from payload_agent.configuration.simulation import SimulationConfig, parse_simulation
+from payload_agent.configuration.watch import WatchConfig, parse_watch
 from payload_agent.configuration.yamlcheck import Node, check_numbers, load_yaml
 from payload_agent.drivers.base import DriverOptions
 from payload_agent.drivers.registry import parse_driver_options
@@ -127,19 +128,6 @@ class StorageConfig:
     baseline_max_temperature_delta_c: float  # ... and one recorded this much colder/warmer (any joint)
 
 
-WATCH_TRIGGERS = ("file", "digital_input", "register")
-
-
-@dataclass(frozen=True)
-class WatchConfig:
-    """What `payload-agent watch` waits for before an unattended run with --apply."""
-
-    trigger: str  # "file": a file appears; "digital_input": a controller input goes high
-    path: Path | None  # trigger "file"
-    input_index: int | None  # trigger "digital_input": the controller's digital input number
-    poll_interval_s: float
-
-
 @dataclass(frozen=True)
 class Config:
     source: str
@@ -224,7 +212,7 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     sim_node = top.child("simulation", required=False)
     simulation = parse_simulation(sim_node) if sim_node is not None else None
     watch_node = top.child("watch", required=False)
-    watch = _watch(watch_node, base_dir) if watch_node is not None else None
+    watch = parse_watch(watch_node, base_dir) if watch_node is not None else None
     top.reject_unknown(SECTIONS)
     if procedure.speed_percent > safety.max_speed_percent:
         raise ConfigError("procedure.speed_percent",
@@ -384,23 +372,6 @@ def _storage(node: Node | None, base_dir: Path | None, robot_name: str) -> Stora
     dtemp = node.number("baseline_max_temperature_delta_c", DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C, gt=0, max=100)
     node.reject_unknown()
     return StorageConfig(runs, state, age, dtemp)
-
-
-def _watch(node: Node, base_dir: Path | None) -> WatchConfig:
-    t = node.child("trigger")
-    kind = t.string("type", choices=WATCH_TRIGGERS)
-    path = index = None
-    if kind == "file":
-        path = resolve_against(t.string("path"), base_dir)
-        t.reject_unknown(["type", "path"])
-    elif kind == "register":  # the driver's trigger register (modbus: the map's tool_change)
-        t.reject_unknown(["type"])
-    else:
-        index = t.integer("index", min=0, max=255)
-        t.reject_unknown(["type", "index"])
-    poll = node.number("poll_interval_s", 0.5, gt=0, max=60)
-    node.reject_unknown(["trigger", "poll_interval_s"])
-    return WatchConfig(kind, path, index, poll)
 
 
 def config_snapshot(config: Config) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """`payload-agent watch`: wait for a trigger, then run one unattended identification; repeat.
 
-Triggers (the robot YAML's ``watch`` section, ``config.WatchConfig``):
+Triggers (the robot YAML's ``watch`` section, ``configuration.watch.WatchConfig``):
 
 - ``file``: a file appears at ``watch.trigger.path``. It is deleted just before the run
   starts, so one file is one run. A file created while a run is in progress is seen after
@@ -41,7 +41,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Callable
 
-from payload_agent.configuration.config import Config, WatchConfig
+from payload_agent.configuration.config import Config
+from payload_agent.configuration.watch import WatchConfig
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import ConfigError, PayloadAgentError, UnsupportedCapability
 from payload_agent.tools.library import NAME_PATTERN
