@@ -37,11 +37,11 @@ from typing import Any, Iterable, Mapping, Sequence
 from payload_agent.version import __version__
 from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
+from payload_agent.recording.sqlite_store import StoreSchema, open_for_write, read_rows
 from payload_agent.output.history_table import format_history  # noqa: F401  (the `history` command's table)
 
 SCHEMA_VERSION = 1
 Z95 = 1.96
-BUSY_TIMEOUT_S = 10.0
 
 _COLUMNS = (
     "time_utc", "robot", "run_dir", "tool", "solver", "mass_kg", "cog_x_mm", "cog_y_mm", "cog_z_mm",
@@ -81,6 +81,7 @@ _SCHEMA_V1 = (
 )""",
 "CREATE INDEX identifications_tool_time ON identifications (robot, tool, time_utc)",
 )  # statements, run one by one inside one transaction
+STORE = StoreSchema("history database", "identifications", SCHEMA_VERSION, _SCHEMA_V1)
 
 
 def utc_now() -> str:
@@ -182,50 +183,8 @@ class ChangeFlag:
 
 
 # -- database ---------------------------------------------------------------------------------
-def _connect(db_path: Path) -> sqlite3.Connection:
-    # autocommit mode: transactions are explicit (BEGIN IMMEDIATE) or one statement each
-    conn = sqlite3.connect(str(db_path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
-    conn.row_factory = sqlite3.Row
-    return conn
-
-
-def _ensure_schema(conn: sqlite3.Connection, db_path: Path) -> None:
-    version = conn.execute("PRAGMA user_version").fetchone()[0]
-    if version == SCHEMA_VERSION:
-        return
-    if version > SCHEMA_VERSION:
-        raise DataError(f"{db_path}: history schema version {version} was written by a newer payload-agent "
-                        f"(this one reads version {SCHEMA_VERSION}); upgrade payload-agent")
-    # version 0: a new (empty) database. BEGIN IMMEDIATE so two first writers cannot both create it.
-    conn.execute("BEGIN IMMEDIATE")
-    try:
-        if conn.execute("PRAGMA user_version").fetchone()[0] == 0:
-            if conn.execute("SELECT name FROM sqlite_master WHERE name = 'identifications'").fetchone():
-                raise DataError(f"{db_path}: has an identifications table but no schema version; "
-                                "not a payload-agent history (move it away)")
-            for stmt in _SCHEMA_V1:
-                conn.execute(stmt)
-            conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-        conn.execute("COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
-
-
 def _open_for_write(db_path: Path) -> sqlite3.Connection:
-    db_path = Path(db_path)
-    db_path.parent.mkdir(parents=True, exist_ok=True)
-    conn = _connect(db_path)
-    try:
-        conn.execute("PRAGMA journal_mode = WAL")
-        _ensure_schema(conn, db_path)
-    except sqlite3.DatabaseError as exc:
-        conn.close()
-        raise DataError(f"{db_path}: not a usable history database ({exc})") from None
-    except BaseException:
-        conn.close()
-        raise
-    return conn
+    return open_for_write(db_path, STORE)
 
 
 def record(db_path: Path, entry: HistoryEntry) -> int:
@@ -273,17 +232,7 @@ def entries(db_path: Path, tool: str | None = None, limit: int | None = None, *,
     if limit is not None:
         sql += " LIMIT ?"
         args.append(int(limit))
-    try:
-        with closing(_connect(db_path)) as conn:
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
-            if version == 0:
-                return []
-            if version > SCHEMA_VERSION:
-                raise DataError(f"{db_path}: history schema version {version} was written by a newer payload-agent "
-                                f"(this one reads version {SCHEMA_VERSION}); upgrade payload-agent")
-            rows = conn.execute(sql, args).fetchall()
-    except sqlite3.DatabaseError as exc:
-        raise DataError(f"{db_path}: not a usable history database ({exc})") from None
+    rows = read_rows(db_path, STORE, sql, args)
     return [_from_row(r) for r in reversed(rows)]
 
 

@@ -31,9 +31,9 @@ from pathlib import Path
 from typing import Any
 
 from payload_agent.errors import DataError
+from payload_agent.recording.sqlite_store import StoreSchema, open_for_write, read_rows
 
 SCHEMA_VERSION = 1
-BUSY_TIMEOUT_S = 10.0
 LIBRARY_NAME = "tools.sqlite"
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9 ._+-]{0,63}$")
 SOURCES = ("identified", "imported", "verified")
@@ -123,60 +123,15 @@ class ToolVersion:
 
 
 # -- database ---------------------------------------------------------------------------------
-def _connect(db: Path) -> sqlite3.Connection:
-    conn = sqlite3.connect(str(db), timeout=BUSY_TIMEOUT_S, isolation_level=None)
-    conn.row_factory = sqlite3.Row
-    return conn
+STORE = StoreSchema("tool library", "tools", SCHEMA_VERSION, _SCHEMA)
 
 
 def _open_for_write(db: Path) -> sqlite3.Connection:
-    db = Path(db)
-    db.parent.mkdir(parents=True, exist_ok=True)
-    conn = _connect(db)
-    try:
-        conn.execute("PRAGMA journal_mode = WAL")
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
-        if version > SCHEMA_VERSION:
-            raise DataError(f"{db}: tool library schema version {version} was written by a newer payload-agent "
-                            f"(this one reads version {SCHEMA_VERSION}); upgrade payload-agent")
-        if version == 0:
-            conn.execute("BEGIN IMMEDIATE")
-            try:
-                if conn.execute("PRAGMA user_version").fetchone()[0] == 0:
-                    if conn.execute("SELECT name FROM sqlite_master WHERE name = 'tools'").fetchone():
-                        raise DataError(f"{db}: has a tools table but no schema version; not a payload-agent "
-                                        "tool library (move it away)")
-                    for stmt in _SCHEMA:
-                        conn.execute(stmt)
-                    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-                conn.execute("COMMIT")
-            except BaseException:
-                conn.execute("ROLLBACK")
-                raise
-    except sqlite3.DatabaseError as exc:
-        conn.close()
-        raise DataError(f"{db}: not a usable tool library ({exc})") from None
-    except BaseException:
-        conn.close()
-        raise
-    return conn
+    return open_for_write(db, STORE)
 
 
 def _read(db: Path, sql: str, args: tuple) -> list[sqlite3.Row]:
-    db = Path(db)
-    if not db.exists():
-        return []
-    try:
-        with closing(_connect(db)) as conn:
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
-            if version == 0:
-                return []
-            if version > SCHEMA_VERSION:
-                raise DataError(f"{db}: tool library schema version {version} was written by a newer "
-                                f"payload-agent (this one reads version {SCHEMA_VERSION}); upgrade payload-agent")
-            return conn.execute(sql, args).fetchall()
-    except sqlite3.DatabaseError as exc:
-        raise DataError(f"{db}: not a usable tool library ({exc})") from None
+    return read_rows(db, STORE, sql, args)
 
 
 def _row_values(e: ToolEntry) -> tuple:
