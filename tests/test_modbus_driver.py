@@ -5,6 +5,7 @@ a server that drops every connection mid-sweep, garbage values, a stalled stream
 the pendant taking control, a program that never reports done.
 """
 
+import dataclasses
 import math
 import time
 
@@ -341,3 +342,18 @@ def test_watch_fires_on_the_tool_change_register(ur, tmp_path):
     assert reads and reads[0] is False
     assert code == 0 and len(runs) == 1
     assert any("the trigger register went high" in line for line in lines)
+
+
+def test_a_status_flag_that_is_neither_0_nor_1_is_a_garbled_reply_not_an_emergency_stop(ur):
+    """A safety flag register that reads 1311 (a late reply of another block once did) must not be reported as an
+    emergency stop the operator is then sent to release: the status is unknown and the driver says so."""
+    fake, options = ur
+    drv = _driver(options)
+    try:
+        fake.inject_fault("stall_stream")  # the device image stops refreshing: our value stays
+        address = fake.map["emergency_stop"].address
+        fake.store.set_many([("holding", address, [1311])])
+        with pytest.raises(CommunicationError, match=f"1311 for emergency_stop \\(holding {address}\\).*neither 0 nor 1"):
+            drv.state()
+    finally:
+        drv.close()

@@ -68,31 +68,36 @@ class ModbusBus:
         self._lock = threading.RLock()
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._lost: str | None = None
-        self._stale = False  # RTU: a request timed out, its reply may still arrive: drain before the next
+        # a request timed out and its reply may still arrive: RTU drains the line before the next request, TCP
+        # opens a new connection (pymodbus' sync client can take a late reply on the old one for the next request's:
+        # a status read answered with another 5-register block's words read as an emergency stop)
+        self._stale = False
 
     # -- connection ---------------------------------------------------------------------------
     def open(self) -> None:
-        ep = self.endpoint
         with self._lock:
-            if ep.transport == "tcp":
-                client = ModbusTcpClient(ep.host, port=ep.port, timeout=ep.timeout_s, retries=ep.retries,
-                                         reconnect_delay=0, reconnect_delay_max=0)
-            else:
-                client = ModbusSerialClient(ep.serial_port, framer=FramerType.RTU, baudrate=ep.baudrate,
-                                            parity=ep.parity, stopbits=ep.stopbits, bytesize=ep.bytesize,
-                                            timeout=ep.timeout_s, retries=ep.retries, reconnect_delay=0,
-                                            reconnect_delay_max=0)
-            try:
-                ok = client.connect()
-            except Exception as exc:  # pyserial raises for a missing device
-                ok = False
-                self._lost = str(exc)
-            if not ok:
-                client.close()
-                raise ConnectionLost(f"cannot open the Modbus {self.role} to {ep.describe()}"
-                                     + (f": {self._lost}" if self._lost else ""))
-            self._client = client
+            self._client = self._connected_client()
             self._lost = None
+
+    def _connected_client(self) -> ModbusTcpClient | ModbusSerialClient:
+        ep = self.endpoint
+        if ep.transport == "tcp":
+            client = ModbusTcpClient(ep.host, port=ep.port, timeout=ep.timeout_s, retries=ep.retries,
+                                     reconnect_delay=0, reconnect_delay_max=0)
+        else:
+            client = ModbusSerialClient(ep.serial_port, framer=FramerType.RTU, baudrate=ep.baudrate,
+                                        parity=ep.parity, stopbits=ep.stopbits, bytesize=ep.bytesize,
+                                        timeout=ep.timeout_s, retries=ep.retries, reconnect_delay=0,
+                                        reconnect_delay_max=0)
+        error = None
+        try:
+            ok = client.connect()
+        except Exception as exc:  # pyserial raises for a missing device
+            ok, error = False, str(exc)
+        if not ok:
+            client.close()
+            raise ConnectionLost(f"cannot open the Modbus {self.role} to {ep.describe()}" + (f": {error}" if error else ""))
+        return client
 
     def close(self) -> None:
         with self._lock:
@@ -158,6 +163,21 @@ class ModbusBus:
                 self._execute(what, "write_registers", block.address, [int(w) for w in data], device_id=dev,
                               wait_s=wait_s)
 
+    def _reconnect(self, what: str):
+        """A new TCP connection in place of one that may still deliver a late reply (the old one is closed only
+        once the new one is open: the connection never looks lost to the supervision meanwhile)."""
+        try:
+            client = self._connected_client()
+        except ConnectionLost as exc:
+            self._lost = str(exc)
+            raise ConnectionLost(f"the {what} could not go out: reconnecting after a late reply failed ({exc})") from None
+        old, self._client, self._stale = self._client, client, False
+        try:
+            old.close()
+        except Exception:
+            pass
+        return client
+
     def _drain(self, client) -> None:
         """Wait out the line's silence and throw away whatever arrived (RTU after a timeout)."""
         serial = getattr(client, "socket", None)
@@ -182,7 +202,10 @@ class ModbusBus:
         if client is None:
             raise ConnectionLost(f"the Modbus {self.role} to {self.endpoint.describe()} is closed ({what})")
         if self._stale:
-            self._drain(client)
+            if self.endpoint.transport == "rtu":
+                self._drain(client)
+            else:
+                client = self._reconnect(what)
         try:
             resp = getattr(client, fn)(*args, **kwargs)
         except ConnectionException as exc:
@@ -194,7 +217,7 @@ class ModbusBus:
                 self._lost = str(exc)
                 raise ConnectionLost(f"the {what} failed: {self.endpoint.describe()} stopped answering "
                                      f"and the connection was closed") from None
-            self._stale = self.endpoint.transport == "rtu"
+            self._stale = True
             raise ModbusTimeout(f"no reply to the {what} from {self.endpoint.describe()} within "
                                 f"{self.endpoint.timeout_s:g} s") from None
         except (ModbusException, OSError, ValueError) as exc:

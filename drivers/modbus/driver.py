@@ -45,6 +45,8 @@ from payload_agent.errors import (CommunicationError, ConfigError, MotionAborted
 STATUS_SIGNALS = ("robot_mode", "power_on", "protective_stop", "emergency_stop", "fault_code")
 
 
+STATUS_FLAGS = ("power_on", "protective_stop", "emergency_stop")  # registers that hold 0 or 1
+
 class ModbusDriver(Driver):
     name = "modbus"
     options_class = ModbusOptions
@@ -254,11 +256,17 @@ class ModbusDriver(Driver):
 
     # -- state --------------------------------------------------------------------------------
     def _status(self) -> dict[str, int]:
+        """The safety and mode registers. A flag that reads neither 0 nor 1 is a garbled or misdirected reply
+        (once a late reply of another block, 1311, was taken for the emergency stop): refused, never read as set."""
         out: dict[str, int] = {}
         for block in self._status_blocks:
             words = self._cmd.read(block)
             for e in block.entries:
                 out[e.name] = int(e.raw_values(block.slice_for(e, words))[0])
+                if e.name in STATUS_FLAGS and out[e.name] not in (0, 1):
+                    raise CommunicationError(f"the controller answered the status read with {out[e.name]} for "
+                                             f"{e.name} ({e.table} {e.address}), which is neither 0 nor 1: a garbled "
+                                             "or misdirected reply; the status is unknown")
         return out
 
     def _safety_fault(self) -> str | None:
