@@ -95,16 +95,10 @@ def plans(proc: Procedure):
 
 
 def motion_time_s(plan) -> float:
-    """Robot time of one run without the approach move (which depends on where the robot stands)."""
-    from payload_agent.motion.planner import move_duration_s
+    """Robot time of one run without the approach move (the design's own count)."""
+    from payload_agent.evaluation.design import robot_time_s
 
-    total, prev = 0.0, None
-    for m in plan.moves:
-        tgt = np.asarray(m.target_rad)
-        if prev is not None:
-            total += move_duration_s(prev, tgt, m.speed_rad_s, m.accel_rad_s2)
-        prev = tgt
-    return total
+    return robot_time_s(plan)
 
 
 def check_safety(proc: Procedure) -> list[str]:

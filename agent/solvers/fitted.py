@@ -59,16 +59,7 @@ class FittedModel:
 
     def fit(self, which: str = ALL) -> FitResult:
         """The weighted fit (noise covariance only) of ``groups_of(which)``, made once."""
-        key = ("fit", which)
-        if key not in self._cache:
-            try:
-                self._cache[key] = fit(self.groups_of(which))
-            except (DataError, np.linalg.LinAlgError) as exc:
-                self._cache[key] = exc
-        got = self._cache[key]
-        if isinstance(got, Exception):
-            raise got
-        return got
+        return self.cached(("fit", which), lambda: fit(self.groups_of(which)))
 
     def fits(self) -> dict[str, FitResult]:
         """The combined fit, then every pose that can be fitted alone (the others are left out)."""
