@@ -39,8 +39,9 @@ class OptionalCapabilities:
         """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
         raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")
 
-    def read_trigger(self) -> bool:
-        """The controller's tool-change trigger register (non-zero: a tool change happened), for `watch`."""
+    def read_trigger(self) -> int:
+        """The controller's tool-change trigger register, for `watch`: 0 none; non-zero a tool change
+        happened (and, where the cell's PLC writes it so, the new tool's number)."""
         raise UnsupportedCapability(f"driver {self.name!r} has no trigger register")
 
     def joint_temperatures_c(self) -> tuple[float, ...] | None:

@@ -253,10 +253,13 @@ def test_payload_write_and_read_back_and_inputs(ur):
         assert drv.read_digital_input(7) and not drv.read_digital_input(6)
         with pytest.raises(UnsupportedCapability):
             drv.read_digital_input(16)
-        assert not drv.read_trigger()
+        assert drv.read_trigger() == 0
         fake.set_tool_change(1)
         time.sleep(0.05)
-        assert drv.read_trigger()
+        assert drv.read_trigger() == 1
+        fake.set_tool_change(12)  # a PLC writing the tool's number
+        time.sleep(0.05)
+        assert drv.read_trigger() == 12
     finally:
         drv.close()
 
@@ -339,9 +342,67 @@ def test_watch_fires_on_the_tool_change_register(ur, tmp_path):
         code = watch(config, run_once, driver_factory=factory, out=lines.append, max_runs=1, stop_event=give_up)
     finally:
         timer.cancel()
-    assert reads and reads[0] is False
+    assert reads and reads[0] == 0
     assert code == 0 and len(runs) == 1
     assert any("the trigger register went high" in line for line in lines)
+
+
+def test_watch_takes_the_tool_number_from_the_register(ur):
+    """``tool_from_value``: the PLC writes the new tool's number; 7, then 9 over it without clearing: two changes,
+    each run given the number (which the tool library resolves)."""
+    import threading
+
+    import yaml
+
+    from conftest import ROOT, tweak
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.session.watch import watch
+
+    fake, options = ur
+    data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
+    data = tweak(data, "watch", {"trigger": {"type": "register", "tool_from_value": True}, "poll_interval_s": 0.02})
+    config = parse_config(data, source="test")
+    tools, lines, reads = [], [], []
+    reference_after_run = threading.Event()
+    marks = []
+
+    def factory():
+        drv = ModbusDriver(options, LIMITS, RELAXED)
+        read = drv.read_trigger
+
+        def counted():
+            reads.append(read())
+            if marks and len(reads) > marks[0] and reads[-1] == 7:
+                reference_after_run.set()  # read 7 again after run 1: the reference for the next change
+            return reads[-1]
+        drv.read_trigger = counted
+        return drv
+
+    def run_tool(name):
+        tools.append(name)
+        marks.append(len(reads))
+        return 0
+
+    def plc():
+        deadline = time.monotonic() + 30
+        while 0 not in reads and time.monotonic() < deadline:
+            time.sleep(0.01)
+        fake.set_tool_change(7)
+        if reference_after_run.wait(30):
+            fake.set_tool_change(9)  # the next tool's number over the last one, without clearing
+
+    threading.Thread(target=plc, daemon=True).start()
+    give_up = threading.Event()
+    timer = threading.Timer(60, give_up.set)
+    timer.start()
+    try:
+        code = watch(config, lambda: 1, driver_factory=factory, out=lines.append, max_runs=2, stop_event=give_up,
+                     run_tool=run_tool)
+    finally:
+        timer.cancel()
+    assert code == 0 and tools == ["7", "9"], (tools, lines)
+    assert reads[0] == 0
+    assert any("reads tool number 7" in line for line in lines)
 
 
 def test_a_status_flag_that_is_neither_0_nor_1_is_a_garbled_reply_not_an_emergency_stop(ur):

@@ -149,6 +149,41 @@ def test_digital_input_rising_edges_only(base_cfg):
     assert any("digital input 3 went high" in line for line in log)
 
 
+class CodedInputDriver(FakeInputDriver):
+    """The trigger input 3 from a script; the tool number on inputs 8, 9, 10 (LSB first) from a list per edge."""
+
+    def __init__(self, levels, numbers):
+        super().__init__(levels)
+        self.numbers = list(numbers)
+        self.coded_reads = []
+
+    def read_digital_input(self, index):
+        if index == 3:
+            return self.levels.pop(0) if len(self.levels) > 1 else self.levels[0]
+        bit = index - 8
+        assert 0 <= bit < 3, index
+        self.coded_reads.append(index)
+        return bool((self.numbers[0] >> bit) & 1)
+
+
+def test_digital_input_edge_carries_the_tool_number_on_coded_inputs(base_cfg):
+    # edges at the 2nd and 5th reading; the tool changer codes tool 5 (101), then 0 (no tool named)
+    drv = CodedInputDriver([0, 1, 1, 0, 1], numbers=[5, 0])
+    tools, log = [], Log()
+
+    def run_tool(name):
+        tools.append(name)
+        drv.numbers.pop(0)
+        return 0
+
+    cfg = replace(base_cfg, watch=WatchConfig("digital_input", None, 3, POLL, tool_inputs=(8, 9, 10)))
+    code = watch(cfg, lambda: 1, driver_factory=drv, out=log, max_runs=2, run_tool=run_tool)
+    assert code == 0 and tools == ["5", None]
+    assert drv.coded_reads == [8, 9, 10, 8, 9, 10]  # read once per edge, never while waiting
+    assert any("digital input 3 went high; tool number 5" in line for line in log)
+    assert any("no tool number (inputs all low)" in line for line in log)
+
+
 def test_unsupported_driver_and_missing_section(base_cfg, tmp_path):
     class NoInputs(FakeInputDriver):
         def read_digital_input(self, index):

@@ -77,8 +77,9 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
     when the driver cannot read digital inputs.
 
     ``run_tool(name)``, when given, is called instead of ``run_once`` with the tool the trigger names
-    (a file trigger: the file's first line, a library name or tool number; None when the trigger names
-    none): ``session.tool_change.change_tool`` verifies a known tool and identifies only a new one.
+    (a file trigger: the file's first line, a library name or tool number; a register trigger with
+    ``tool_from_value``: its value; a digital input with ``tool_inputs``: their binary number; None when
+    the trigger names none): ``session.tool_change.change_tool`` verifies a known tool and identifies only a new one.
     """
     wc = config.watch
     if wc is None:
@@ -238,12 +239,21 @@ class _FileTrigger(_Trigger):
 
 
 class _InputTrigger(_Trigger):
+    """A digital input's rising edge, or the trigger register going from 0 to non-zero.
+
+    With ``tool_inputs`` the tool number is read from those inputs (binary, least significant bit first)
+    right after the edge: the PLC or tool changer sets them before it raises the trigger. With
+    ``tool_from_value`` the register's value is the tool number, and a change from one non-zero value to
+    another is a tool change too (a PLC that writes the next tool's number without clearing first)."""
+
     def __init__(self, wc: WatchConfig, factory: Callable[[], Driver], out: Callable[[str], None]):
         self.index = None if wc.trigger == "register" else int(wc.input_index)  # type: ignore[arg-type]
+        self.tool_inputs = wc.tool_inputs
+        self.from_value = wc.tool_from_value
         self.factory = factory
         self.out = out
         self.driver: Driver | None = None
-        self.previous: bool | None = None  # None: no reference level yet (start, after a run or an error)
+        self.previous: int | None = None  # None: no reference level yet (start, after a run or an error)
         self.failures = 0
 
     def _what(self) -> str:
@@ -251,21 +261,35 @@ class _InputTrigger(_Trigger):
 
     def describe(self) -> str:
         if self.index is None:
-            return "a rising edge on the controller's trigger register"
-        return f"a rising edge on the controller's digital input {self.index}"
+            return ("a new non-zero tool number in the controller's trigger register" if self.from_value
+                    else "a rising edge on the controller's trigger register")
+        coded = (f" (tool number on inputs {', '.join(map(str, self.tool_inputs))}, least significant first)"
+                 if self.tool_inputs else "")
+        return f"a rising edge on the controller's digital input {self.index}{coded}"
 
     def wait_s(self, poll_interval_s: float) -> float:
         # back off while the controller cannot be reached, up to MAX_RECONNECT_WAIT_S
         return poll_interval_s if not self.failures else min(MAX_RECONNECT_WAIT_S,
                                                              poll_interval_s * 2 ** min(self.failures, 6))
 
+    def _level(self, driver: Driver) -> int:
+        if self.index is None:
+            value = int(driver.read_trigger())
+            return value if self.from_value else int(value != 0)
+        return int(bool(driver.read_digital_input(self.index)))
+
+    def _tool_number(self, driver: Driver) -> int:
+        return sum(int(bool(driver.read_digital_input(i))) << bit for bit, i in enumerate(self.tool_inputs))
+
     def poll(self) -> str | None:
         try:
             if self.driver is None:
                 self.driver = self.factory()
                 self.driver.connect()
-            level = bool(self.driver.read_trigger() if self.index is None
-                         else self.driver.read_digital_input(self.index))
+            level = self._level(self.driver)
+            previous = self.previous
+            fired = previous is not None and level != 0 and level != previous
+            number = self._tool_number(self.driver) if fired and self.tool_inputs else None
         except UnsupportedCapability:
             self.close()
             raise
@@ -279,10 +303,16 @@ class _InputTrigger(_Trigger):
         if self.failures:
             self.out(f"{_stamp()} watch: {self._what()} readable again")
             self.failures = 0
-        previous, self.previous = self.previous, level
-        if previous is False and level:
-            return f"{self._what()} went high"
-        return None
+        self.previous = level
+        if not fired:
+            return None
+        if self.from_value:
+            number = level
+        self.tool = str(number) if number else None
+        if self.index is None and self.from_value:
+            return f"the trigger register reads tool number {level}"
+        named = "" if number is None else f"; tool number {number}" if number else "; no tool number (inputs all low)"
+        return f"{self._what()} went high{named}"
 
     def before_run(self) -> None:
         self.close()  # the run makes its own connection; nothing else talks to the robot meanwhile

@@ -387,8 +387,9 @@ class ModbusDriver(Driver):
         raw = int(e.raw_values(self._cmd.read(group_reads([e])[0]))[0])
         return bool((raw >> index) & 1)
 
-    def read_trigger(self) -> bool:
-        """The map's tool-change trigger register (non-zero: a tool change happened)."""
+    def read_trigger(self) -> int:
+        """The map's tool-change trigger register: 0, or non-zero after a tool change (its value may be
+        the tool's number, as the cell's PLC writes it)."""
         if "tool_change" not in self.map:
             raise UnsupportedCapability("the register map has no tool_change entry")
-        return bool(self._read("tool_change")["tool_change"][0])
+        return int(self._read("tool_change")["tool_change"][0])
