@@ -78,7 +78,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--changes", type=int, default=200)
     p.add_argument("--time-scale", type=float, default=15.0)
     p.add_argument("--seed", type=int, default=23)
+    p.add_argument("--trace-memory", action="store_true",
+                   help="tracemalloc (slower): print the allocation sites that grew most after the first 10 changes")
     args = p.parse_args(argv)
+    if args.trace_memory:
+        import tracemalloc
+
+        tracemalloc.start(8)
+    snapshot0 = None
     rng = np.random.default_rng(args.seed)
     tmp = Path(tempfile.mkdtemp(prefix="payload-agent-soak-"))
     config = _config(tmp, args.time_scale)
@@ -177,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
             counts[(kind, label if ok else f"WRONG exit {code}")] += 1
             if not ok:
                 wrong.append(f"change {i}: {kind} {name}: exit {code} {err} (moving {moving})")
+        if args.trace_memory and i == min(9, args.changes - 2):
+            snapshot0 = tracemalloc.take_snapshot()
         if i % 25 == 0 or i == args.changes - 1:
             samples.append((i + 1, _rss_mb(), len(os.listdir("/proc/self/fd")), threading.active_count(),
                             _du_kb(tmp / "state"), _du_kb(tmp / "runs"), len(list((tmp / "runs").iterdir()))))
@@ -205,6 +214,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{row[0]:>6} {row[1]:>8.1f} {row[2]:>9} {row[3]:>8} {row[4]:>9} {row[5]:>9} {row[6]:>9}")
     print(f"open files at start {fd0}; run folders reported {len(run_dirs)}, lost {len(lost)}")
     print(f"wrong outcomes: {len(wrong)}" + "".join("\n  " + w for w in wrong[:20]))
+    if snapshot0 is not None:
+        grown = tracemalloc.take_snapshot().compare_to(snapshot0, "traceback")[:8]
+        print("\nmemory grown most since change 10 (tracemalloc):")
+        for stat in grown:
+            print(f"  {stat.size_diff / 1024:+9.0f} kB in {stat.count_diff:+7d} blocks: "
+                  + " <- ".join(f"{Path(f.filename).name}:{f.lineno}" for f in stat.traceback[:4]))
     return 0 if not wrong and not lost else 1
 
 

@@ -56,6 +56,7 @@ NOT_REMOTE_MESSAGE = "The robot is not in remote mode"
 
 TICK_S = 0.008  # the simulated robot's tick: one monitor frame per tick
 DEFAULT_SLOW_REPLY_S = 3.0
+REQUEST_LOG_LIMIT = 10_000
 GARBAGE_FRAME = b"GARBAGE!" * 128  # 1024 bytes whose first u32 announces no sensible frame size
 
 # Methods that need remote mode.
@@ -113,7 +114,9 @@ class FakeEliteController(EliteMethods, SimulatedController):
         self._garbage: dict[str, str] = {}
         self._pose_cache: tuple[bytes, list[float]] | None = None
         self.frames_sent = 0
-        self.requests: list[tuple[str, Any]] = []  # every (method, params) received, for tests
+        # the (method, params) received, for tests: the newest REQUEST_LOG_LIMIT at least (a soak of hundreds
+        # of runs must not grow the process by the log of every poll)
+        self.requests: list[tuple[str, Any]] = []
 
         self._rpc = LineJsonRpcServer(host, rpc_port, self._dispatch, name="elite-rpc",
                                       raw_override=self._raw_override)
@@ -394,6 +397,8 @@ class FakeEliteController(EliteMethods, SimulatedController):
     def _dispatch(self, method: str, params: Any) -> Any:
         with self._lock:
             self.requests.append((method, params))
+            if len(self.requests) > 2 * REQUEST_LOG_LIMIT:
+                del self.requests[:REQUEST_LOG_LIMIT]
         fn = getattr(self, "_m_" + method, None)
         if fn is None:
             raise RpcError(METHOD_NOT_FOUND, "Method not found")
