@@ -50,6 +50,8 @@ class PayloadSetting:
     mass_kg: float
     cog_m: tuple[float, float, float]  # in the flange frame
     tool_num: int | None = None
+    # 3x3 inertia about the centre of gravity, flange axes, kg·m²; None: not given (write) / not reported (read)
+    inertia_com_kgm2: tuple[tuple[float, float, float], ...] | None = None
 
 
 @dataclass(frozen=True)

@@ -147,13 +147,15 @@ def payload_write_record(requested: bool, applied: bool, written: Any = None, re
                          reason: str | None = None) -> dict[str, Any]:
     """The manifest's ``payload_write`` object (the runner stores it after a write-back, or its refusal).
 
-    ``written`` / ``read_back``: PayloadSetting-like (mass_kg, cog_m, tool_num) or None.
+    ``written`` / ``read_back``: PayloadSetting-like (mass_kg, cog_m, tool_num, inertia_com_kgm2) or None.
     """
     def setting(p: Any) -> dict[str, Any] | None:
         if p is None:
             return None
+        inertia = getattr(p, "inertia_com_kgm2", None)
         return {"mass_kg": float(p.mass_kg), "cog_mm": [1000.0 * float(c) for c in p.cog_m],
-                "tool_num": getattr(p, "tool_num", None)}
+                "tool_num": getattr(p, "tool_num", None),
+                "inertia_com_kgm2": None if inertia is None else [[float(v) for v in row] for row in inertia]}
 
     return {"requested": bool(requested), "applied": bool(applied), "written": setting(written),
             "read_back": setting(read_back), "reason": reason}

@@ -70,7 +70,7 @@ from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 RTDE_PORT = 30004
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the payload
-# fields exist from PolyScope 5.5.1 / 3.11 on and are added only there).
+# fields exist from PolyScope 5.5.1 / 3.11 on and are added only there, payload_inertia from 5.11 / 3.15).
 RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_pose", "robot_mode", "safety_mode",
           "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
@@ -112,6 +112,8 @@ class URRTDEDriver(URCapabilities, Driver):
         self._version: tuple[int, ...] = ()
         self._remote: bool | None = None
         self._has_payload_fields = False
+        self._has_inertia_field = False  # RTDE payload_inertia: PolyScope 5.11 / 3.15 (ur-rtde's setupRecipes)
+        self._inertia_writable = False  # set_target_payload (5.10, ur-rtde's script tag) and its readback (5.11)
         self._script_dead = False  # the move just ended with ur-rtde's script gone: stop from the dashboard
         self._move = _URMove(0)
         self._last_ts: float | None = None
@@ -138,7 +140,10 @@ class URRTDEDriver(URCapabilities, Driver):
         self._control.frequency_hz = self.frequency_hz
         v = self._version + (0, 0, 0)
         self._has_payload_fields = (v[0] == 3 and v[1] >= 11) or (v[0] == 5 and (v[1], v[2]) >= (5, 1)) or v[0] > 5
-        variables = RECIPE + (PAYLOAD_FIELDS if self._has_payload_fields else [])
+        self._has_inertia_field = (v[0] == 3 and v[1] >= 15) or (v[0] == 5 and v[1] >= 11) or v[0] > 5
+        self._inertia_writable = (v[0] == 5 and v[1] >= 11) or v[0] > 5
+        variables = RECIPE + (PAYLOAD_FIELDS if self._has_payload_fields else []) + \
+            (["payload_inertia"] if self._has_inertia_field else [])
         try:
             recv = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, variables, False,
                                                      self.options.upper_range_registers)
