@@ -17,6 +17,9 @@ class Sample:
     t_recv: float  # time.monotonic() when the sample was received
     q: tuple[float, ...]  # joint angles, rad, controller convention
     effort: tuple[float, ...]  # per joint, in the driver's effort unit (Driver.effort_unit)
+    # the controller's own per-joint target current (A) and model torque (N·m), where it streams them (UR)
+    target_current: tuple[float, ...] | None = None
+    target_moment: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
