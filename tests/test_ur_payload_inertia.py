@@ -164,3 +164,15 @@ class _Declines:
 
     def write_payload(self, payload):  # pragma: no cover - must not be reached
         raise AssertionError("written although declined")
+
+
+def test_the_report_sentence_says_what_was_written_with_the_inertia():
+    from payload_agent.output.pendant import payload_write_record, write_back_text
+
+    back = PayloadSetting(1.4, (0.018, -0.006, 0.072), inertia_com_kgm2=INERTIA)
+    text = write_back_text({"payload_write": payload_write_record(True, True, TOOL, back)})
+    assert "1.400 kg at [18.0, -6.0, 72.0] mm, inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [0.004100, 0.005200" in text
+    plain = PayloadSetting(1.4, (0.018, -0.006, 0.072))
+    why = "Inertia not written: the modbus driver writes mass and centre of gravity only."
+    text = write_back_text({"payload_write": payload_write_record(True, True, plain, plain, note=why)})
+    assert "inertia [" not in text and text.endswith(why)

@@ -62,10 +62,10 @@ def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir
                              result.to_json(), outcome.history_id)
         out(f"Tool library: stored {entry.describe()}")
     if opts.apply and opts.mode == "identify" and passed:
-        written = payload_to_write(result, driver)[0]
+        written, why_no_inertia = payload_to_write(result, driver)
         outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,
                                        out)
-        _record_write(run_dir, payload_write_record(True, True, written, outcome.applied))
+        _record_write(run_dir, payload_write_record(True, True, written, outcome.applied, note=why_no_inertia))
         if outcome.history_id is not None:
             from payload_agent.output import history
 
