@@ -102,7 +102,7 @@ def outcome_json(outcome) -> dict[str, Any]:
     applied = getattr(outcome, "applied", None)
     if applied is not None:
         data["applied"] = {"mass_kg": applied.mass_kg, "cog_mm": [1000 * c for c in applied.cog_m],
-                           "tool_num": applied.tool_num}
+                           "tool_num": applied.tool_num, "inertia_com_kgm2": applied.inertia_com_kgm2}
     if result is not None:
         cfg = None
         try:

@@ -107,7 +107,7 @@ def solve_run(run_dir: Path, manifest: dict[str, Any], config: Config, *, solver
             f" (copied from the stored baseline {origin.get('dir', '?')} of {origin.get('recorded_utc', '?')})"
             if isinstance(origin, dict) else "")
     result = analyse_run(config, run_dir, solver, baseline_dir, gains=gains)
-    if gains is not None:
+    if gains is not None and result.extra["gains_source"] == "given by the caller":  # not the controller's fit
         result.extra["gains_source"] = gains_text
     result.extra["solve"] = {
         "solved_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "software_version": __version__,

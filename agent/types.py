@@ -17,6 +17,9 @@ class Sample:
     t_recv: float  # time.monotonic() when the sample was received
     q: tuple[float, ...]  # joint angles, rad, controller convention
     effort: tuple[float, ...]  # per joint, in the driver's effort unit (Driver.effort_unit)
+    # the controller's own per-joint target current (A) and model torque (N·m), where it streams them (UR)
+    target_current: tuple[float, ...] | None = None
+    target_moment: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,8 @@ class PayloadSetting:
     mass_kg: float
     cog_m: tuple[float, float, float]  # in the flange frame
     tool_num: int | None = None
+    # 3x3 inertia about the centre of gravity, flange axes, kg·m²; None: not given (write) / not reported (read)
+    inertia_com_kgm2: tuple[tuple[float, float, float], ...] | None = None
 
 
 @dataclass(frozen=True)

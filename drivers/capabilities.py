@@ -35,6 +35,11 @@ class OptionalCapabilities:
     def write_payload(self, payload: PayloadSetting) -> None:
         raise UnsupportedCapability(f"driver {self.name!r} cannot write the payload setting")
 
+    def payload_inertia_support(self) -> str:
+        """"" when ``write_payload`` writes ``PayloadSetting.inertia_com_kgm2`` too (known once connected),
+        else why it writes mass and centre of gravity only (a sentence for the run's output)."""
+        return f"the {self.name} driver writes mass and centre of gravity only"
+
     def read_digital_input(self, index: int) -> bool:
         """State of the controller's general-purpose digital input ``index`` (for `watch`)."""
         raise UnsupportedCapability(f"driver {self.name!r} cannot read digital inputs")

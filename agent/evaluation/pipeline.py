@@ -15,6 +15,7 @@ from payload_agent.analysis.run_deltas import check_segmentation, phases_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
 from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+from payload_agent.evaluation.controller_gains import controller_gains
 from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
                                                   run_calibration)
 from payload_agent.recording.rundata import load_manifest
@@ -28,10 +29,13 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     """Segment, subtract, combine, solve and check one run folder; the result is returned, not written.
 
     Drive gains: the calibration recorded with the run (``RUN_DIR/calibration.json``, copied in when the
-    run began, so the live run, ``solve`` and ``--resume`` agree) if there is one, else ``gains`` if given
-    (``solve``: the manifest's), else the robot's valid calibration (``state/<robot>/gains.json``; for
-    folders written by other tools) if there is one, else the config's nominal gains. Which were used goes into the result
-    (``gains_nm_per_unit``, ``gains_source``) and the primary estimate's notes. With a
+    run began, so the live run, ``solve`` and ``--resume`` agree) if there is one, else the robot's valid
+    calibration (``state/<robot>/gains.json``; for folders written by other tools; not when ``gains`` are
+    given) if there is one; without a calibration, the constants fitted from the controller's own target
+    current and target moment where the sweeps recorded them (UR; ``controller_gains``) for the joints they
+    determine, else ``gains`` if given (``solve``: the manifest's nominal ones), else the config's nominal
+    gains. Which were used goes into the result (``gains_nm_per_unit``, ``gains_source``) and the primary
+    estimate's notes. With a
     calibration, its per-joint uncertainty is part of the general solver's covariance; with
     nominal gains the reported uncertainty cannot include the gain error, and a note says so.
     The DH lengths' uncertainty (``robot.kinematics.length_uncertainty_mm``) is always part of it,
@@ -61,6 +65,9 @@ def run_gains(config: Config, run_dir: Path, gains: Sequence[float] | None = Non
     else:
         gains_arr, note = effective_gains(config)
         cal = effective_calibration(config) if note is not None else None
+    fitted = controller_gains(gains_arr, run_dir) if cal is None and config.effort.unit == "A" else None
+    if fitted is not None:  # no calibration: the controller's own constants (UR target signals) over nominal ones
+        return Gains(fitted.nm_per_a, fitted.source, f"drive gains: {fitted.source}", fitted.rel_std)
     if cal is not None:
         gain_rel_std = cal.gain_rel_std()
         m_ref = cal.reference_mass_kg

@@ -133,8 +133,15 @@ def write_back_text(manifest: Mapping[str, Any], history_entry: Any = None) -> s
         if rec.get("applied") and isinstance(back, Mapping):
             cog = ", ".join(f"{float(v):.1f}" for v in back.get("cog_mm", []))
             tool = f" (tool {back['tool_num']})" if back.get("tool_num") is not None else ""
+            written = rec.get("written") if isinstance(rec.get("written"), Mapping) else {}
+            inertia = back.get("inertia_com_kgm2") if written.get("inertia_com_kgm2") is not None else None
+            extra = ""
+            if isinstance(inertia, list) and len(inertia) == 3:
+                six = [inertia[0][0], inertia[1][1], inertia[2][2], inertia[0][1], inertia[0][2], inertia[1][2]]
+                extra = f", inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] [{', '.join(f'{float(v):.6f}' for v in six)}] kg·m²"
+            note = f" {rec['note']}" if rec.get("note") else ""
             return (f"Written to the controller{tool} and read back: {float(back.get('mass_kg', float('nan'))):.3f} kg "
-                    f"at [{cog}] mm.")
+                    f"at [{cog}] mm{extra}.{note}")
         return "Not written to the controller: " + str(rec.get("reason") or "not requested (--apply not given)") + "."
     if history_entry is not None and getattr(history_entry, "applied", False):
         cog = history_entry.applied_cog_mm or ()
@@ -144,16 +151,21 @@ def write_back_text(manifest: Mapping[str, Any], history_entry: Any = None) -> s
 
 
 def payload_write_record(requested: bool, applied: bool, written: Any = None, read_back: Any = None,
-                         reason: str | None = None) -> dict[str, Any]:
+                         reason: str | None = None, note: str | None = None) -> dict[str, Any]:
     """The manifest's ``payload_write`` object (the runner stores it after a write-back, or its refusal).
 
-    ``written`` / ``read_back``: PayloadSetting-like (mass_kg, cog_m, tool_num) or None.
+    ``written`` / ``read_back``: PayloadSetting-like (mass_kg, cog_m, tool_num, inertia_com_kgm2) or None.
     """
     def setting(p: Any) -> dict[str, Any] | None:
         if p is None:
             return None
+        inertia = getattr(p, "inertia_com_kgm2", None)
         return {"mass_kg": float(p.mass_kg), "cog_mm": [1000.0 * float(c) for c in p.cog_m],
-                "tool_num": getattr(p, "tool_num", None)}
+                "tool_num": getattr(p, "tool_num", None),
+                "inertia_com_kgm2": None if inertia is None else [[float(v) for v in row] for row in inertia]}
 
-    return {"requested": bool(requested), "applied": bool(applied), "written": setting(written),
-            "read_back": setting(read_back), "reason": reason}
+    record = {"requested": bool(requested), "applied": bool(applied), "written": setting(written),
+              "read_back": setting(read_back), "reason": reason}
+    if note:  # e.g. why the identified inertia was not written
+        record["note"] = note
+    return record

@@ -20,6 +20,8 @@ from payload_agent.types import Sample
 from payload_agent.motion.planner import Move
 
 CSV_COLUMNS = ["t_ctrl_s", "t_recv_s"] + [f"q{j}_rad" for j in range(1, 7)] + [f"effort{j}" for j in range(1, 7)]
+# written when the driver's samples carry them (UR): the controller's target current (A) and model torque (N·m)
+TARGET_COLUMNS = [f"target_current{j}" for j in range(1, 7)] + [f"target_moment{j}" for j in range(1, 7)]
 FLUSH_EVERY_S = 0.25  # samples reach the OS at least this often; each sweep's file is fsynced at its end
 
 
@@ -54,6 +56,7 @@ class RunRecorder:
         self._phase: str | None = None
         self._file: TextIO | None = None
         self._entry: dict[str, Any] | None = None
+        self._targets: bool | None = None  # the open sweep file has the target columns (None: no header yet)
         self._last_flush = 0.0
         self.samples_seen = 0
         self.last_sample: Sample | None = None
@@ -111,14 +114,13 @@ class RunRecorder:
         if self._phase is None or move.sweep is None:
             raise ValueError("begin_sweep needs an open phase and a sweep move")
         rel = f"{self._phase}/{move.sweep.name}.csv"
-        f = open(self.run_dir / rel, "w", encoding="utf-8", newline="")
-        f.write(",".join(CSV_COLUMNS) + "\n")
+        f = open(self.run_dir / rel, "w", encoding="utf-8", newline="")  # header with the first sample: its columns
         entry = {"file": rel, "name": move.sweep.name, "pose": move.sweep.pose, "joint": move.sweep.joint,
                  "direction": move.sweep.direction, "speed_percent": move.sweep.speed_percent,
                  "target_deg": [round(math.degrees(v), 6) for v in move.target_rad],
                  "started_utc": utc_now(), "status": "recording", "samples": 0}
         with self._lock:
-            self._file, self._entry = f, entry
+            self._file, self._entry, self._targets = f, entry, None
         self.manifest["phases"][self._phase]["sweeps"].append(entry)
         self.write_manifest()
 
@@ -126,6 +128,8 @@ class RunRecorder:
         """Close the sweep's file; ``stream`` is the driver's stream statistics for it (manifest)."""
         with self._lock:
             f, entry = self._file, self._entry
+            if f is not None and self._targets is None:  # no sample: the header alone
+                f.write(",".join(CSV_COLUMNS) + "\n")
             self._file = self._entry = None
         if f is not None:
             try:
@@ -146,9 +150,15 @@ class RunRecorder:
             self.last_sample = s
             if self._file is None:
                 return
+            if self._targets is None:
+                self._targets = s.target_current is not None and s.target_moment is not None
+                self._file.write(",".join(CSV_COLUMNS + (TARGET_COLUMNS if self._targets else [])) + "\n")
             t_ctrl = "" if s.t_ctrl is None else repr(float(s.t_ctrl))
-            self._file.write(",".join([t_ctrl, repr(float(s.t_recv)), *(repr(float(v)) for v in s.q),
-                                       *(repr(float(v)) for v in s.effort)]) + "\n")
+            cells = [t_ctrl, repr(float(s.t_recv)), *(repr(float(v)) for v in s.q), *(repr(float(v)) for v in s.effort)]
+            if self._targets:
+                both = s.target_current is not None and s.target_moment is not None
+                cells += [repr(float(v)) for v in (*s.target_current, *s.target_moment)] if both else [""] * 12
+            self._file.write(",".join(cells) + "\n")
             self._entry["samples"] += 1
             now = time.monotonic()
             if now - self._last_flush > FLUSH_EVERY_S:

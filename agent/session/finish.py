@@ -14,7 +14,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.output.pendant import payload_write_record
 from payload_agent.recording.state import RobotState
-from payload_agent.session.apply import apply_result
+from payload_agent.session.apply import apply_result, payload_to_write
 from payload_agent.session.baseline import BaselineInfo
 from payload_agent.solvers.results import RunResult, format_table
 from payload_agent.types import PayloadSetting
@@ -62,10 +62,10 @@ def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir
                              result.to_json(), outcome.history_id)
         out(f"Tool library: stored {entry.describe()}")
     if opts.apply and opts.mode == "identify" and passed:
-        written = PayloadSetting(float(result.primary.mass_kg), tuple(float(c) for c in result.primary.cog_m))
+        written, why_no_inertia = payload_to_write(result, driver)
         outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,
                                        out)
-        _record_write(run_dir, payload_write_record(True, True, written, outcome.applied))
+        _record_write(run_dir, payload_write_record(True, True, written, outcome.applied, note=why_no_inertia))
         if outcome.history_id is not None:
             from payload_agent.output import history
 

@@ -220,13 +220,17 @@ def _check_controller(config: Config, opts: RunOptions, driver: Driver):
         raise RobotNotReadyError(f"the robot is not ready: {busy}. Wait until it stands still (another session, "
                                  "a cell controller or the pendant's program may be running); this session sent "
                                  "nothing to the controller")
+    first = driver.wait_sample(SAMPLE_WAIT_S)
     if opts.mode == "identify":
         from payload_agent.evaluation.calibration import effective_gains
 
         note = effective_gains(config)[1]  # also refuses a calibration that no longer fits, before moving
+        if note is None and first.target_current is not None:  # UR: evaluation.controller_gains after the run
+            note = ("the controller's own constants, fitted from its target_current / target_moment after the run "
+                    "(nominal effort.gains_nm_per_unit where they do not determine a joint)")
         out(f"Drive gains: {note}" if note else "Drive gains: nominal (effort.gains_nm_per_unit); "
             "`payload-agent calibrate` with a known reference payload removes their error")
-    start_q = np.asarray(driver.wait_sample(SAMPLE_WAIT_S).q, float)
+    start_q = np.asarray(first.q, float)
     pose_check = check_kinematics(config, driver, start_q, "before any motion")
     if pose_check is not None:
         out(f"Kinematic cross-check: YAML model and controller agree within "

@@ -9,7 +9,7 @@ It exits when the driver closes the socket, and the driver kills it when a call 
 import sys
 from multiprocessing.connection import Connection
 
-CALLS = {"moveJ", "stopJ", "setPayload", "getTCPOffset", "stopScript", "reuploadScript", "isSteady"}
+CALLS = {"moveJ", "stopJ", "setPayload", "setTargetPayload", "getTCPOffset", "stopScript", "reuploadScript", "isSteady"}
 
 
 def _status(ctrl):

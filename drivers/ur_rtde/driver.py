@@ -17,7 +17,9 @@ Design notes:
   the getters then came from one package); ``samples_missed`` counts the packages skipped,
   from the controller timestamps. Values no arm can have (angles beyond ±2 turns, currents
   beyond 100 A, time running backwards) are a broken stream: corrupt RTDE data parses.
-* ``effort`` is ``actual_current`` in A (motor current; torque = gain × current).
+* ``effort`` is ``actual_current`` in A (motor current; torque = gain × current); each sample also
+  carries the controller's ``target_current`` and ``target_moment``, from which the analysis fits
+  the current-to-torque constants when no calibration is stored.
 * Every ur-rtde command runs bounded (``COMMAND_TIMEOUT_S``; a stop ``STOP_REPLY_S``): a
   control script that does not answer is a failed command channel, never a hung agent. During
   a move the script is asked ``isSteady`` every ``HEARTBEAT_S``: each answer is a ``command_ok()``
@@ -70,9 +72,10 @@ from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 RTDE_PORT = 30004
 # RTDE output recipe of the receive interface (names and types: UR's RTDE guide; the payload
-# fields exist from PolyScope 5.5.1 / 3.11 on and are added only there).
+# fields exist from PolyScope 5.5.1 / 3.11 on and are added only there, payload_inertia from 5.11 / 3.15).
 RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_pose", "robot_mode", "safety_mode",
-          "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures"]
+          "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures", "target_current",
+          "target_moment"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
 POLL_TIMEOUT_S = 0.5  # reading the async progress word during a move (a local read in the worker)
 HEARTBEAT_S = 0.05  # during a move the control script is asked (isSteady) this often: does it still answer?
@@ -112,6 +115,8 @@ class URRTDEDriver(URCapabilities, Driver):
         self._version: tuple[int, ...] = ()
         self._remote: bool | None = None
         self._has_payload_fields = False
+        self._has_inertia_field = False  # RTDE payload_inertia: PolyScope 5.11 / 3.15 (ur-rtde's setupRecipes)
+        self._inertia_writable = False  # set_target_payload (5.10, ur-rtde's script tag) and its readback (5.11)
         self._script_dead = False  # the move just ended with ur-rtde's script gone: stop from the dashboard
         self._move = _URMove(0)
         self._last_ts: float | None = None
@@ -138,7 +143,10 @@ class URRTDEDriver(URCapabilities, Driver):
         self._control.frequency_hz = self.frequency_hz
         v = self._version + (0, 0, 0)
         self._has_payload_fields = (v[0] == 3 and v[1] >= 11) or (v[0] == 5 and (v[1], v[2]) >= (5, 1)) or v[0] > 5
-        variables = RECIPE + (PAYLOAD_FIELDS if self._has_payload_fields else [])
+        self._has_inertia_field = (v[0] == 3 and v[1] >= 15) or (v[0] == 5 and v[1] >= 11) or v[0] > 5
+        self._inertia_writable = (v[0] == 5 and v[1] >= 11) or v[0] > 5
+        variables = RECIPE + (PAYLOAD_FIELDS if self._has_payload_fields else []) + \
+            (["payload_inertia"] if self._has_inertia_field else [])
         try:
             recv = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, variables, False,
                                                      self.options.upper_range_registers)
@@ -229,6 +237,7 @@ class URRTDEDriver(URCapabilities, Driver):
         for _ in range(4):  # the getters are separate calls: make sure they saw one package
             q = r.getActualQ()
             cur = r.getActualCurrent()
+            i_target, tau_target = r.getTargetCurrent(), r.getTargetMoment()
             ts2 = r.getTimestamp()
             if ts2 == ts:
                 break
@@ -242,7 +251,8 @@ class URRTDEDriver(URCapabilities, Driver):
                 self.samples_missed += gap
         self._last_ts = ts
         self.samples_delivered += 1
-        return Sample(t_ctrl=ts, t_recv=t_recv, q=tuple(q), effort=tuple(cur))
+        return Sample(t_ctrl=ts, t_recv=t_recv, q=tuple(q), effort=tuple(cur), target_current=tuple(i_target),
+                      target_moment=tuple(tau_target))
 
     def _check_plausible(self, ts: float, q: Sequence[float], cur: Sequence[float]) -> None:
         """Corrupt RTDE packages parse into numbers; numbers no UR arm reports end the stream."""

@@ -161,7 +161,10 @@ class RtdeControlProgram(Program):
             mass = self.in_dbl(0)
             cog = [self.in_dbl(i) for i in (1, 2, 3)]
             inertia = [self.in_dbl(i) for i in range(4, 10)]
-            c.set_payload_setting(mass, None if cog == [0.0, 0.0, 0.0] else cog, inertia)  # same zero-cog rule
+            if tuple(c.controller_version[:2]) >= (5, 10):  # the script's set_target_payload lines are tagged $5.10:
+                c.set_payload_setting(mass, None if cog == [0.0, 0.0, 0.0] else cog, inertia)  # same zero-cog rule
+            else:  # ur-rtde strips them for an older controller, so the command does nothing and succeeds
+                c.note("rtde_control: set_target_payload stripped from the script (PolyScope < 5.10): no effect")
         elif cmd == CMD_GET_TCP_OFFSET:  # tcp_offset = get_tcp_offset(); pose_to_output_float_registers(0, ...)
             for i, v in enumerate(c.tcp_offset):
                 self.out_dbl(i, v)

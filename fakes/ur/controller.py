@@ -23,7 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from payload_agent.fakes.base import ControllerEvent
-from payload_agent.fakes.physics import ArmPhysics, FrictionParams, PayloadTruth
+from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot, SimState
 from payload_agent.fakes.tcp_server import TCPServer, shutdown_socket
 from payload_agent.fakes.ur.constants import (DASHBOARD_PORT, DEFAULT_CURRENT_NOISE_A, DEFAULT_GAINS_NM_PER_A,
@@ -36,7 +36,8 @@ from payload_agent.fakes.ur.constants import (DASHBOARD_PORT, DEFAULT_CURRENT_NO
                                               SSB_STOPPED_BY_SAFETY, UR5E_HOME_Q, pick_loopback_host)
 from payload_agent.fakes.ur.dashboard import serve_dashboard
 from payload_agent.fakes.ur.faults import FaultState
-from payload_agent.fakes.ur.outputs import Snapshot, TcpPose, build_snapshot
+from payload_agent.fakes.ur.outputs import TcpPose, build_snapshot
+from payload_agent.fakes.ur.own_model import ControllerModel, configured_payload
 from payload_agent.fakes.ur.programs import ProgramHost
 from payload_agent.fakes.ur.rtde_session import RTDESession
 
@@ -56,7 +57,8 @@ class URControllerCore:
                  controller_version: tuple[int, int, int, int] = (5, 11, 1, 108318),
                  serial_number: str = "20215300042", robot_model: str = "UR5",
                  remote_control: bool = True, max_payload_kg: float = 5.0,
-                 tcp_offset: Sequence[float] = DEFAULT_TCP_OFFSET, ports: dict[str, int] | None = None):
+                 tcp_offset: Sequence[float] = DEFAULT_TCP_OFFSET, ports: dict[str, int] | None = None,
+                 keep_payload_inertia: bool = False):
         self._own_sim = sim is None
         if sim is None:
             from payload_agent.fakes.arms import ur5e_spec
@@ -76,6 +78,7 @@ class URControllerCore:
         self.robot_model = robot_model
         self.remote_control = remote_control
         self.max_payload_kg = float(max_payload_kg)
+        self.keep_payload_inertia = bool(keep_payload_inertia)  # inertia writes ignored: a readback mismatch
         self.max_frequency_hz = 500.0 if self.controller_version[0] >= 5 else 125.0
         ports = dict(ports or {})
         self.rtde_port = ports.get("rtde", RTDE_PORT)
@@ -102,9 +105,8 @@ class URControllerCore:
         self.payload_inertia = (0.0,) * 6
         self.tcp_offset: tuple[float, ...] = ()
         self.set_tcp_offset(tcp_offset)
-        self._model: ArmPhysics | None = None  # the controller's own model with the *configured* payload
+        self.own_model = ControllerModel(self.robot.spec, self.gains, seed)  # target_moment / target_current
         self._kin = None
-        self._model_lock = threading.Lock()
 
         self.script_errors: list[str] = []
         self.rtde_errors: list[str] = []
@@ -277,18 +279,19 @@ class URControllerCore:
     def set_payload_setting(self, mass: float, cog: Sequence[float] | None,
                             inertia: Sequence[float] | None = None) -> None:
         """set_payload / set_target_payload: the payload the controller's own model uses."""
-        from payload_agent.fakes.ur.urscript import ProgramError
+        from payload_agent.fakes.ur.urscript import ProgramError, check_target_payload_inertia
 
         if not math.isfinite(mass) or mass < 0 or mass > self.max_payload_kg:
             raise ProgramError(f"set_payload: mass {mass} kg outside [0, {self.max_payload_kg}] kg")
+        if inertia is not None:
+            check_target_payload_inertia(inertia)  # as the real script's runtime error
         with self.lock:
             self.payload_mass = float(mass)
             if cog is not None:
                 self.payload_cog = tuple(float(c) for c in cog)
-            self.payload_inertia = tuple(float(v) for v in inertia) if inertia is not None else (0.0,) * 6
-            with self._model_lock:
-                if self._model is not None:
-                    self._model.set_payload(self._configured_payload())
+            if inertia is None or not self.keep_payload_inertia:
+                self.payload_inertia = tuple(float(v) for v in inertia) if inertia is not None else (0.0,) * 6
+            self.own_model.set_payload(configured_payload(self.payload_mass, self.payload_cog, self.payload_inertia))
         self.record_event("payload", f"{self.payload_mass} kg at {self.payload_cog}")
         self.note(f"payload set: {self.payload_mass} kg at {self.payload_cog}")
 
@@ -300,18 +303,6 @@ class URControllerCore:
         return self.programs.program_name
 
     # -- derived quantities ------------------------------------------------------------------------
-    def model_torque(self, s: Snapshot) -> np.ndarray:
-        """The controller's own model torque (rigid body, configured payload, no friction)."""
-        with self._model_lock:
-            if self._model is None:
-                self._model = ArmPhysics(self.robot.spec, self._configured_payload())
-            return self._model.rigid_torque(np.asarray(s.q), np.asarray(s.qd), np.asarray(s.qdd))
-
-    def _configured_payload(self) -> PayloadTruth | None:
-        if self.payload_mass <= 0:
-            return None
-        return PayloadTruth(self.payload_mass, tuple(self.payload_cog))
-
     def tcp_pose(self, q: Sequence[float], tcp_offset: Sequence[float]) -> tuple[float, ...]:
         """actual_TCP_pose: the flange pose of the simulated kinematics times the TCP offset."""
         if not all(math.isfinite(v) for v in q):

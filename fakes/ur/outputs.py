@@ -138,7 +138,11 @@ def _tcp(s: Snapshot) -> tuple[float, ...]:
 
 
 def _model(s: Snapshot) -> np.ndarray:
-    return s.lazy("model", lambda: s.ctrl.model_torque(s))
+    return s.lazy("model", lambda: s.ctrl.own_model.moment(s.q, s.qd, s.qdd))
+
+
+def _target_current(s: Snapshot) -> np.ndarray:
+    return s.lazy("target_current", lambda: s.ctrl.own_model.current(_model(s), s.qd))
 
 
 def _build_getters() -> dict[str, Callable[[Snapshot], Any]]:
@@ -149,7 +153,7 @@ def _build_getters() -> dict[str, Callable[[Snapshot], Any]]:
         "target_qd": lambda s: s.qd,
         "target_qdd": lambda s: s.qdd,
         "target_moment": _model,
-        "target_current": lambda s: _model(s) / s.ctrl.gains,
+        "target_current": _target_current,
         "actual_q": lambda s: s.q,
         "actual_qd": lambda s: s.qd,
         "actual_current": lambda s: s.current,

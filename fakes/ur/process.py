@@ -21,7 +21,8 @@ Test-side API::
 Options (keywords): spec (ArmSpec, default UR5e), q0_rad, time_scale, tick_s (0.002 = 500 Hz),
 friction, noise_nm, seed, payload, sim_options (further SimRobot keywords), gains_nm_per_a,
 current_noise_a, gain_error, controller_version, serial_number, robot_model, remote_control,
-max_payload_kg, tcp_offset, ports.
+max_payload_kg, tcp_offset, ports, keep_payload_inertia (set_target_payload keeps the old inertia:
+a controller whose readback differs from what was written).
 """
 
 from __future__ import annotations

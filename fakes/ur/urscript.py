@@ -153,6 +153,19 @@ class Program:
         self.wait_standstill(self.start_stopj(a))
 
 
+def check_target_payload_inertia(inertia: Sequence[float]) -> None:
+    """set_target_payload's inertia [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg·m², about the CoG, flange axes) as the
+    Script Manual bounds it: diagonal elements not negative, every element within ±133 kg·m²; else the
+    script stops with a runtime error."""
+    values = [float(v) for v in inertia]
+    if len(values) != 6 or not all(math.isfinite(v) for v in values):
+        raise ProgramError(f"set_target_payload: inertia must be 6 finite numbers, got {list(inertia)}")
+    if min(values[:3]) < 0:
+        raise ProgramError(f"set_target_payload: inertia {values}: diagonal elements must not be negative")
+    if max(abs(v) for v in values) > 133.0:
+        raise ProgramError(f"set_target_payload: inertia {values}: elements must be within ±133 kg·m²")
+
+
 # -- plain programs ---------------------------------------------------------------------------------
 
 STATEMENT_FUNCS = {"movej", "stopj", "set_payload", "set_target_payload", "set_payload_mass", "set_payload_cog",
