@@ -195,6 +195,10 @@ def cmd_plan(args, con: Console) -> int:
     from payload_agent.session.preflight import preflight
 
     config = load_robot(args)
+    for option, value in (("--payload-kg", args.payload_kg), ("--payload-cog-mm", args.payload_cog_mm),
+                          ("--tool", args.tool)):
+        if value is not None and not getattr(args, "target_std", None):
+            raise ConfigError(option, "is the payload --target-std predicts for; give --target-std G,MM too")
     pre = preflight(config)
     if args.from_deg and args.connect:
         raise ConfigError("--from-deg", "give either --from-deg or --connect, not both")

@@ -149,6 +149,8 @@ def test_the_expected_payload_is_what_the_prediction_assumes_and_the_output_name
     assert rc == 0 and doc["target"]["payload"]["mass_kg"] == 3.5 and "3.5 kg at 10, 0, 90 mm" in err
     rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--target-std", "20,5", "--payload-cog-mm", "0,0,80")
     assert rc == 2 and "--payload-cog-mm" in err
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--payload-kg", "3")
+    assert rc == 2 and "--payload-kg" in err and "--target-std" in err
 
 
 def test_the_prediction_carries_the_stored_calibration_as_the_run_will(monkeypatch, tmp_path):
