@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from payload_agent.configuration.config import parse_config
-from payload_agent.errors import PayloadAgentError
+from payload_agent.errors import DataError, PayloadAgentError
 from payload_agent.session.runner import RunOptions, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,7 +57,9 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         payload = targets.ExpectedPayload(sim.payload.mass_kg, tuple(sim.payload.cog_mm), "the simulation's")
         choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
         if choice.best is None:
-            raise SystemExit(f"seed {seed}: no procedure meets {target}")
+            fastest = min((p for p in choice.table if p.usable), key=lambda p: p.mass_std_g, default=None)
+            raise DataError(f"plan --target-std {target}: no procedure meets it" + (
+                "" if fastest is None else f" (least mass σ {fastest.mass_std_g:.2f} g: {fastest.candidate.describe()})"))
         best = choice.best
         config = design.with_candidate(config, best.candidate)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
