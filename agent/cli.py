@@ -184,6 +184,11 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--target-std", metavar="G,MM",
                       help="predict the uncertainty (1σ: mass in g, centre of mass in mm) of candidate procedures "
                            "before moving and show the fastest that meets it")
+    plan.add_argument("--payload-kg", type=float, metavar="KG",
+                      help="with --target-std: the expected payload's mass (default: a nominal 2 kg)")
+    plan.add_argument("--payload-cog-mm", metavar="X,Y,Z",
+                      help="with --target-std: the expected payload's centre of mass, flange frame")
+    plan.add_argument("--tool", metavar="NAME", help="with --target-std: expect the tool library's payload NAME")
 
     solve = add("solve", "re-run the analysis of a recorded run folder into a new result file (never overwrites)",
                 json_ok=True)

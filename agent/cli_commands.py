@@ -195,6 +195,10 @@ def cmd_plan(args, con: Console) -> int:
     from payload_agent.session.preflight import preflight
 
     config = load_robot(args)
+    for option, value in (("--payload-kg", args.payload_kg), ("--payload-cog-mm", args.payload_cog_mm),
+                          ("--tool", args.tool)):
+        if value is not None and not getattr(args, "target_std", None):
+            raise ConfigError(option, "is the payload --target-std predicts for; give --target-std G,MM too")
     pre = preflight(config)
     if args.from_deg and args.connect:
         raise ConfigError("--from-deg", "give either --from-deg or --connect, not both")
@@ -223,14 +227,9 @@ def cmd_plan(args, con: Console) -> int:
                     safety={"ok": verdict.ok, "problems": verdict.problems, "checks": verdict.checks,
                             "approach_checked": start is not None})
     if getattr(args, "target_std", None) and pre.ok:
-        from payload_agent.session.target import plan_for_target
+        from payload_agent.session.target import plan_target
 
-        choice, source = plan_for_target(config, args.target_std)
-        grams, mm = (float(v) for v in args.target_std.split(","))
-        con.say(f"Procedures for the target ({source}):\n" + choice.describe(grams, mm))
-        data["target"] = {"noise_source": source, "chosen": None if choice.best is None else {
-            "procedure": choice.best.candidate.describe(), "robot_time_s": choice.best.robot_time_s,
-            "mass_std_g": choice.best.mass_std_g, "cog_std_mm": choice.best.cog_std_mm}}
+        data["target"] = plan_target(config, args, start, con)
     for note in pre.notes:
         con.say(note[0].upper() + note[1:])
     con.say(describe_locations(config))

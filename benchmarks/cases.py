@@ -18,7 +18,7 @@ from benchmarks import hard
 from benchmarks.gate import gate
 from benchmarks.hard import ABLATION_SCENARIOS, HARD, STRONG
 from benchmarks.reference import REFERENCE, calibrate, theta_reference
-from benchmarks.remedies import COMP, comp_estimate
+from benchmarks.remedies import COMP, COMP3, comp_estimate
 from benchmarks.tables import EXCITATION_LABEL
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,8 +28,8 @@ SCENARIOS = ("ideal", "realistic", HARD, STRONG)
 # ablations, only with --scenarios: realistic but with exact drive gains (what `calibrate` would buy);
 # realistic plus one error source of a real arm (benchmarks/hard.py)
 ALL_SCENARIOS = (*SCENARIOS, "realistic-exact-gains", *ABLATION_SCENARIOS)
-METHODS = ("three-step", "general-up", "general-bi", "general-bi-cal", COMP, "dynamic")
-PTP_METHODS = METHODS[:5]
+METHODS = ("three-step", "general-up", "general-bi", "general-bi-cal", COMP, COMP3, "dynamic")
+PTP_METHODS = METHODS[:6]
 NOISE_NM = 0.3
 COULOMB_NM = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5)
 VISCOUS_NM_S_RAD = (8.0, 8.0, 5.0, 1.0, 1.0, 0.5)
@@ -249,7 +249,7 @@ def run_case(args: tuple) -> list[dict]:
 
     base = {"scenario": scenario, "procedure": proc.label, "procedure_settings": dataclasses.asdict(proc),
             "payload": index, "length_std_mm": length_std_mm}
-    if "general-bi-cal" in methods or COMP in methods:
+    if "general-bi-cal" in methods or COMP in methods or COMP3 in methods:
         base["unfitted_gain_std_percent"] = 100.0 * unfitted_std
     rows = []
     try:
@@ -281,9 +281,9 @@ def run_case(args: tuple) -> list[dict]:
                 gate_deltas = _scaled(combined, scale)
                 gate_kw.update(gain_rel_std=list(gain_rel_std), gain_reference=(theta_reference(), fitted))
                 est, plan = general.solve(gate_deltas, kin, name="general-bi-cal", **gate_kw), plan_bi
-            elif method == COMP:
+            elif method in (COMP, COMP3):
                 est, gate_cols = comp_estimate(loaded, empty, ref_run(), draws["declared"], config_bi, unfitted_std,
-                                          kin_kw)
+                                               kin_kw, "general" if method == COMP else "three-step")
                 rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan_bi)), **gate_cols))
                 continue
             else:

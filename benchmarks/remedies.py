@@ -23,6 +23,7 @@ from benchmarks.gate import columns
 from benchmarks.reference import calibrate, theta_reference
 
 COMP = "general-bi-cal-comp"
+COMP3 = "three-step-bi-cal-comp"  # the agent's three-step solver on the same analysis (its σ as the agent reports it)
 
 
 def declaration(declared):
@@ -42,19 +43,21 @@ def scaled(sweeps: dict, scale: np.ndarray) -> dict:
     return {k: dataclasses.replace(s, effort_nm=np.asarray(s.effort_nm) * scale) for k, s in sweeps.items()}
 
 
-def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict):
-    """(Estimate, gate columns) of general-bi-cal-comp on one case's recorded sweeps: the agent's own
-    ``analyse`` (general solver only, as the other methods are compared separately) after the calibration."""
+def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict,
+                  solver: str = "general"):
+    """(Estimate, gate columns) of general-bi-cal-comp (``solver`` "three-step": three-step-bi-cal-comp) on one
+    case's recorded sweeps: the agent's own ``analyse`` (that solver only, as the other methods are compared
+    separately) after the calibration."""
     from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
     decl = declaration(declared)
     scale, gain_rel_std, fitted = calibrate(ref, empty, config, unfitted_std, decl)
-    options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), "general")
+    options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
     gains = Gains(tuple(float(g) for g in np.asarray(config.effort.gains_nm_per_unit) * scale),
                   "calibrated on the benchmark's reference run", None, tuple(float(v) for v in gain_rel_std),
                   (tuple(theta_reference()), tuple(fitted)))
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=())
-    return dataclasses.replace(result.primary, solver=COMP), columns(result.quality)
+    return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 
 
-__all__ = ["COMP", "comp_estimate", "declaration", "scaled"]
+__all__ = ["COMP", "COMP3", "comp_estimate", "declaration", "scaled"]

@@ -7,6 +7,13 @@ mean error (a bias shows here), its standard error, rms(error/σ) and the share 
 hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
+        [--target-std G,MM [--calibrate]]
+
+``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
+the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
+chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22).
+``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
+reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it.
 """
 
 from __future__ import annotations
@@ -21,27 +28,48 @@ import numpy as np
 import yaml
 
 from payload_agent.configuration.config import parse_config
-from payload_agent.errors import PayloadAgentError
+from payload_agent.errors import DataError, PayloadAgentError
 from payload_agent.session.runner import RunOptions, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
 
 
-def one_run(robot: str, seed: int, storage: Path) -> dict:
+def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False) -> dict:
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    outcome = run_identification(config, RunOptions(assume_yes=True, fresh_baseline=True, report=False,
-                                                    progress=False, out=lambda *_: None))
+    quiet = dict(assume_yes=True, report=False, progress=False, out=lambda *_: None)
+    if calibrate:
+        from payload_agent.types import PayloadSetting
+
+        run_identification(config, RunOptions(mode="calibrate", reference=PayloadSetting(3.0, (0.0, 0.0, 0.08)),
+                                              on_cell=lambda cell: cell.change_tool(3.0, (0.0, 0.0, 80.0)), **quiet))
+    plan: dict = {}
+    if target:
+        from payload_agent.evaluation import design
+        from payload_agent.session import target as targets
+
+        sim = config.simulation
+        payload = targets.ExpectedPayload(sim.payload.mass_kg, tuple(sim.payload.cog_mm), "the simulation's")
+        choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
+        if choice.best is None:
+            fastest = min((p for p in choice.table if p.usable), key=lambda p: p.mass_std_g, default=None)
+            raise DataError(f"plan --target-std {target}: no procedure meets it" + (
+                "" if fastest is None else f" (least mass σ {fastest.mass_std_g:.2f} g: {fastest.candidate.describe()})"))
+        best = choice.best
+        config = design.with_candidate(config, best.candidate)
+        plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
+                "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm]}
+    outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet))
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
-            "passed": bool(outcome.result.quality.get("passed"))}
+            "passed": bool(outcome.result.quality.get("passed")), **plan}
 
 
 def summarise(runs: list[dict]) -> list[dict]:
@@ -60,19 +88,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--first-seed", type=int, default=1)
     p.add_argument("--json", metavar="OUT", help="also write the runs and the summary as JSON")
+    p.add_argument("--target-std", metavar="G,MM", help="run the procedure `plan --target-std` chooses")
+    p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
     args = p.parse_args(argv)
     runs, failed = [], []
     for seed in range(args.first_seed, args.first_seed + args.runs):
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
-                r = one_run(args.robot, seed, Path(tmp))
+                r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
             continue
         runs.append(r)
         print(f"seed {seed:3d}: " + "  ".join(f"{n} {e:+7.2f} ± {s:5.2f}" for n, e, s in zip(NAMES, r["error"], r["std"]))
-              + ("" if r["passed"] else "  (quality gate failed)"), flush=True)
+              + ("" if r["passed"] else "  (quality gate failed)")
+              + (f"  | {r['procedure']}: {r['robot_time_s']:.0f} s ({r['approach_s']:.0f} s approach), predicted "
+                 f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm" if "procedure" in r else ""), flush=True)
     if len(runs) < 2:
         print("fewer than two runs ended in a result: no summary")
         return 1
@@ -84,6 +116,16 @@ def main(argv: list[str] | None = None) -> int:
         se = f"{s['stderr_of_mean']:.2f}" if s["stderr_of_mean"] is not None else "-"
         print(f"| {s['quantity']} | {s['mean_error']:+.2f} | {se} | {s['mean_sigma']:.2f} | {s['rms_z']:.2f} "
               f"| {s['coverage_95']:.2f} |")
+    if args.target_std:
+        pm = np.array([r["pred_std"] for r in runs])
+        rep_m = np.array([r["std"][0] for r in runs])
+        rep_c = np.array([max(r["std"][1:]) for r in runs])
+        t = np.array([r["robot_time_s"] for r in runs])
+        a = np.array([r["approach_s"] for r in runs])
+        print(f"\nplan --target-std {args.target_std}{' after calibrate' if args.calibrate else ''}: robot time "
+              f"{t.mean():.1f} s ({a.mean():.1f} s of it the approach); predicted σ mass {pm[:, 0].mean():.2f} g, "
+              f"reported {rep_m.mean():.2f} g (ratio {np.mean(pm[:, 0] / rep_m):.2f}); predicted σ CoM (largest "
+              f"axis) {pm[:, 1].mean():.2f} mm, reported {rep_c.mean():.2f} mm (ratio {np.mean(pm[:, 1] / rep_c):.2f})")
     if args.json:
         Path(args.json).write_text(json.dumps({"robot": args.robot, "runs": runs, "failed": failed, "summary": summary}, indent=2))
     return 0

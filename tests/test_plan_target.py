@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from conftest import ROOT
 from payload_agent import cli
 
@@ -68,3 +70,110 @@ def test_declared_zero_and_friction_terms_raise_the_predicted_sigma():
     with_terms = dataclasses.replace(plain, joints=decl, friction_level_nm=(4.0, 4.0, 3.0, 1.0, 1.0, 0.5))
     a, b = design.predict(config, c, plain, theta), design.predict(config, c, with_terms, theta)
     assert b.mass_std_g > a.mass_std_g * 1.05 and b.cog_std_mm > a.cog_std_mm
+
+
+def _plan_json(capsys, monkeypatch, tmp_path, *extra):
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    rc = cli.main(["plan", "--robot", str(ROOT / "configs" / "sim-ec66.yaml"), "--json", *extra])
+    out = capsys.readouterr()
+    return rc, json.loads(out.out), out.err
+
+
+def test_the_chosen_row_is_in_the_table_and_its_written_robot_file_plans_the_same_moves(capsys, monkeypatch, tmp_path):
+    """The chosen procedure is a marked row of the printed table, and the robot YAML written for it runs through
+    the planner into exactly the candidate's moves (procedure file, speeds, acceleration, range)."""
+    import numpy as np
+
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.motion.planner import make_plan
+
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--target-std", "20,5")
+    chosen = doc["target"]["chosen"]
+    assert rc == 0 and chosen is not None
+    marked = [line for line in err.splitlines() if line.rstrip().endswith("<- chosen")]
+    assert len(marked) == 1 and marked[0].startswith(chosen["procedure"])
+    written = load_config(chosen["robot_file"])
+    keys = chosen["procedure_keys"]
+    assert written.robot.name == "sim-ec66" and written.procedure.speed_percent == keys["speed_percent"]
+    original = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    cand = design.Candidate(keys["speed_percent"], keys["travel_speed_percent"], *keys["sweep_deg"], 1,
+                            keys["accel_percent"], keys["name"])
+    expected, planned = design.plan_for(original, cand), make_plan(written)
+    assert len(planned.moves) == len(expected.moves)
+    for a, b in zip(planned.moves, expected.moves):
+        assert a.kind == b.kind and np.allclose(a.target_rad, b.target_rad)
+        assert a.speed_rad_s == pytest.approx(b.speed_rad_s) and a.accel_rad_s2 == pytest.approx(b.accel_rad_s2)
+    # planning the written file for the same target finds it again: nothing faster meets the target
+    assert cli.main(["plan", "--robot", chosen["robot_file"]]) == 0
+
+
+def test_the_robot_time_counts_the_approach_move_from_where_the_robot_stands(capsys, monkeypatch, tmp_path):
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--target-std", "20,5", "--from-deg", "0,-90,90,90,-90,0")
+    chosen = doc["target"]["chosen"]
+    assert rc == 0 and doc["target"]["approach_counted"]
+    keys = chosen["procedure_keys"]
+    cand = design.Candidate(keys["speed_percent"], keys["travel_speed_percent"], *keys["sweep_deg"], 1,
+                            keys["accel_percent"], keys["name"])
+    run_only = design.robot_time_s(design.plan_for(load_config(ROOT / "configs" / "sim-ec66.yaml"), cand))
+    assert chosen["robot_time_s"] > run_only + 1.0
+    assert "approach move from where the robot stands" in err
+
+
+def test_the_expected_payload_is_what_the_prediction_assumes_and_the_output_names_it(capsys, monkeypatch, tmp_path):
+    """A heavier expected payload gives a smaller centre-of-mass σ for the same procedure (σ_c ∝ 1/m); the
+    output names the payload; a tool library entry can stand for it; a CoM without a mass is refused."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.recording.state import RobotState
+    from payload_agent.session import target
+    from payload_agent.tools import library
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    light = target.expected_payload(config, 1.0, "0,0,50")
+    heavy = target.expected_payload(config, 4.0, "0,0,50")
+    from payload_agent.evaluation import design
+
+    grid = [design.Candidate(10, 25, 0, 30, 1, 100, "j2_triple")]
+    noise, _ = target.noise_for(config)
+    a = design.choose(config, 100, 100, noise, nominal_mass_kg=light.mass_kg, nominal_cog_mm=light.cog_mm, grid=grid)
+    b = design.choose(config, 100, 100, noise, nominal_mass_kg=heavy.mass_kg, nominal_cog_mm=heavy.cog_mm, grid=grid)
+    assert b.table[0].cog_std_mm < 0.5 * a.table[0].cog_std_mm
+    db = library.tool_library_path(RobotState.for_config(config).root)
+    library.store(db, "sim-ec66", library.ToolEntry("gripper", 3.5, (10.0, 0.0, 90.0)))
+    assert target.expected_payload(config, tool="gripper").mass_kg == 3.5
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--target-std", "20,5", "--tool", "gripper")
+    assert rc == 0 and doc["target"]["payload"]["mass_kg"] == 3.5 and "3.5 kg at 10, 0, 90 mm" in err
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--target-std", "20,5", "--payload-cog-mm", "0,0,80")
+    assert rc == 2 and "--payload-cog-mm" in err
+    rc, doc, err = _plan_json(capsys, monkeypatch, tmp_path, "--payload-kg", "3")
+    assert rc == 2 and "--payload-kg" in err and "--target-std" in err
+
+
+def test_the_prediction_carries_the_stored_calibration_as_the_run_will(monkeypatch, tmp_path):
+    """With a stored drive-gain calibration the plan predicts with its gain uncertainty and its reference (whose
+    fit absorbs most of the DH-length error), as ``pipeline.run_gains`` gives the run: nominal gains carry
+    the whole length term, so the calibrated prediction of a well-determined procedure is smaller."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.evaluation.calibration import GainCalibration, calibration_fingerprint, save_calibration
+    from payload_agent.recording.state import RobotState
+    from payload_agent.session import target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    nominal, source = target.noise_for(config)
+    assert nominal.gain_rel_std is None and "nominal drive gains" in source
+    gains = tuple(config.effort.gains_nm_per_unit)
+    cal = GainCalibration(gains, (1, 2, 3, 4), (1.0,) * 6, (0.0, 5e-4, 5e-4, 3e-3, 5e-3, 0.0), 3.0, (0.0, 0.0, 0.08),
+                          "sim-ec66", config.effort.unit, calibration_fingerprint(config), str(tmp_path), "2026-01-01")
+    save_calibration(RobotState.for_config(config).ensure(), cal)
+    calibrated, source = target.noise_for(config)
+    assert calibrated.gain_rel_std[1] == 5e-4 and calibrated.gain_reference[1] == (1, 2, 3, 4)
+    assert "calibration" in source
+    cand, theta = design.Candidate(3, 25, 0, 40, 1, 100, "j2_triple"), design.nominal_theta(2.0, (40, -25, 70))
+    assert design.predict(config, cand, calibrated, theta).mass_std_g < 0.8 * design.predict(
+        config, cand, nominal, theta).mass_std_g

@@ -20,8 +20,9 @@ terms cannot be predicted before the run). ``inflation`` is the ratio of the rep
 σ of the mass and of the centre of mass (largest axis) follow by the delta method.
 
 ``choose`` evaluates a grid of candidates, keeps those the safety gate accepts (the whole plan,
-as ``plan`` checks it), and returns the one that meets the target in the least robot time, with the
-whole trade-off table. The procedures tried are the configured one and the bundled procedures of
+as ``plan`` checks it, the approach too when where the robot stands is given), and returns the one
+that meets the target in the least robot time (the approach move counted then: procedures start in
+different poses), with the whole trade-off table. The procedures tried are the configured one and the bundled procedures of
 ``PROCEDURES``: joint-2 sweeps only in two or three tool orientations (procedures/j2_pair.yaml,
 j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear)
 and need no 90° joint-2 travel to a joint-3 sweep's start. The CLI hook is ``plan --target-std G,MM``.
@@ -44,7 +45,9 @@ SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0)
 TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
 RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0))
 ACCELS_PERCENT = (40.0, 100.0)
-REPETITIONS = (1, 2)
+# The product's grid runs each procedure once: a run has no repetition key, so a chosen "×2" could not be run
+# as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
+REPETITIONS = (1,)
 # "" = the configured procedure; the others are bundled (procedures/*.yaml)
 PROCEDURES = ("", "j2_pair", "j2_triple")
 
@@ -69,11 +72,12 @@ class Candidate:
 @dataclass(frozen=True)
 class Prediction:
     candidate: Candidate
-    robot_time_s: float  # loaded run, without the approach move
+    robot_time_s: float  # loaded run, the approach move included when where the robot stands is known
     mass_std_g: float
     cog_std_mm: float  # largest axis
     samples: int  # constant-speed samples per run (all sweeps)
     problems: tuple[str, ...] = ()  # the safety gate's, or why it cannot be predicted
+    approach_s: float = 0.0  # the part of robot_time_s that is the approach move (0: not counted)
 
     @property
     def usable(self) -> bool:
@@ -136,9 +140,10 @@ def plan_for(config: Config, c: Candidate) -> Plan:
     return dataclasses.replace(base, moves=tuple(moves))
 
 
-def robot_time_s(plan: Plan) -> float:
-    """Robot time of one run without the approach move (which depends on where the robot stands)."""
-    total, prev = 0.0, None
+def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
+    """Robot time of one run; the approach move (at its own speed) only when ``start_q``, where the robot
+    stands, is known."""
+    total, prev = 0.0, None if start_q is None else np.asarray(start_q, float)
     for m in plan.moves:
         tgt = np.asarray(m.target_rad)
         if prev is not None:
@@ -222,29 +227,42 @@ def nominal_theta(mass_kg: float, cog_mm: Sequence[float]) -> np.ndarray:
     return np.array([mass_kg, *(mass_kg * np.asarray(cog_mm, float) / 1000.0)])
 
 
-def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, *, check_safety: bool = True
-            ) -> Prediction:
+def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, *, check_safety: bool = True,
+            start_q: Sequence[float] | None = None) -> Prediction:
+    """σ of one candidate; its robot time counts the approach from ``start_q`` once when that is given."""
     from payload_agent.solvers.wls import cog_with_covariance
 
-    base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety)
+    base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety, start_q)
     if isinstance(base, tuple) and len(base) == 1:
         return Prediction(c, float("nan"), float("nan"), float("nan"), 0, base[0])
     time_s, noise_cov, sys_cov, n, problems = base
     cov = noise_cov / c.repetitions + sys_cov
     _, cov_c = cog_with_covariance(theta, cov)
-    return Prediction(c, c.repetitions * time_s, 1000.0 * math.sqrt(max(cov[0, 0], 0.0)),
-                      1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), n, problems)
+    approach = approach_s(config, c, start_q)
+    return Prediction(c, c.repetitions * time_s + approach, 1000.0 * math.sqrt(max(cov[0, 0], 0.0)),
+                      1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), n, problems, approach)
 
 
 _RUNS: dict[tuple, tuple] = {}
 
 
-def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, check_safety: bool) -> tuple:
+def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None) -> float:
+    """The approach move of the candidate's plan from ``start_q`` (0 when where the robot stands is unknown)."""
+    if start_q is None:
+        return 0.0
+    m = plan_for(config, c).moves[0]
+    return move_duration_s(np.asarray(start_q, float), np.asarray(m.target_rad), m.speed_rad_s, m.accel_rad_s2)
+
+
+def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, check_safety: bool,
+             start_q: Sequence[float] | None = None) -> tuple:
     """One run of the candidate: (robot s, noise covariance, systematic covariance, samples, the safety
-    gate's problems), or (problems,) when it cannot be predicted; kept for the other repetition counts."""
+    gate's problems, the approach from ``start_q`` included when given), or (problems,) when it cannot be
+    predicted; kept for the other repetition counts."""
     from payload_agent.errors import PayloadAgentError
 
-    key = (id(config), config.source, c, repr(noise), tuple(theta), check_safety)
+    start = None if start_q is None else tuple(float(v) for v in start_q)
+    key = (id(config), config.source, c, repr(noise), tuple(theta), check_safety, start)
     if key in _RUNS:
         return _RUNS[key]
     cfg = with_candidate(config, c)
@@ -254,8 +272,10 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
         if check_safety:
             from payload_agent.motion.safety import SafetyGate
 
-            # the whole plan, exactly as ``plan`` and ``run`` check it before the first move
-            problems = tuple(SafetyGate(cfg).check(plan, np.asarray(plan.moves[0].target_rad)).problems)
+            # the whole plan, exactly as ``plan`` and ``run`` check it before the first move (the approach too
+            # when where the robot stands is known)
+            begin = plan.moves[0].target_rad if start is None else start
+            problems = tuple(SafetyGate(cfg).check(plan, np.asarray(begin)).problems)
         noise_cov, sys_cov, n = covariance_parts(cfg, plan, noise, theta)
         out: tuple = (robot_time_s(plan), noise_cov, sys_cov, n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
@@ -287,25 +307,21 @@ class Choice:
     table: list[Prediction]  # every candidate, fastest first
 
     def describe(self, mass_std_g: float, cog_std_mm: float, limit: int = 12) -> str:
-        lines = [f"target σ: mass {mass_std_g:g} g, centre of mass {cog_std_mm:g} mm (1σ)",
-                 f"{'procedure':<56} {'robot s':>8} {'σ m g':>7} {'σ c mm':>7}  meets"]
-        for p in [p for p in self.table if p.usable][:limit]:
-            mark = "yes" if p.meets(mass_std_g, cog_std_mm) else ""
-            lines.append(f"{p.candidate.describe():<56} {p.robot_time_s:8.0f} {p.mass_std_g:7.2f} "
-                         f"{p.cog_std_mm:7.2f}  {mark}")
-        lines.append("chosen: " + (f"{self.best.candidate.describe()} ({self.best.robot_time_s:.0f} s)" if self.best
-                                   else "none meets the target; slower sweeps, more repetitions or a calibration"))
-        return "\n".join(lines)
+        from payload_agent.output.plan_table import format_choice
+
+        return format_choice(self, mass_std_g, cog_std_mm, limit)
 
 
 def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseModel, *,
            nominal_mass_kg: float = 2.0, nominal_cog_mm: Sequence[float] = (0.0, 0.0, 100.0),
-           grid: Sequence[Candidate] | None = None, exhaustive: bool = False, after: int = 12) -> Choice:
+           grid: Sequence[Candidate] | None = None, exhaustive: bool = False, after: int = 12,
+           start_q: Sequence[float] | None = None) -> Choice:
     """The fastest candidate whose predicted σ meets the target (mass and every CoM axis, 1σ).
 
     The robot time of every candidate comes from its plan alone (cheap), so candidates are predicted
     (safety gate and σ) fastest first until one meets the target, and ``after`` more for the table;
-    ``exhaustive`` predicts them all.
+    ``exhaustive`` predicts them all. ``start_q``: where the robot stands, so every robot time counts the
+    approach move (which differs between procedures: their first poses differ).
     """
     theta = nominal_theta(nominal_mass_kg, nominal_cog_mm)
 
@@ -313,14 +329,14 @@ def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseMod
         from payload_agent.errors import PayloadAgentError
 
         try:
-            return c.repetitions * robot_time_s(plan_for(config, c))
+            return c.repetitions * robot_time_s(plan_for(config, c)) + approach_s(config, c, start_q)
         except (PayloadAgentError, ValueError):
             return float("inf")  # predict() reports why
 
     ordered = sorted(grid or candidates_for(config), key=time_of)
     preds, found, extra = [], False, 0
     for c in ordered:
-        p = predict(config, c, noise, theta)
+        p = predict(config, c, noise, theta, start_q=start_q)
         preds.append(p)
         found = found or p.meets(mass_std_g, cog_std_mm)
         extra += found and p.usable

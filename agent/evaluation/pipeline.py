@@ -51,10 +51,14 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
                    notes=notes, robot=config.robot.name, run_dir=str(run_dir))
 
 
-def run_gains(config: Config, run_dir: Path, gains: Sequence[float] | None = None) -> Gains:
-    """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``)."""
+def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | None = None) -> Gains:
+    """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``).
+
+    ``run_dir`` None: the gains a run started now would use (the stored calibration, else nominal), which
+    is what ``plan --target-std`` predicts with."""
     gain_rel_std = gain_reference = None
-    cal = run_calibration(run_dir)  # the copy the session made when the run began: solve uses the same
+    # the copy the session made when the run began: solve uses the same
+    cal = run_calibration(run_dir) if run_dir is not None else None
     if cal is not None:
         gains_arr = np.asarray(cal.gains_nm_per_unit, float)
         note = (f"drive gains from the calibration of {cal.created_utc[:10]} recorded with the run "

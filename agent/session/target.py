@@ -2,12 +2,18 @@
 
 The effort noise comes from the stored empty-flange baseline when there is one (measured in its
 constant-speed windows), else from the simulation's declared noise; a real robot without a
-baseline is refused with what to do. The prediction itself is ``evaluation.design``.
+baseline is refused with what to do. The drive gains' uncertainty is the one the run will carry:
+the stored calibration's (whose fit also absorbs most of the DH-length error), or none with nominal
+gains, exactly as ``pipeline.run_gains`` gives the run. The payload the prediction assumes is the
+user's (``--payload-kg``/``--payload-cog-mm`` or a tool library entry), else a nominal one, and the
+output names it. The prediction itself is ``evaluation.design``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from dataclasses import dataclass
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
@@ -26,8 +32,70 @@ def parse_target(text: str) -> tuple[float, float]:
     return grams, mm
 
 
+NOMINAL_MASS_KG, NOMINAL_COG_MM = 2.0, (0.0, 0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class ExpectedPayload:
+    """The payload the prediction is made for (σ depends on it: the centre of mass's σ scales as 1/mass)."""
+
+    mass_kg: float
+    cog_mm: tuple[float, float, float]
+    source: str  # "given", "tool library entry NAME", "nominal (not given)"
+
+    def describe(self) -> str:
+        x, y, z = self.cog_mm
+        return f"{self.mass_kg:g} kg at {x:g}, {y:g}, {z:g} mm ({self.source})"
+
+
+def expected_payload(config: Config, mass_kg: float | None = None, cog_mm: str | None = None,
+                     tool: str | None = None) -> ExpectedPayload:
+    """From ``--payload-kg``/``--payload-cog-mm``, or ``--tool NAME``'s library entry, else the nominal payload."""
+    if tool and (mass_kg is not None or cog_mm):
+        raise ConfigError("--tool", "give either --tool or --payload-kg/--payload-cog-mm, not both")
+    if tool:
+        from payload_agent.tools import library
+
+        state = RobotState.for_config(config)
+        entry = library.require(library.tool_library_path(state.root), config.robot.name, tool)
+        return ExpectedPayload(float(entry.mass_kg), tuple(float(v) for v in entry.cog_mm),
+                               f"tool library entry {tool!r}")
+    if cog_mm is not None and mass_kg is None:
+        raise ConfigError("--payload-cog-mm", "needs --payload-kg too (the mass the prediction assumes)")
+    if mass_kg is None:
+        return ExpectedPayload(NOMINAL_MASS_KG, NOMINAL_COG_MM, "nominal: give --payload-kg and --payload-cog-mm "
+                                                                "or --tool NAME for yours")
+    if not (0.0 < mass_kg < 1000.0):
+        raise ConfigError("--payload-kg", f"expected a mass in kg above 0, got {mass_kg:g}")
+    cog = NOMINAL_COG_MM
+    if cog_mm is not None:
+        try:
+            cog = tuple(float(v) for v in cog_mm.split(","))
+        except ValueError:
+            cog = ()
+        if len(cog) != 3 or not all(abs(v) < 5000.0 for v in cog):
+            raise ConfigError("--payload-cog-mm", f"expected X,Y,Z in mm in the flange frame (for example 0,0,80), "
+                                                  f"got {cog_mm!r}")
+    return ExpectedPayload(float(mass_kg), cog, "given" if cog_mm is not None else
+                           f"given mass, nominal centre of mass {NOMINAL_COG_MM[2]:g} mm on the flange axis")
+
+
 def noise_for(config: Config) -> tuple[NoiseModel, str]:
-    """The noise the prediction assumes, and where it came from."""
+    """The noise the prediction assumes, and where it came from; with the drive-gain uncertainty the run
+    will carry (a stored calibration's, else none: nominal gains are reported without it)."""
+    import dataclasses
+
+    from payload_agent.evaluation.pipeline import run_gains
+
+    noise, source = _effort_noise(config)
+    gains = run_gains(config, None)
+    if gains.rel_std is None:
+        return noise, source + "; nominal drive gains (no calibration stored)"
+    return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
+            source + "; the stored drive-gain calibration's uncertainty")
+
+
+def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
     period = build_driver(config).nominal_period_s
     state = RobotState.for_config(config)
     if (state.baseline_dir / "empty").is_dir():
@@ -62,7 +130,49 @@ def baseline_friction_nm(empty) -> tuple[float, ...] | None:
     return tuple(level) if any(level) else None
 
 
-def plan_for_target(config: Config, text: str) -> tuple[Choice, str]:
+def plan_for_target(config: Config, text: str, payload: ExpectedPayload | None = None,
+                    start_q=None) -> tuple[Choice, str]:
+    """The choice for ``--target-std TEXT`` and where its noise came from; ``start_q`` (where the robot stands,
+    radians) makes every robot time count the approach move."""
     grams, mm = parse_target(text)
+    payload = payload or expected_payload(config)
     noise, source = noise_for(config)
-    return choose(config, grams, mm, noise), source
+    return choose(config, grams, mm, noise, nominal_mass_kg=payload.mass_kg, nominal_cog_mm=payload.cog_mm,
+                  start_q=start_q), source
+
+
+def plan_target(config: Config, args, start_q, con) -> dict:
+    """``plan --target-std``'s part of the output: the payload assumed, the table with the chosen row, the
+    chosen procedure written as a robot YAML in the state folder, and the command that runs it (JSON: the same)."""
+    from payload_agent.session.target_file import procedure_keys, write_chosen
+
+    grams, mm = parse_target(args.target_std)
+    payload = expected_payload(config, args.payload_kg, args.payload_cog_mm, args.tool)
+    where = "from where the robot stands"
+    if start_q is None and config.simulation is not None:
+        start_q, where = np.radians(config.simulation.start_deg), "from the simulation's start_deg"
+    choice, source = plan_for_target(config, args.target_std, payload, start_q)
+    con.say(f"Procedures for the target ({source}); predicted for the payload {payload.describe()}; robot time "
+            + (f"with the approach move {where}:" if start_q is not None else
+               "without the approach move (give --from-deg or --connect to count it):"))
+    con.say(choice.describe(grams, mm))
+    out: dict = {"noise_source": source, "payload": {"mass_kg": payload.mass_kg, "cog_mm": list(payload.cog_mm),
+                                                      "source": payload.source},
+                 "approach_counted": start_q is not None, "chosen": None}
+    if choice.best is None:
+        return out
+    best = choice.best
+    keys = procedure_keys(config, best.candidate)
+    path = write_chosen(config, best.candidate, grams, mm,
+                        f"payload-agent plan --target-std {grams:g},{mm:g}: {best.candidate.describe()}\n"
+                        f"predicted 1σ: mass {best.mass_std_g:.2f} g, centre of mass {best.cog_std_mm:.2f} mm, "
+                        f"{best.robot_time_s:.0f} s of robot time, for the payload {payload.describe()}\n"
+                        f"{config.source} with its procedure section replaced")
+    con.say("The chosen procedure's keys (the robot YAML's `procedure:` section): "
+            + ", ".join(f"{k}: {v}" for k, v in keys.items()))
+    con.say(f"Written with the rest of {config.source} to {path}; run it with:\n"
+            f"  payload-agent run --robot {path}")
+    out["chosen"] = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
+                     "mass_std_g": best.mass_std_g, "cog_std_mm": best.cog_std_mm, "procedure_keys": keys,
+                     "robot_file": str(path)}
+    return out
