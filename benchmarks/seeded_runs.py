@@ -22,7 +22,7 @@ import yaml
 
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import PayloadAgentError
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
@@ -35,8 +35,8 @@ def one_run(robot: str, seed: int, storage: Path) -> dict:
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    outcome = run_identification(config, RunOptions(assume_yes=True, fresh_baseline=True, report=False,
-                                                    progress=False, out=lambda *_: None))
+    outcome = run_identification(config, RunOptions(assume_yes=True, fresh_baseline=True, report=False),
+                                         OperatorUI(progress=False, out=lambda *_: None))
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
