@@ -20,8 +20,7 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
-from payload_agent.errors import (CommunicationError, DataError, MotionAbortedError, QualityGateError,
-                                  RobotNotReadyError, SafetyError)
+from payload_agent.errors import CommunicationError, DataError, MotionAbortedError, QualityGateError, SafetyError
 from payload_agent.motion.planner import Plan, expected_durations, remaining_plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
