@@ -18,8 +18,12 @@ $(VENV)/.installed: pyproject.toml
 sim: $(VENV)/.installed
 	$(VENV)/bin/payload-agent run --robot configs/sim-ec66.yaml --yes
 
+# two workers (pytest-xdist): each has its own state folder (tests/conftest.py), simulated controllers bind
+# ephemeral ports or a free 127.0.0.x, so the files run side by side; a file stays on one worker, in its own
+# order (its module-scoped simulators and CLI runs are built once, as in a serial run)
+TEST_WORKERS ?= 2
 test: $(VENV)/.installed browser
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The report's screenshot tests render in headless Chromium (Debian package `chromium`): installed
 # here when missing and we are root with apt-get; otherwise those tests skip (CI makes them fail).

@@ -18,7 +18,7 @@ from typing import Callable
 from payload_agent.configuration.config import Config, load_config
 from payload_agent.configuration.paths import find_robot
 from payload_agent.session.preflight import preflight
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, run_identification
 from payload_agent.solvers.results import RunResult
 
 
@@ -34,8 +34,8 @@ def identify(robot: str | Path | Config, *, unattended: bool = True, apply: bool
     """
     config = robot if isinstance(robot, Config) else load_config(find_robot(robot))
     options = RunOptions(unattended=unattended, assume_yes=not unattended, apply=apply, tool=tool, solver=solver,
-                         fresh_baseline=fresh_baseline, progress=False, out=out or (lambda _text: None))
-    return run_identification(config, options).result
+                         fresh_baseline=fresh_baseline)
+    return run_identification(config, options, OperatorUI(out=out or (lambda _text: None), progress=False)).result
 
 
 def verify(robot: str | Path | Config, tool: str | None = None, *, apply: bool = False,

@@ -31,33 +31,35 @@ NO_TERMINAL_HINT = {
 
 
 # -- sessions that move the robot ---------------------------------------------------------------
-def _run_options(args, con: Console, mode: str, **extra):
-    from payload_agent.session.runner import RunOptions
+def _run_options(args, mode: str, **extra):
+    """What the command's flags ask of the session (session/options.py)."""
+    from payload_agent.session.options import RunOptions
 
-    fields = {f.name for f in dataclasses.fields(RunOptions)}
-    kw: dict[str, Any] = dict(mode=mode, unattended=args.unattended, assume_yes=args.yes,
-                              result_path=Path(args.result) if getattr(args, "result", None) else None,
-                              solver=getattr(args, "solver", None), tool=getattr(args, "tool", None),
-                              fresh_baseline=getattr(args, "fresh_baseline", False),
-                              report=not getattr(args, "no_report", False),
-                              out=con.say, ask=con.asker(NO_TERMINAL_HINT[mode]), **extra)
-    optional = {"retry_sweeps": getattr(args, "retry_sweeps", 0) or 0, "detail": con.detail,
-                "resume": Path(args.resume) if getattr(args, "resume", None) else None,
-                "progress_stream": con.human, "console": con}
-    kw.update({k: v for k, v in optional.items() if k in fields})  # what this runner version accepts
-    if con.json_mode and "progress_stream" not in fields:
-        kw["progress"] = False  # the runner would draw on stdout, which carries the JSON
-    return RunOptions(**{k: v for k, v in kw.items() if k in fields})
+    return RunOptions(mode=mode, unattended=args.unattended, assume_yes=args.yes,
+                      result_path=Path(args.result) if getattr(args, "result", None) else None,
+                      solver=getattr(args, "solver", None), tool=getattr(args, "tool", None),
+                      fresh_baseline=getattr(args, "fresh_baseline", False),
+                      report=not getattr(args, "no_report", False), retry_sweeps=getattr(args, "retry_sweeps", 0) or 0,
+                      resume=Path(args.resume) if getattr(args, "resume", None) else None, **extra)
 
 
-def _session(args, con: Console, mode: str, **extra):
+def _operator_ui(con: Console, mode: str):
+    """How the session talks to the person at the terminal (or to nobody, with --json's stdout kept clean)."""
+    from payload_agent.session.options import OperatorUI
+
+    return OperatorUI(out=con.say, ask=con.asker(NO_TERMINAL_HINT[mode]), detail=con.detail,
+                      progress_stream=con.human)
+
+
+def _session(args, con: Console, mode: str, on_cell=None, **extra):
     from payload_agent.recording.state import describe_locations
-    from payload_agent.session.runner import run_identification
+    from payload_agent.session.runner import SimulatedCellUse, run_identification
 
     config = load_robot(args)
     con.say(describe_locations(config))
     try:  # checks everything `plan` checks before anything starts (session.preflight), once
-        outcome = run_identification(config, _run_options(args, con, mode, **extra))
+        outcome = run_identification(config, _run_options(args, mode, **extra), _operator_ui(con, mode),
+                                     SimulatedCellUse(on_cell=on_cell))
     except QualityGateError as exc:
         outcome = getattr(exc, "outcome", None)
         if outcome is not None:
@@ -152,7 +154,7 @@ def cmd_calibrate(args, con: Console) -> int:
 
 def cmd_watch(args, con: Console) -> int:
     from payload_agent.session.connection import build_driver
-    from payload_agent.session.runner import RunOptions, run_identification
+    from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
     from payload_agent.session.watch import watch
 
     from payload_agent.session.preflight import preflight
@@ -166,7 +168,9 @@ def cmd_watch(args, con: Console) -> int:
         cell = SimulatedCell(config).start()
 
     def run_once() -> int:
-        run_identification(config, RunOptions(unattended=True, apply=True, tool=args.tool, cell=cell, out=con.say))
+        run_identification(config, RunOptions(unattended=True, apply=True, tool=args.tool),
+                                   OperatorUI(out=con.say),
+                                   SimulatedCellUse(cell=cell))
         return 0
 
     def run_tool(name: str | None) -> int:  # the trigger named the tool: verify a known one, identify a new one
@@ -275,7 +279,8 @@ def cmd_doctor(args, con: Console) -> int:
 
 
 def cmd_history(args, con: Console) -> int:
-    from payload_agent.output import history
+    from payload_agent.output.history_table import format_history
+    from payload_agent.recording import history
     from payload_agent.recording.state import RobotState
 
     config = load_robot(args)
@@ -286,7 +291,7 @@ def cmd_history(args, con: Console) -> int:
     if not db.exists():
         con.say(f"No history yet for robot {config.robot.name!r} ({db}).")
     else:
-        con.say(history.format_history(shown, flags))
+        con.say(format_history(shown, flags))
         con.say(f"Run folders: {Path(config.storage.runs_dir).absolute()} (`solve` and `report` take a run "
                 "folder's name)")
     ids = {e.id for e in shown}

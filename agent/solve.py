@@ -40,7 +40,7 @@ class Solved:
     baseline_dir: Path | None
 
     def record_history(self, config: Config, tool: str | None) -> int:
-        from payload_agent.output import history
+        from payload_agent.recording import history
         from payload_agent.recording.state import RobotState
 
         entry = history.HistoryEntry.from_result_json(

@@ -93,13 +93,14 @@ class StreamStats:
     first_t: float | None = None  # receive times (monotonic)
     last_t: float | None = None
     last_ctrl_t: float | None = None
+    first_ctrl_t: float | None = None  # controller time of the first sample, where the protocol stamps them
     largest_gap_s: float = 0.0  # largest step between samples (controller time where available)
     largest_wall_gap_s: float = 0.0  # largest step between deliveries (receive time)
     gaps: list[tuple[float, float]] = field(default_factory=list)  # (offset from first sample s, length s) > limit
 
     def add(self, t_recv: float, t_ctrl: float | None, limit_s: float) -> None:
         if self.first_t is None:
-            self.first_t = t_recv
+            self.first_t, self.first_ctrl_t = t_recv, t_ctrl
         elif self.last_t is not None:
             self.largest_wall_gap_s = max(self.largest_wall_gap_s, t_recv - self.last_t)
             step = (t_ctrl - self.last_ctrl_t if t_ctrl is not None and self.last_ctrl_t is not None
@@ -115,6 +116,13 @@ class StreamStats:
         if self.count < 2 or self.first_t is None or self.last_t is None or self.last_t <= self.first_t:
             return 0.0
         return (self.count - 1) / (self.last_t - self.first_t)
+
+    @property
+    def controller_rate_hz(self) -> float | None:
+        """Samples per second of the controller's own clock (None where it stamps no samples)."""
+        if self.count < 2 or self.first_ctrl_t is None or self.last_ctrl_t is None:
+            return None
+        return (self.count - 1) / max(self.last_ctrl_t - self.first_ctrl_t, 1e-9)
 
     def to_json(self) -> dict:
         return {"nominal_period_s": self.nominal_period_s, "count": self.count,

@@ -32,7 +32,7 @@ from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.settings import Supervision
 from payload_agent.errors import PayloadAgentError
 from payload_agent.recording.rundata import load_manifest
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM_CONFIGS = {"elite_ec": "configs/sim-ec66.yaml", "ur_rtde": "configs/sim-ur5e.yaml",
@@ -128,8 +128,9 @@ def run_cell(driver: str, fault: str, storage: Path) -> Cell:
 
     lines: list[str] = []
     try:
-        run_identification(config, RunOptions(assume_yes=True, progress=False, report=False, out=lines.append,
-                                              on_cell=inject_mid_sweep))
+        run_identification(config, RunOptions(assume_yes=True, report=False),
+                                   OperatorUI(progress=False, out=lines.append),
+                                   SimulatedCellUse(on_cell=inject_mid_sweep))
         cell.problems.append("the run finished although the fault was injected")
     except PayloadAgentError as exc:
         cell.exit_code, cell.message = exc.exit_code, str(exc)

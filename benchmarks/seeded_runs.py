@@ -29,7 +29,7 @@ import yaml
 
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import DataError, PayloadAgentError
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
@@ -42,12 +42,14 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    quiet = dict(assume_yes=True, report=False, progress=False, out=lambda *_: None)
+    quiet = dict(assume_yes=True, report=False)
+    ui = OperatorUI(progress=False, out=lambda *_: None)
     if calibrate:
         from payload_agent.types import PayloadSetting
 
         run_identification(config, RunOptions(mode="calibrate", reference=PayloadSetting(3.0, (0.0, 0.0, 0.08)),
-                                              on_cell=lambda cell: cell.change_tool(3.0, (0.0, 0.0, 80.0)), **quiet))
+                                              **quiet), ui,
+                           SimulatedCellUse(on_cell=lambda cell: cell.change_tool(3.0, (0.0, 0.0, 80.0))))
     plan: dict = {}
     if target:
         from payload_agent.evaluation import design
@@ -64,7 +66,7 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         config = design.with_candidate(config, best.candidate)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm]}
-    outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet))
+    outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]

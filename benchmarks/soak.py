@@ -68,7 +68,7 @@ def _config(tmp: Path, time_scale: float):
 def main(argv: list[str] | None = None) -> int:
     from payload_agent.errors import PayloadAgentError
     from payload_agent.recording.state import RobotState
-    from payload_agent.session.runner import RunOptions, run_identification
+    from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
     from payload_agent.session.simulation import SimulatedCell
     from payload_agent.session.tool_change import change_tool
     from payload_agent.session.watch import watch
@@ -99,8 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     truths["T1"] = new_truth()
     cell.change_tool(*truths["T1"])
-    first = run_identification(config, RunOptions(assume_yes=True, tool="T1", cell=cell, report=False,
-                                                  progress=False, out=lambda s: None))
+    first = run_identification(config, RunOptions(assume_yes=True, tool="T1", report=False),
+                                       OperatorUI(progress=False, out=lambda s: None),
+                                       SimulatedCellUse(cell=cell))
     print(f"soak: {args.changes} changes, time scale {args.time_scale:g}, folder {tmp}; baseline and first tool "
           f"in {time.monotonic() - t0:.0f} s wall")
     run_dirs: set[str] = {str(first.run_dir)}

@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import abc
 import ipaddress
+import random
 import socket
 import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
 
@@ -140,6 +141,27 @@ def require_loopback(host: str) -> str:
             raise OSError(f"simulated controllers listen on loopback addresses only (127.0.0.0/8, ::1), "
                           f"not {host!r}")
     return host
+
+
+def free_loopback_host(ports: Sequence[int], attempts: int = 50) -> str:
+    """A 127.0.0.x address (x in 2..250) on which every one of ``ports`` can be bound now: a simulated
+    controller with its protocol's fixed ports (a YAML's ``host: auto``) beside other simulations."""
+    rng = random.Random()
+    for _ in range(attempts):
+        host = f"127.0.0.{rng.randint(2, 250)}"
+        socks = []
+        try:
+            for port in ports:
+                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                socks.append(s)
+                s.bind((host, port))
+            return host
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError(f"no 127.0.0.x address has ports {', '.join(map(str, ports))} free")
 
 
 def sim_robot_kwargs(config: "Config") -> dict[str, Any]:

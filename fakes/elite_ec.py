@@ -33,13 +33,14 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from payload_agent.fakes.base import FAULTS, SimulatedController, sim_robot_kwargs
+from payload_agent.fakes.base import FAULTS, SimulatedController, free_loopback_host, sim_robot_kwargs
 from payload_agent.fakes.elite_ec_methods import (MODE_PLAY, MODE_REMOTE, MODE_TEACH, N_DIGITAL_INPUTS, N_TOOLS,
                                                   STATE_COLLISION, STATE_ERROR, STATE_ESTOP, STATE_RUNNING,
                                                   STATE_STOP, SUBTYPE_EC66, EliteMethods)
 from payload_agent.fakes.elite_ec_models import (DEFAULT_JOINT_TEMPS_C, DEFAULT_STEADY_JOINT_TEMPS_C, FlangeFK,
                                                  JointThermal)
 from payload_agent.fakes.elite_ec_monitor import PERIOD_S, MonitorServer, pack_frame
+from payload_agent.fakes.elite_ec_pendant import ElitePendant
 from payload_agent.fakes.elite_ec_rpc import INVALID_PARAMS, METHOD_NOT_FOUND, SERVER_ERROR, LineJsonRpcServer, RpcError
 from payload_agent.fakes.sim_robot import SimRobot
 
@@ -72,7 +73,7 @@ def _sim_t(s) -> float:
     return s.t if t_true is None else t_true
 
 
-class FakeEliteController(EliteMethods, SimulatedController):
+class FakeEliteController(ElitePendant, EliteMethods, SimulatedController):
     faults = frozenset(FAULTS)
 
     def __init__(self, robot: SimRobot, host: str = "127.0.0.1", rpc_port: int = 8055, monitor_port: int = 8056,
@@ -132,7 +133,8 @@ class FakeEliteController(EliteMethods, SimulatedController):
         """A fake EC controller and its SimRobot from a robot YAML's ``simulation`` and ``driver`` sections.
 
         Ports of 0 in the driver section mean ephemeral ports (see ``bound_options``); the host must be
-        a loopback address (the TCP servers refuse any other).
+        a loopback address (the TCP servers refuse any other), or ``auto``: a 127.0.0.x on which the
+        ports are free.
         """
         from payload_agent.fakes.arms import SPECS
 
@@ -142,7 +144,10 @@ class FakeEliteController(EliteMethods, SimulatedController):
         spec = SPECS[sim.arm]()
         robot = SimRobot(spec, tick_s=TICK_S, **sim_robot_kwargs(config))
         opts = config.driver_options
-        return cls(robot, host=str(opts.host), rpc_port=int(opts.rpc_port),
+        host = str(opts.host)
+        if host == "auto":  # the real ports on a free 127.0.0.x, beside other simulations
+            host = free_loopback_host([p for p in (int(opts.rpc_port), int(opts.monitor_port)) if p])
+        return cls(robot, host=host, rpc_port=int(opts.rpc_port),
                    monitor_port=int(opts.monitor_port), rated_torque_nm=spec.rated_torque_nm,
                    gain_error=sim.drive_gain_error, owns_robot=True)
 
@@ -217,51 +222,7 @@ class FakeEliteController(EliteMethods, SimulatedController):
         elif name == "no_reply":
             self._rpc.unhang_connections()
 
-    # -- test-side helpers --------------------------------------------------------------------
-    def set_mode(self, mode: int) -> None:
-        """Turn the pendant's mode key: 0 teach, 1 play, 2 remote. Leaving remote stops motion."""
-        if mode not in (MODE_TEACH, MODE_PLAY, MODE_REMOTE):
-            raise ValueError("mode must be 0, 1 or 2")
-        with self._lock:
-            if mode != MODE_REMOTE and self._mode == MODE_REMOTE:
-                self._robot.stop()
-                self._mark_motion_stopped()
-            self._mode = mode
-
-    def press_estop(self) -> None:
-        with self._lock:
-            self._estop_pressed = True
-            self._alarm = True
-            self._robot.trigger_estop()
-            self._robot.set_servo(False)
-            self._servo = False
-            self._mark_motion_stopped()
-
-    def release_estop(self) -> None:
-        """The button is released; the alarm stays until clearAlarm, servos stay off."""
-        with self._lock:
-            self._estop_pressed = False
-
-    def trigger_collision(self) -> None:
-        with self._lock:
-            self._collision = True
-            self._robot.trigger_protective_stop()
-            self._mark_motion_stopped()
-
-    def raise_alarm(self) -> None:
-        """Any servo/controller alarm: robotState 4 until clearAlarm."""
-        with self._lock:
-            self._alarm = True
-            self._robot.trigger_protective_stop()
-            self._mark_motion_stopped()
-
-    def set_servo(self, on: bool) -> None:
-        with self._lock:
-            self._robot.set_servo(on)
-            self._servo = bool(on)
-            if not on:
-                self._mark_motion_stopped()
-
+    # -- test-side helpers (the pendant's and the cell's controls: fakes/elite_ec_pendant.py) ------------
     def set_garbage_reply(self, method: str, raw_line: str | None) -> None:
         """Answer ``method`` with this raw line (without newline) instead of a proper reply."""
         with self._lock:
@@ -269,27 +230,6 @@ class FakeEliteController(EliteMethods, SimulatedController):
                 self._garbage.pop(method, None)
             else:
                 self._garbage[method] = raw_line
-
-    def set_digital_input(self, index: int, value: bool | int) -> None:
-        """Drive the controller's digital input X<index> (0..63) high (1/True) or low (0/False)."""
-        if not isinstance(index, int) or isinstance(index, bool) or not (0 <= index < N_DIGITAL_INPUTS):
-            raise ValueError(f"digital input index must be an integer in [0, {N_DIGITAL_INPUTS - 1}], got {index!r}")
-        with self._lock:
-            self._inputs[index] = 1 if value else 0
-
-    def set_joint_temperatures(self, values: Sequence[float], steady: Sequence[float] | None = None) -> None:
-        """Set the joints' temperatures (6 values, °C), shown from the next monitor frame on.
-
-        They then stay put, or, with ``steady``, drift towards it with the fake's 30-minute time
-        constant (simulated time).
-        """
-        with self._lock:
-            self._thermal.set(values, steady)
-
-    def joint_temperatures(self) -> tuple[float, ...]:
-        """The joints' temperatures (°C) the controller reports now."""
-        with self._lock:
-            return tuple(float(v) for v in self._thermal.value)
 
     def payload_setting(self, tool_num: int = 0) -> dict:
         with self._lock:

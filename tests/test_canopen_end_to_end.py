@@ -10,7 +10,8 @@ from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import MotionStopped, SafetyError
 from payload_agent.recording.rundata import load_manifest
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.options import QUIET
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 SIM = ROOT / "configs" / "sim-canopen-arm.yaml"
 
@@ -30,13 +31,15 @@ def move_batches(ctrl) -> int:
     return sum(1 for a, b in zip([None] + times, times) if a is None or b - a > 0.005)
 
 
-def quiet(**kw):
-    return RunOptions(assume_yes=True, progress=False, report=False, out=lambda s: None, **kw)
+def quiet(config, on_cell=None, **kw):
+    """A session that accepts the plan and says nothing."""
+    return run_identification(config, RunOptions(assume_yes=True, report=False, **kw), QUIET,
+                              SimulatedCellUse(on_cell=on_cell))
 
 
 def test_canopen_arm_identifies_the_payload(tmp_path):
     config = sim_config(tmp_path, **{"simulation.payload": {"mass_kg": 1.2, "cog_mm": [-20, 35, 60]}})
-    outcome = run_identification(config, quiet())
+    outcome = quiet(config)
     est = outcome.result.primary
     assert abs(est.mass_kg - 1.2) < 0.03, est
     assert max(abs(a - b) for a, b in zip(est.cog_mm, (-20, 35, 60))) < 5.0, est
@@ -63,7 +66,7 @@ def test_drive_fault_mid_run_stops_every_drive_and_keeps_the_data(tmp_path):
         threading.Thread(target=fault_in_first_sweep, daemon=True).start()
 
     with pytest.raises(MotionStopped) as err:  # the drive stopped itself: a motion abort (exit 4)
-        run_identification(config, quiet(on_cell=on_cell))
+        quiet(config, on_cell=on_cell)
     assert err.value.exit_code == 4
     assert "EMCY from joint 3 (node 3): error code 0x8611 (following error)" in str(err.value)
     ctrl = seen["ctrl"]
@@ -81,7 +84,7 @@ def test_drive_fault_mid_run_stops_every_drive_and_keeps_the_data(tmp_path):
 def test_unattended_canopen_run_needs_the_pose_check_acknowledgement(tmp_path):
     cells = []
     with pytest.raises(SafetyError, match="unattended_without_pose_check"):
-        run_identification(sim_config(tmp_path), RunOptions(unattended=True, fresh_baseline=True, progress=False,
-                                                            report=False, out=lambda s: None,
-                                                            on_cell=cells.append))
+        run_identification(sim_config(tmp_path), RunOptions(unattended=True, fresh_baseline=True, report=False),
+                                                 OperatorUI(progress=False, out=lambda s: None),
+                                                 SimulatedCellUse(on_cell=cells.append))
     assert not [e for e in cells[0].controller.events if e.kind == "move"]  # refused before any motion

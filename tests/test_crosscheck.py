@@ -63,7 +63,7 @@ def test_sign_flipped_dh_is_refused_before_any_motion_command(tmp_path):
 
     from payload_agent.configuration.config import parse_config
     from payload_agent.errors import SafetyError
-    from payload_agent.session.runner import RunOptions, run_identification
+    from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     for j in (1, 2):
@@ -74,8 +74,9 @@ def test_sign_flipped_dh_is_refused_before_any_motion_command(tmp_path):
     cells = []
     with pytest.raises(SafetyError) as err:
         run_identification(parse_config(data, "flipped.yaml"),
-                           RunOptions(assume_yes=True, progress=False, report=False, out=lambda s: None,
-                                      on_cell=cells.append))
+                           RunOptions(assume_yes=True, report=False),
+                           OperatorUI(progress=False, out=lambda s: None),
+                           SimulatedCellUse(on_cell=cells.append))
     assert "signs of a2 and a3" in str(err.value) and "reported by the controller" in str(err.value)
     assert not [e for e in cells[0].controller.events if e.kind == "move"]
     assert not (tmp_path / "runs").exists()  # refused before a run folder was made

@@ -341,8 +341,27 @@ def test_slow_monitor_client_is_dropped_without_stalling_sim(sim):
 
 # -- the simulated-controller contract ------------------------------------------------------------
 
+def test_host_auto_serves_the_real_ports_on_a_free_loopback_address(sim_ec66_data):
+    """sim-ec66.yaml's `host: auto`: 8055/8056 as on the robot, on a 127.0.0.x no other simulation holds, so two
+    simulated EC66 from the same YAML (two test workers, a benchmark beside the suite) run at once."""
+    cfg = parse_config(sim_ec66_data, source="test")
+    assert cfg.driver_options.host == "auto"
+    first = FakeEliteController.from_config(cfg).start()
+    try:
+        second = FakeEliteController.from_config(cfg).start()
+        try:
+            assert (first.rpc_port, first.monitor_port) == (second.rpc_port, second.monitor_port) == (8055, 8056)
+            assert first.host != second.host and all(h.startswith("127.0.0.") for h in (first.host, second.host))
+            assert second.bound_options(cfg.driver_options).host == second.host
+        finally:
+            second.close()
+    finally:
+        first.close()
+
+
 def test_from_config_builds_robot_and_binds_ephemeral_ports(sim_ec66_data):
     data = tweak(tweak(sim_ec66_data, "driver.rpc_port", 0), "driver.monitor_port", 0)
+    data = tweak(data, "driver.host", "127.0.0.1")
     data = tweak(data, "simulation.drive_gain_error", [1.0, 1.04, 0.97, 1.0, 1.0, 1.0])
     cfg = parse_config(data, source="test")
     c = FakeEliteController.from_config(cfg)

@@ -21,7 +21,7 @@ from payload_agent.evaluation.calibration import GainCalibration, calibration_fi
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.recording.state import RobotState
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 from conftest import tweak
 
@@ -56,8 +56,8 @@ def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_rep
 
     monkeypatch.setattr(RunRecorder, "sink", sink)
     said: list[str] = []
-    outcome = run_identification(config, RunOptions(assume_yes=True, report=False, retry_sweeps=1,
-                                                    out=said.append, progress=False))
+    outcome = run_identification(config, RunOptions(assume_yes=True, report=False, retry_sweeps=1),
+                                         OperatorUI(out=said.append, progress=False))
     redo = next(i for i, line in enumerate(said) if "cannot be segmented; redoing before the tool is mounted" in line)
     mount = next(i for i, line in enumerate(said) if "tool mounted" in line)
     assert BROKEN in said[redo] and redo < mount

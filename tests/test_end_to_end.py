@@ -11,7 +11,7 @@ from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import MotionAbortedError
 from payload_agent.recording.rundata import load_manifest
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 
 def _config(data, tmp_path, **changes):
@@ -28,8 +28,8 @@ def test_identifies_simulated_payload_over_the_protocol(sim_ec66_data, tmp_path)
     cfg = _config(sim_ec66_data, tmp_path)
     truth = sim_ec66_data["simulation"]["payload"]
     lines = []
-    outcome = run_identification(cfg, RunOptions(assume_yes=True, result_path=tmp_path / "r.json",
-                                                 out=lines.append))
+    outcome = run_identification(cfg, RunOptions(assume_yes=True, result_path=tmp_path / "r.json"),
+                                      OperatorUI(out=lines.append))
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["solver"] == "general" and "three-step" in result["estimates"]
     assert result["quality"]["passed"] and abs(result["mass_kg"] - truth["mass_kg"]) < 4 * result["mass_std_kg"]
@@ -60,7 +60,9 @@ def test_estop_mid_sweep_stops_and_keeps_data(sim_ec66_data, tmp_path):
             threading.Timer(0.15, cell.controller.press_estop).start()
 
     with pytest.raises(MotionAbortedError):
-        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append, report=False))
+        run_identification(cfg, RunOptions(assume_yes=True, report=False),
+                                OperatorUI(out=out),
+                                SimulatedCellUse(on_cell=cells.append))
     cell = cells[0]
     assert not cell.robot.snapshot().moving
     run_dir = next((tmp_path / "runs").iterdir())
@@ -77,5 +79,7 @@ def test_operator_declines_nothing_moves(sim_ec66_data, tmp_path):
     cfg = _config(sim_ec66_data, tmp_path)
     cells = []
     with pytest.raises(MotionAbortedError, match="declined"):
-        run_identification(cfg, RunOptions(ask=lambda prompt: "n", out=lambda s: None, on_cell=cells.append))
+        run_identification(cfg, RunOptions(),
+                                OperatorUI(ask=lambda prompt: "n", out=lambda s: None),
+                                SimulatedCellUse(on_cell=cells.append))
     assert cells[0].robot.snapshot().move_id == 0

@@ -6,10 +6,11 @@ import sqlite3
 
 import pytest
 
-from payload_agent.output import history
+from payload_agent.output.history_table import format_history
+from payload_agent.recording import history
 from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
-from payload_agent.output.history import HistoryEntry
+from payload_agent.recording.history import HistoryEntry
 
 
 def entry(mass=2.0, cog=(40.0, -25.0, 70.0), std=0.001, cog_std=(0.2, 0.2, 0.2), tool=None, t="2026-11-21T08:00:00+00:00",
@@ -97,7 +98,7 @@ def test_format_history_table(tmp_path):
     i = history.record(db, entry(tool="gripper-A", t="2026-11-21T02:00:00+00:00", mass=2.1, quality_passed=False))
     history.mark_applied(db, i, PayloadSetting(2.1, (0.04, -0.025, 0.07)))
     all_entries = history.entries(db)
-    text = history.format_history(all_entries, history.compare_to_previous(all_entries))
+    text = format_history(all_entries, history.compare_to_previous(all_entries))
     lines = text.splitlines()
     assert lines[0].split()[:3] == ["id", "time", "(UTC)"]
     row2 = next(line for line in lines if line.startswith("2 "))
@@ -105,9 +106,9 @@ def test_format_history_table(tmp_path):
     assert "2026-11-21 02:00" in row2
     assert "run folder" in lines[0] and "2026-11-21T02:00:00+00:00" in row2  # the run's name: solve/report take it
     assert "#2 differs from #1" in text
-    only_last = history.format_history(all_entries, history.compare_to_previous(all_entries), last=1)
+    only_last = format_history(all_entries, history.compare_to_previous(all_entries), last=1)
     assert not any(line.startswith("1 ") for line in only_last.splitlines())
-    assert history.format_history([], []) == "No identifications in the history yet."
+    assert format_history([], []) == "No identifications in the history yet."
 
 
 def test_refuses_newer_schema_and_foreign_files(tmp_path):

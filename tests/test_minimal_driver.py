@@ -14,7 +14,8 @@ from payload_agent.drivers import registry
 from payload_agent.errors import ConfigError, MotionAbortedError, SafetyError, SupervisionTrip
 from payload_agent.motion.planner import make_plan
 from payload_agent.recording.rundata import load_manifest
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.options import QUIET
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 registry.register("inproc", InProcessDriver)
 
@@ -28,13 +29,15 @@ def inproc_config(data, tmp_path, name, effort_unit="Nm", **safety):
     return parse_config(data, source="inproc.yaml")
 
 
-def quiet(**kw):
-    return RunOptions(assume_yes=True, progress=False, report=False, out=lambda s: None, **kw)
+def quiet(config, on_cell=None, **kw):
+    """A session that accepts the plan and says nothing."""
+    return run_identification(config, RunOptions(assume_yes=True, report=False, **kw), QUIET,
+                              SimulatedCellUse(on_cell=on_cell))
 
 
 def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
     data = tweak(sim_ec66_data, "simulation.payload", {"mass_kg": 1.7, "cog_mm": [-30, 45, 60]})
-    outcome = run_identification(inproc_config(data, tmp_path, "e2e"), quiet())
+    outcome = quiet(inproc_config(data, tmp_path, "e2e"))
     est = outcome.result.primary
     assert abs(est.mass_kg - 1.7) < 0.03
     assert max(abs(a - b) for a, b in zip(est.cog_mm, (-30, 45, 60))) < 5.0
@@ -65,7 +68,7 @@ def test_stalled_stream_stops_the_arm_and_keeps_the_data(sim_ec66_data, tmp_path
         threading.Thread(target=stall_in_first_sweep, daemon=True).start()
 
     with pytest.raises(SupervisionTrip) as err:
-        run_identification(config, quiet(on_cell=on_cell))
+        quiet(config, on_cell=on_cell)
     report = err.value.stop_report
     assert report is not None and report.acknowledged and "stalled" in report.reason
     ctrl = seen["cell"].controller
@@ -84,8 +87,9 @@ def test_unattended_run_without_a_pose_check_needs_the_acknowledgement(sim_ec66_
     moved = []
     with pytest.raises(SafetyError, match="unattended_without_pose_check"):
         run_identification(inproc_config(sim_ec66_data, tmp_path, "ack"),
-                           RunOptions(unattended=True, fresh_baseline=True, progress=False, report=False,
-                                      out=lambda s: None, on_cell=lambda c: moved.append(c)))
+                           RunOptions(unattended=True, fresh_baseline=True, report=False),
+                           OperatorUI(progress=False, out=lambda s: None),
+                           SimulatedCellUse(on_cell=lambda c: moved.append(c)))
     assert not any(e.kind == "move" for e in moved[0].controller.events)
     assert "ack" not in CONTROLLERS  # the simulated controller was closed
 
@@ -93,7 +97,7 @@ def test_unattended_run_without_a_pose_check_needs_the_acknowledgement(sim_ec66_
 def test_effort_unit_must_match_the_driver_before_connecting(sim_ec66_data, tmp_path):
     config = inproc_config(sim_ec66_data, tmp_path, "unit", effort_unit="A")
     with pytest.raises(ConfigError, match="effort.unit"):
-        run_identification(config, quiet())
+        quiet(config)
     assert "unit" not in CONTROLLERS and not (tmp_path / "runs").exists()
 
 
@@ -112,7 +116,7 @@ def test_resume_records_only_the_unfinished_sweeps(sim_ec66_data, tmp_path):
         threading.Thread(target=watch, daemon=True).start()
 
     with pytest.raises(MotionAbortedError):
-        run_identification(config, quiet(on_cell=stop_in_loaded_run))
+        quiet(config, on_cell=stop_in_loaded_run)
     run_dir = next((tmp_path / "runs").iterdir())
     first = load_manifest(run_dir)
     assert first["status"] == "incomplete"
@@ -120,7 +124,7 @@ def test_resume_records_only_the_unfinished_sweeps(sim_ec66_data, tmp_path):
     assert first["phases"]["empty"]["status"] == "complete" and 0 < len(done_before) < len(plan.sweeps)
 
     moves = []
-    outcome = run_identification(config, quiet(resume=run_dir, on_cell=lambda c: moves.append(c)))
+    outcome = quiet(config, resume=run_dir, on_cell=lambda c: moves.append(c))
     assert outcome.run_dir == run_dir
     sweep_moves = sum(e.kind == "move" for e in moves[0].controller.events)
     left = len(plan.sweeps) - len(done_before)
@@ -138,7 +142,7 @@ def test_resume_refuses_a_changed_yaml(sim_ec66_data, tmp_path):
     run_dir.mkdir(parents=True)
     (run_dir / "manifest.json").write_text('{"status": "incomplete", "config_fingerprint": "0", "phases": {}}')
     with pytest.raises(ConfigError, match="changed"):
-        run_identification(config, quiet(resume=run_dir))
+        quiet(config, resume=run_dir)
 
 
 def test_resume_refusals_name_what_changed(sim_ec66_data, tmp_path):

@@ -22,6 +22,7 @@ from payload_agent.errors import CommunicationError, SupervisionTrip
 from payload_agent.fakes.arms import ur5e_spec
 from payload_agent.fakes.modbus.controller import SimulatedModbusRobot
 from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.session.options import QUIET, SimulatedCellUse
 from payload_agent.session.runner import RunOptions, run_identification
 
 Q0 = np.radians([0, -60, 60, -150, -30, 0])
@@ -103,9 +104,9 @@ def test_identification_over_rtu(tmp_path):
         cfg = parse_config(data, source="test")
         cells = []
         try:
-            opts = RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json", out=lambda line: None,
-                              report=False, retry_sweeps=4, on_cell=cells.append)
-            outcome = run_identification(cfg, opts)
+            opts = RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json", report=False,
+                              retry_sweeps=4)
+            outcome = run_identification(cfg, opts, QUIET, SimulatedCellUse(on_cell=cells.append))
             break
         except SupervisionTrip as exc:
             assert "stopped answering" in str(exc) or "stalled" in str(exc), exc

@@ -20,11 +20,11 @@ import pytest
 import yaml
 
 from conftest import ROOT, tweak
-from payload_agent.output import history
+from payload_agent.recording import history
 from payload_agent.configuration.config import parse_config
 from payload_agent.types import Sample
 from payload_agent.errors import DataError
-from payload_agent.output.history import HistoryEntry
+from payload_agent.recording.history import HistoryEntry
 from payload_agent.motion.planner import make_plan
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.evaluation.pipeline import analyse_run as analyse

@@ -14,7 +14,7 @@ from payload_agent.errors import RobotBusyError
 from payload_agent.recording.state import RobotState
 from payload_agent.session.doctor import run_doctor
 from payload_agent.session.robot_lock import current_holder, robot_lock
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 from conftest import ROOT
 
@@ -64,8 +64,9 @@ def test_a_session_refused_by_the_lock_never_connects(tmp_path):
     cells: list[object] = []
     with robot_lock(state, "watch", config.robot.name):
         with pytest.raises(RobotBusyError):
-            run_identification(config, RunOptions(assume_yes=True, report=False, out=lambda *_: None,
-                                                  on_cell=cells.append))
+            run_identification(config, RunOptions(assume_yes=True, report=False),
+                                       OperatorUI(out=lambda *_: None),
+                                       SimulatedCellUse(on_cell=cells.append))
         report = run_doctor(config, stream_window_s=0.2)
     assert cells == []  # not even the simulated controller was started
     session = next(c for c in report.checks if c.name == "session")

@@ -17,7 +17,7 @@ import pytest
 from payload_agent.configuration.config import load_config
 from payload_agent.errors import MotionAbortedError, RobotNotReadyError
 from payload_agent.session.connection import build_driver, simulated_cell
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 from conftest import ROOT
 
@@ -58,8 +58,9 @@ def test_a_refused_session_never_stops_the_motion_of_another(robot, tmp_path):
 
             t_b = time.monotonic()
             with pytest.raises(RobotNotReadyError) as refused:
-                run_identification(config, RunOptions(assume_yes=True, cell=cell, report=False,
-                                                      out=lambda *_: None))
+                run_identification(config, RunOptions(assume_yes=True, report=False),
+                                           OperatorUI(out=lambda *_: None),
+                                           SimulatedCellUse(cell=cell))
             t_b_end = time.monotonic()
             assert refused.value.exit_code == 3
             assert any(w in str(refused.value) for w in ("moving", "running a motion", "another CANopen master"))

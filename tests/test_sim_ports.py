@@ -21,7 +21,7 @@ def test_port_in_use_is_named_and_exits_6(tmp_path):
         taken.listen(1)
         port = taken.getsockname()[1]
         data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
-        data = tweak(tweak(data, "robot.name", "portsim"), "driver.rpc_port", port)
+        data = tweak(tweak(tweak(data, "robot.name", "portsim"), "driver.rpc_port", port), "driver.host", "127.0.0.1")
         path = tmp_path / "portsim.yaml"
         path.write_text(yaml.safe_dump(data))
         env = {**os.environ, "XDG_STATE_HOME": str(tmp_path / "state")}

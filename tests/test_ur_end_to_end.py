@@ -25,7 +25,7 @@ from payload_agent.configuration.config import parse_config  # noqa: E402
 from payload_agent.errors import MotionAbortedError  # noqa: E402
 from payload_agent.fakes.ur import pick_loopback_host  # noqa: E402
 from payload_agent.recording.rundata import load_manifest  # noqa: E402
-from payload_agent.session.runner import RunOptions, run_identification  # noqa: E402
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification  # noqa: E402
 
 
 @pytest.fixture
@@ -99,8 +99,9 @@ def test_protective_stop_mid_sweep_aborts_the_run_and_keeps_the_data(sim_ur5e_da
             threading.Timer(0.4, cells[0].controller.inject_fault, ("protective_stop",)).start()
 
     with pytest.raises(MotionAbortedError, match="protective stop"):
-        run_identification(cfg, RunOptions(assume_yes=True, out=out, on_cell=cells.append, progress=False,
-                                                report=False))
+        run_identification(cfg, RunOptions(assume_yes=True, report=False),
+                                OperatorUI(out=out, progress=False),
+                                SimulatedCellUse(on_cell=cells.append))
     run_dir = next((tmp_path / "runs").iterdir())
     manifest = load_manifest(run_dir)
     phase = manifest["phases"]["empty"]

@@ -16,7 +16,7 @@ from payload_agent.errors import CommunicationError, RobotBusyError, ToolMismatc
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.recording.state import RobotState
 from payload_agent.session.robot_lock import robot_lock
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 from payload_agent.session.simulation import SimulatedCell
 from payload_agent.session.verify import VerifyOptions, verify_tool, write_and_check
 from payload_agent.tools import library
@@ -41,8 +41,9 @@ def identified(tmp_path_factory):
     config = parse_config(data, source=str(cfg_path))
     cell = SimulatedCell(config).start()
     try:
-        run_identification(config, RunOptions(assume_yes=True, tool="gripper", cell=cell, report=False,
-                                              progress=False, out=lambda s: None))
+        run_identification(config, RunOptions(assume_yes=True, tool="gripper", report=False),
+                                   OperatorUI(progress=False, out=lambda s: None),
+                                   SimulatedCellUse(cell=cell))
         yield config, cell, cfg_path
     finally:
         cell.close()

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from conftest import ROOT, tweak
-from payload_agent.output import history
+from payload_agent.recording import history
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import BaselineError, QualityGateError
-from payload_agent.session.runner import RunOptions, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 from payload_agent.session.simulation import SimulatedCell
 from payload_agent.recording.state import RobotState
 
@@ -74,8 +74,9 @@ def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(s
             cell.change_tool(mass, cog)
             moves_before = cell.robot.snapshot().move_id
             first = i == 0  # no stored baseline yet: an attended run records the empty flange first
-            out = run_identification(cfg, RunOptions(unattended=not first, assume_yes=first, apply=True, tool=tool,
-                                                     cell=cell, ask=_never_ask, out=lines.append, report=False))
+            out = run_identification(cfg, RunOptions(unattended=not first, assume_yes=first, apply=True, tool=tool, report=False),
+                                          OperatorUI(ask=_never_ask, out=lines.append),
+                                          SimulatedCellUse(cell=cell))
             manifest = json.loads((out.run_dir / "manifest.json").read_text())
             if first:
                 assert list(manifest["phases"]) == ["empty", "loaded"]
@@ -119,15 +120,17 @@ def test_changed_procedure_invalidates_baseline(sim_ec66_data, tmp_path, no_stdi
         changed = parse_config(tweak(data, "procedure.sweep_deg", [0, 50]), source="test")
         moves = cell.robot.snapshot().move_id
         with pytest.raises(BaselineError, match="procedure changed"):
-            run_identification(changed, RunOptions(unattended=True, cell=cell, ask=_never_ask,
-                                                   out=lambda s: None, report=False))
+            run_identification(changed, RunOptions(unattended=True, report=False),
+                                        OperatorUI(ask=_never_ask, out=lambda s: None),
+                                        SimulatedCellUse(cell=cell))
         assert cell.robot.snapshot().move_id == moves  # refused before anything moved
         # the same baseline on a robot that has warmed up by 15 °C on joint 3
         warm = [t + (15.0 if j == 2 else 0.0) for j, t in enumerate(cell.controller.joint_temperatures())]
         cell.controller.set_joint_temperatures(warm)
         with pytest.raises(BaselineError, match="joint 3 is \\+1[45].* °C"):
-            run_identification(cfg, RunOptions(unattended=True, cell=cell, ask=_never_ask,
-                                               out=lambda s: None, report=False))
+            run_identification(cfg, RunOptions(unattended=True, report=False),
+                                    OperatorUI(ask=_never_ask, out=lambda s: None),
+                                    SimulatedCellUse(cell=cell))
         assert cell.robot.snapshot().move_id == moves
     finally:
         cell.close()
@@ -208,7 +211,9 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
         # nominal gains: the mass comes out about 3 % wrong, and the quality gate notices
         cell.change_tool(tool_mass, tool_cog)
         with pytest.raises(QualityGateError):  # ... and nothing is written to the controller, though asked
-            run_identification(cfg, RunOptions(assume_yes=True, apply=True, cell=cell, out=lines.append, report=False))
+            run_identification(cfg, RunOptions(assume_yes=True, apply=True, report=False),
+                                    OperatorUI(out=lines.append),
+                                    SimulatedCellUse(cell=cell))
         assert cell.controller.payload_setting(0)["m"] == 0.0
         assert "Not applied: the quality checks failed" in "\n".join(lines)
         nominal = json.loads(next((tmp_path / "runs").glob("*/result.json")).read_text())
@@ -217,16 +222,18 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
         cell.change_tool(ref_mass, ref_cog)
         from payload_agent.types import PayloadSetting
 
-        cal = run_identification(cfg, RunOptions(mode="calibrate", unattended=True, cell=cell, out=lines.append,
-                                                 report=False,
-                                                 reference=PayloadSetting(ref_mass, tuple(c / 1000 for c in ref_cog))))
+        cal = run_identification(cfg, RunOptions(mode="calibrate", unattended=True, report=False, reference=PayloadSetting(ref_mass, tuple(c / 1000 for c in ref_cog))),
+                                      OperatorUI(out=lines.append),
+                                      SimulatedCellUse(cell=cell))
         scale = cal.calibration.scale
         # fitted / nominal gain: the drives over-report joint 2 by 3 %, so its gain must shrink by 1/1.03
         assert scale[1] == pytest.approx(1 / 1.03, abs=0.003) and scale[2] == pytest.approx(1 / 0.97, abs=0.003)
         assert RobotState.for_config(cfg).gains_path.exists()
         # the tool again: calibrated gains, and the run says so
         cell.change_tool(tool_mass, tool_cog)
-        out = run_identification(cfg, RunOptions(unattended=True, cell=cell, out=lines.append, report=False))
+        out = run_identification(cfg, RunOptions(unattended=True, report=False),
+                                      OperatorUI(out=lines.append),
+                                      SimulatedCellUse(cell=cell))
     finally:
         cell.close()
     assert abs(out.result.primary.mass_kg - tool_mass) < 0.015

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 if TYPE_CHECKING:
-    from payload_agent.output.history import ChangeFlag, HistoryEntry
+    from payload_agent.recording.history import ChangeFlag, HistoryEntry
 
 
 def format_history(history: Sequence[HistoryEntry], flags: Iterable[ChangeFlag] = (), *,

@@ -229,7 +229,7 @@ def _estimates_html(result: dict, manifest: dict, quality: dict) -> list[str]:
 
 
 def _history_part(db: Path, robot: str, current: set[str]) -> tuple[list, P.Figure | None, Any]:
-    from payload_agent.output import history
+    from payload_agent.recording import history
 
     past = P.load_history(db, robot)
     if not past:

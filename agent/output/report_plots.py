@@ -247,6 +247,6 @@ def history_figure(past: list, current_run_dirs: set[str]) -> Figure:
 
 
 def load_history(db: Path, robot: str) -> list:
-    from payload_agent.output import history
+    from payload_agent.recording import history
 
     return history.entries(db, robot=robot)

@@ -179,10 +179,11 @@ class RobotJobs:
 
     # -- the jobs ----------------------------------------------------------------------------
     def _identify(self, tool: str | None) -> None:
-        from payload_agent.session.runner import RunOptions, run_identification
+        from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
-        outcome = run_identification(self.config, RunOptions(unattended=True, apply=True, tool=tool, cell=self.cell,
-                                                             out=self.log, progress=False))
+        outcome = run_identification(self.config, RunOptions(unattended=True, apply=True, tool=tool),
+                                                  OperatorUI(out=self.log, progress=False),
+                                                  SimulatedCellUse(cell=self.cell))
         est = outcome.result.primary
         cog_std = tuple(1000 * s for s in est.cog_std_m) if est.cog_std_m is not None else (float("nan"),) * 3
         self.last = LastResult("Identify", tool or "", "identified", float(est.mass_kg),

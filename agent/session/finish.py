@@ -16,6 +16,8 @@ from payload_agent.output.pendant import payload_write_record
 from payload_agent.recording.state import RobotState
 from payload_agent.session.apply import apply_result, payload_to_write
 from payload_agent.session.baseline import BaselineInfo
+from payload_agent.session.modes import Mode
+from payload_agent.session.options import OperatorUI, RunOptions
 from payload_agent.solvers.results import RunResult, format_table
 from payload_agent.types import PayloadSetting
 
@@ -32,42 +34,32 @@ class RunOutcome:
     calibration: Any = None
 
 
-def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir: Path,
-           stored: BaselineInfo | None, cell) -> RunOutcome:
+def finish(config: Config, mode: Mode, opts: RunOptions, ui: OperatorUI, state: RobotState, driver: Driver,
+           run_dir: Path, stored: BaselineInfo | None, cell) -> RunOutcome:
     """Analysis, calibration, history, report and write-back, while the controller is still connected."""
-    out = opts.out
+    out = ui.out
     truth = cell.truth_json if cell else None
-    calibration = None
-    if opts.mode == "calibrate":
-        from payload_agent.evaluation.calibration import fit_gains, save_calibration
-
-        ref = opts.reference
-        calibration = fit_gains(config, run_dir, ref.mass_kg, ref.cog_m)
-        path = save_calibration(state.ensure(), calibration)
-        out("Drive-gain calibration (fitted / nominal): " + ", ".join(
-            f"J{j + 1} {calibration.scale[j]:.4f} ± {1.96 * calibration.scale_std[j]:.4f}"
-            for j in calibration.fitted_joints) + f"; stored in {path}")
+    calibration = mode.before_analysis(config, opts, state, run_dir, out)
     result = analyse(config, run_dir, solver=opts.solver)
     if opts.result_path is not None:
         result.write(opts.result_path)
     out(format_table(result, truth))
     out(f"Result written to {Path(run_dir) / 'result.json'}")
     outcome = RunOutcome(Path(run_dir), result, truth, calibration=calibration)
-    outcome.history_id = _record_history(config, opts, state, result, stored, out)
+    outcome.history_id = _record_history(config, opts, state, result, stored, out) if mode.keeps_results else None
     passed = bool(result.quality.get("passed", False))
-    if opts.tool and opts.mode == "identify" and passed:  # the tool library keeps tools that passed only
+    if opts.tool and mode.keeps_results and passed:  # the tool library keeps tools that passed only
         from payload_agent.tools.library import store_result, tool_library_path
 
         entry = store_result(tool_library_path(state.ensure().root), config.robot.name, opts.tool,
                              result.to_json(), outcome.history_id)
         out(f"Tool library: stored {entry.describe()}")
-    if opts.apply and opts.mode == "identify" and passed:
+    if opts.apply and mode.may_apply and passed:
         written, why_no_inertia = payload_to_write(result, driver)
-        outcome.applied = apply_result(driver, result, None if (opts.unattended or opts.assume_yes) else opts.ask,
-                                       out)
+        outcome.applied = apply_result(driver, result, ui.ask if opts.asks else None, out)
         _record_write(run_dir, payload_write_record(True, True, written, outcome.applied, note=why_no_inertia))
         if outcome.history_id is not None:
-            from payload_agent.output import history
+            from payload_agent.recording import history
 
             history.mark_applied(state.history_db, outcome.history_id, outcome.applied)
     elif opts.apply and not passed:
@@ -78,11 +70,9 @@ def finish(config: Config, opts: Any, state: RobotState, driver: Driver, run_dir
     return outcome
 
 
-def _record_history(config: Config, opts: Any, state: RobotState, result: RunResult,
+def _record_history(config: Config, opts: RunOptions, state: RobotState, result: RunResult,
                     stored: BaselineInfo | None, out) -> int | None:
-    if opts.mode == "calibrate":
-        return None  # a reference payload, not a tool: kept out of the tool history
-    from payload_agent.output import history
+    from payload_agent.recording import history
 
     entry = history.HistoryEntry.from_result_json(
         result.to_json(), tool=opts.tool,

@@ -83,10 +83,11 @@ def change_tool(config: Config, tool: str | None, *, cell: Any = None, out: Call
 
 def _identify(config: Config, name: str | None, action: str, cell, out, earlier: tuple[str, ...],
               mount) -> ToolChangeResult:
-    from payload_agent.session.runner import RunOptions, run_identification
+    from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
-    outcome = run_identification(config, RunOptions(unattended=True, apply=True, tool=name, cell=cell, out=out,
-                                                    on_cell=mount, progress=False))
+    outcome = run_identification(config, RunOptions(unattended=True, apply=True, tool=name),
+                                         OperatorUI(out=out, progress=False),
+                                         SimulatedCellUse(cell=cell, on_cell=mount))
     est = outcome.result.primary if outcome.result is not None else None
     return ToolChangeResult(name, action, None, None if est is None else float(est.mass_kg),
                             None if est is None else tuple(float(c) for c in est.cog_mm),  # type: ignore[arg-type]

@@ -38,7 +38,6 @@ from payload_agent.version import __version__
 from payload_agent.types import PayloadSetting
 from payload_agent.errors import DataError
 from payload_agent.recording.sqlite_store import StoreSchema, open_for_write, read_rows
-from payload_agent.output.history_table import format_history  # noqa: F401  (the `history` command's table)
 
 SCHEMA_VERSION = 1
 Z95 = 1.96
