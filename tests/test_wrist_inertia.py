@@ -19,6 +19,9 @@ from payload_agent.motion.planner import Plan, wrist_moves
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.rundata import load_wrist_moves
 from payload_agent.solvers.inertia_consistency import consistency_problem, project_consistent, to_vector
+from payload_agent.evaluation.analyse import Gains
+from payload_agent.evaluation.pipeline import add_inertia
+from payload_agent.solvers.results import Estimate, RunResult, format_table
 from payload_agent.types import Sample
 
 GRIPPER = np.array([[0.012, 0.001, -0.002], [0.001, 0.020, 0.003], [-0.002, 0.003, 0.015]])  # kg·m², about the CoM
@@ -48,12 +51,37 @@ def static(mass, cog_m):
     return theta, np.diag([0.01 * mass, 1e-4 * mass, 1e-4 * mass, 1e-4 * mass]) ** 2  # what the sweeps give
 
 
-def test_the_fit_recovers_a_gripper_tensor_from_a_simulated_recording(ec66):
+def write_run(run_dir, plan, phases, gains):
+    """The recorded wrist moves of both phases in a run folder, as the session writes them (effort / gain)."""
+    rec = RunRecorder(run_dir, {"format": "payload-agent-run/1", "phases": {}})
+    moves = {m.wrist: m for m in plan.wrist_moves}
+    for phase, records in phases.items():
+        rec.begin_phase(phase)
+        for name, r in records.items():
+            rec.begin_sweep(moves[name])
+            for t, q, tau in zip(r.t, r.q, r.effort_nm):
+                rec.sink(Sample(float(t), float(t), tuple(q), tuple(tau / gains)))
+            rec.end_sweep("complete")
+        rec.end_phase("complete")
+
+
+def test_a_run_folder_with_wrist_moves_gives_a_gripper_tensor_beside_mass_and_cog(tmp_path, ec66):
     cfg, plan, start = ec66
     cog = (0.04, -0.025, 0.07)
     empty = record(cfg, plan, start, None, 1)
     loaded = record(cfg, plan, start, PayloadTruth.from_tensor(2.0, cog, GRIPPER), 2)
-    res = identify_inertia(loaded, empty, cfg.robot.kinematics, *static(2.0, cog))
+    gains = np.asarray(cfg.effort.gains_nm_per_unit)
+    write_run(tmp_path / "run", plan, {"empty": empty, "loaded": loaded}, gains)
+    theta, cov = static(2.0, cog)
+    primary = Estimate("general", 2.0, cog, mass_std_kg=0.02, covariance=cov)
+    result = add_inertia(cfg, RunResult("sim-ec66", str(tmp_path / "run"), primary), tmp_path / "run", None,
+                         Gains(tuple(gains), "nominal"))
+    out = result.to_json()
+    assert np.asarray(out["inertia_com_kgm2"]).shape == (3, 3) and len(out["forms"]["ur"]["inertia_kgm2"]) == 6
+    table = format_table(result, {"mass_kg": 2.0, "cog_mm": [40, -25, 70], "inertia_com_kgm2": GRIPPER.tolist()})
+    assert "inertia about the CoM" in table and "truth: Ixx 0.01200" in table
+    res = identify_inertia(loaded, empty, cfg.robot.kinematics, theta, cov)
+    assert np.allclose(res.estimate_kgm2, out["inertia_com_kgm2"], atol=1e-4)  # the folder kept what was recorded
     largest = float(np.max(np.linalg.eigvalsh(GRIPPER)))
     err = res.estimate_kgm2 - GRIPPER
     print(f"condition number {res.condition_number:.3g}; error / largest moment {np.max(np.abs(err)) / largest:.3f}; "
