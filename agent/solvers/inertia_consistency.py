@@ -3,7 +3,8 @@
 A rigid body's inertia about its centre of mass is I = tr(Σ)·1 − Σ, where Σ = ∫ r rᵀ dm is its
 (positive semi-definite) second-moment matrix; every such I is positive semi-definite and its
 principal moments obey the triangle inequalities, and every I that obeys them has such a Σ
-(Wensing, Kim and Slotine, IEEE RA-L 3(1), 2018: the pseudo-inertia condition). So the consistent
+(Wensing, Kim and Slotine, arXiv:1701.04395: the constraints on the covariance of the mass
+distribution; Traversaro et al., arXiv:1610.08703: "full physical consistency"; docs/sources.md). So the consistent
 set is parameterised by Σ = L·Lᵀ (L lower triangular, six numbers), and the projection minimises
 the Mahalanobis distance (x(L) − x̂)ᵀ C⁻¹ (x(L) − x̂) over L, x the six distinct elements.
 An estimate that is already consistent is returned unchanged.
