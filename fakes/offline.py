@@ -42,3 +42,18 @@ def record_plan(robot: SimRobot, plan: Plan, *, torque_scale: np.ndarray | None 
             tau = np.array([s.torque_nm for s in states]) * scale
             sweeps[move.sweep] = SweepData(move.sweep, t, q, tau, f"sim:{move.sweep.name}")
     return sweeps, robot.now() - t_start
+
+
+def record_wrist_moves(robot: SimRobot, plan: Plan, *, settle_ticks: int = 5) -> tuple[dict, float]:
+    """Run every move of the plan; return the wrist moves (name -> WristRecord, effort in N·m) and the motion time."""
+    from payload_agent.recording.rundata import WristRecord
+
+    out = {}
+    t_start = robot.now()
+    for move in plan.moves:
+        robot.move_joints(move.target_rad, move.speed_rad_s, move.accel_rad_s2)
+        states = step_until_still(robot, settle_ticks)
+        if move.wrist is not None:
+            out[move.wrist] = WristRecord(move.wrist, np.array([s.t for s in states]), np.array([s.q for s in states]),
+                                          np.array([s.torque_nm for s in states]))
+    return out, robot.now() - t_start

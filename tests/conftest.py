@@ -19,8 +19,11 @@ os.environ.pop("PAYLOAD_AGENT_ROBOTS", None)
 
 @pytest.fixture
 def sim_ec66_data():
-    """The simulated EC66 config as a dict, to be tweaked per test."""
-    return yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    """The simulated EC66 config as a dict, to be tweaked per test; without the inertia part (its wrist moves
+    double a session's moves: tests/test_wrist_*.py turn it on)."""
+    data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    data["procedure"]["inertia"] = False
+    return data
 
 
 @pytest.fixture

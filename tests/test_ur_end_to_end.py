@@ -30,7 +30,9 @@ from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUs
 
 @pytest.fixture
 def sim_ur5e_data():
-    return yaml.safe_load((ROOT / "configs" / "sim-ur5e.yaml").read_text())
+    data = yaml.safe_load((ROOT / "configs" / "sim-ur5e.yaml").read_text())
+    data["procedure"]["inertia"] = False  # the session tests count moves; tests/test_wrist_*.py test the wrist part
+    return data
 
 
 def _data(sim_ur5e_data, tmp_path: Path, **changes):

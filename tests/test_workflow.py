@@ -48,7 +48,9 @@ def stored_baseline(tmp_path_factory):
     import yaml
 
     tmp = tmp_path_factory.mktemp("baseline")
-    data = _data(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), tmp)
+    data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
+    data["procedure"]["inertia"] = False  # as the sim_ec66_data fixture: the baseline must fit the tests' plan
+    data = _data(data, tmp)
     builtins_input, builtins.input = builtins.input, _never_ask
     try:
         assert main(["baseline", "--robot", _write(tmp, data), "--unattended"]) == 0

@@ -18,6 +18,7 @@ from payload_agent.model.kinematics import DHRow, Kinematics
 from payload_agent.configuration import units
 from payload_agent.configuration.paths import resolve_against, state_home
 from payload_agent.configuration.procedure import load_procedure
+from payload_agent.configuration.wrist_procedure import inertia_procedure_key
 from payload_agent.configuration.simulation import SimulationConfig, parse_simulation
 from payload_agent.configuration.watch import WatchConfig, parse_watch
 from payload_agent.configuration.yamlcheck import Node, check_numbers, load_yaml
@@ -100,6 +101,7 @@ class ProcedureConfig:
     sweep_to_deg: float
     bidirectional: bool
     solver: str
+    inertia: str | None = None  # wrist procedure for the inertia tensor (procedures/wrist_*.yaml), None: off
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,7 @@ class SafetyConfig:
     pose_tolerance_rad: float = math.radians(1.0)
     # a driver without a reported pose: an unattended run needs this explicit acknowledgement
     unattended_without_pose_check: bool = False
+    max_wrist_speed_percent: float | None = None  # wrist moves of the inertia part (None: max_speed_percent)
 
 
 @dataclass(frozen=True)
@@ -164,9 +167,10 @@ KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm", "stiffness_nm_pe
 DH_KEYS = ("a_mm", "d_mm", "alpha_deg", "offset_deg")
 EFFORT_KEYS = ("unit", "gains_nm_per_unit")
 PROCEDURE_KEYS = ("name", "speed_percent", "travel_speed_percent", "accel_percent", "base_deg", "sweep_deg",
-                  "bidirectional", "solver")
+                  "bidirectional", "solver", "inertia")
 SAFETY_KEYS = ("joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm", "reach_box_mm",
                "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s", "pose_tolerance_mm",
+               "max_wrist_speed_percent",
                "pose_tolerance_deg", "unattended_without_pose_check")
 STORAGE_KEYS = ("runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c")
 # driver keys that were removed, and what replaces them (a stale YAML gets told, not ignored)
@@ -329,8 +333,9 @@ def _procedure(node: Node) -> ProcedureConfig:
         raise node.error("sweep_deg", f"needs at least 10 degrees of travel from first to second value, got {sweep}")
     bidirectional = node.boolean("bidirectional")
     solver = node.string("solver", choices=["three-step", "general"])
+    inertia = inertia_procedure_key(node)
     node.reject_unknown()
-    return ProcedureConfig(name, speed, travel, accel, base, sweep[0], sweep[1], bidirectional, solver)
+    return ProcedureConfig(name, speed, travel, accel, base, sweep[0], sweep[1], bidirectional, solver, inertia)
 
 
 def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
@@ -352,12 +357,13 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
     pose_mm = node.number("pose_tolerance_mm", 5.0, gt=0, max=50)
     pose_deg = node.number("pose_tolerance_deg", 1.0, gt=0, max=10)
     no_pose_ok = node.boolean("unattended_without_pose_check", False)
+    wrist = node.number("max_wrist_speed_percent", max_speed, gt=0, max=100)  # the inertia part's fast wrist moves
     node.reject_unknown()
     if approach > max_speed:
         raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
     return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout,
                         None if gap_ms is None else gap_ms / 1000.0, ack_s, pose_mm / 1000.0, math.radians(pose_deg),
-                        no_pose_ok)
+                        no_pose_ok, wrist)
 
 
 def _storage(node: Node | None, base_dir: Path | None, robot_name: str) -> StorageConfig:

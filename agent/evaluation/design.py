@@ -108,7 +108,8 @@ class NoiseModel:
 def with_candidate(config: Config, c: Candidate) -> Config:
     pc = dataclasses.replace(config.procedure, speed_percent=c.speed_percent, travel_speed_percent=c.travel_percent,
                              sweep_from_deg=c.sweep_from_deg, sweep_to_deg=c.sweep_to_deg,
-                             accel_percent=c.accel_percent, name=c.procedure or config.procedure.name)
+                             accel_percent=c.accel_percent, name=c.procedure or config.procedure.name,
+                             inertia=None)  # the mass/CoM procedure only: the inertia part is the same in every one
     return dataclasses.replace(config, procedure=pc)
 
 

@@ -18,10 +18,12 @@ from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 from payload_agent.evaluation.controller_gains import controller_gains
 from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
                                                   run_calibration)
-from payload_agent.recording.rundata import load_manifest
+from payload_agent.evaluation.wrist_inertia import identify_or_none
+from payload_agent.output.payload_forms import payload_forms
+from payload_agent.recording.rundata import load_manifest, load_wrist_moves
 from payload_agent.solvers.results import RunResult
 
-__all__ = ["analyse_run", "run_gains", "check_baseline_segmentation"]
+__all__ = ["analyse_run", "add_inertia", "run_gains", "check_baseline_segmentation"]
 
 
 def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseline_dir: Path | None = None,
@@ -47,8 +49,33 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     gains_used = run_gains(config, run_dir, gains)
     notes: list[str] = []
     loaded, empty, commands = phases_for(run_dir, np.asarray(gains_used.nm_per_unit, float), baseline_dir, notes=notes)
-    return analyse(loaded, empty, AnalysisOptions.from_config(config, solver), gains_used, commands=commands,
-                   notes=notes, robot=config.robot.name, run_dir=str(run_dir))
+    result = analyse(loaded, empty, AnalysisOptions.from_config(config, solver), gains_used, commands=commands,
+                     notes=notes, robot=config.robot.name, run_dir=str(run_dir))
+    return add_inertia(config, result, run_dir, baseline_dir, gains_used)
+
+
+def add_inertia(config: Config, result: RunResult, run_dir: Path, baseline_dir: Path | None, gains: Gains) -> RunResult:
+    """The inertia part (``evaluation.wrist_inertia``) where the run recorded wrist moves, beside the mass and CoM.
+
+    The result gets ``inertia_com_kgm2`` and ``inertia_com_std_kgm2`` (None when refused, with the reason
+    in ``inertia.refused`` and the primary estimate's notes) and every controller's form (``forms``).
+    A run without wrist moves is returned unchanged.
+    """
+    g = np.asarray(gains.nm_per_unit, float)
+    loaded = load_wrist_moves(run_dir, "loaded", g)
+    empty = load_wrist_moves(Path(baseline_dir) if baseline_dir is not None else run_dir, "empty", g)
+    p = result.primary
+    if p.covariance is None:
+        return result
+    theta = np.array([p.mass_kg, *(p.mass_kg * np.asarray(p.cog_m))])
+    inertia = identify_or_none(loaded, empty, config.robot.kinematics, theta, p.covariance,
+                               gain_rel_std=None if gains.rel_std is None else list(gains.rel_std))
+    if inertia is None:
+        return result
+    result.primary = p.with_notes(*inertia.notes())
+    result.extra.update(inertia.to_json())
+    result.extra["forms"] = payload_forms(p.mass_kg, p.cog_m, inertia.inertia_com_kgm2)
+    return result
 
 
 def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | None = None) -> Gains:

@@ -18,16 +18,23 @@ from payload_agent.configuration.config import Config
 from payload_agent.errors import PlanError
 from payload_agent.types import SweepKey
 from payload_agent.configuration.procedure import Procedure, load_procedure
+from payload_agent.configuration.wrist_procedure import WristProcedure, load_wrist_procedure
 
 
 @dataclass(frozen=True)
 class Move:
     label: str
-    kind: str  # "approach" | "travel" | "sweep"
+    kind: str  # "approach" | "travel" | "sweep" | "wrist"
     target_rad: tuple[float, ...]
     speed_rad_s: float
     accel_rad_s2: float
     sweep: SweepKey | None = None
+    wrist: str | None = None  # a recorded wrist move's name (inertia), e.g. "w1-a-j6-fwd"
+
+    @property
+    def recorded_name(self) -> str | None:
+        """The name its samples are kept under (a sweep or a wrist move), None for moves not recorded."""
+        return self.sweep.name if self.sweep is not None else self.wrist
 
     def to_json(self) -> dict:
         d = {"label": self.label, "kind": self.kind, "target_deg": [round(math.degrees(v), 6) for v in self.target_rad],
@@ -36,6 +43,8 @@ class Move:
         if self.sweep:
             d["sweep"] = {"pose": self.sweep.pose, "joint": self.sweep.joint, "direction": self.sweep.direction,
                           "speed_percent": self.sweep.speed_percent}
+        if self.wrist:
+            d["wrist"] = self.wrist
         return d
 
 
@@ -47,6 +56,10 @@ class Plan:
     @property
     def sweeps(self) -> list[Move]:
         return [m for m in self.moves if m.kind == "sweep"]
+
+    @property
+    def wrist_moves(self) -> list[Move]:
+        return [m for m in self.moves if m.kind == "wrist"]
 
     def fingerprint(self) -> str:
         """Changes whenever any target, speed or sweep changes (a stored baseline depends on it)."""
@@ -123,7 +136,53 @@ def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
         if pc.bidirectional:
             moves.append(Move(f"{label} down", "sweep", tuple(start), sweep_speed, accel,
                               SweepKey(sw.pose, sw.joint, "down", pc.speed_percent)))
+    if pc.inertia:
+        moves.extend(wrist_moves(config, load_wrist_procedure(pc.inertia), geo, wrist_limits, moves[-1].target_rad))
     return Plan(proc, tuple(moves))
+
+
+def _nearest_turn(w: np.ndarray, prefer: np.ndarray, limits: list[tuple[float, float]]) -> np.ndarray:
+    """The same wrist orientation with each joint shifted by whole turns to lie nearest ``prefer``, within limits."""
+    out = np.array(w, float)
+    for k, (lo, hi) in enumerate(limits):
+        turns = [out[k] + 2 * math.pi * n for n in range(-2, 3)]
+        inside = [v for v in turns if lo <= v <= hi]
+        if inside:
+            out[k] = min(inside, key=lambda v: abs(v - prefer[k]))
+    return out
+
+
+def wrist_moves(config: Config, wp: WristProcedure, geo: ArmGeometry, wrist_limits: list[tuple[float, float]],
+                after: tuple[float, ...]) -> list[Move]:
+    """The inertia part, after the move to ``after``: per wrist move of ``wp``, a travel to its start (where the arm
+    is not there already), then there and back, both recorded.
+
+    Speed and acceleration are the wrist procedure's own; the safety gate refuses them by move name
+    when the YAML's caps forbid them (they are never slowed down to fit).
+    """
+    robot, pc = config.robot, config.procedure
+    speed = robot.max_joint_speed_rad_s * wp.speed_percent / 100.0
+    accel = robot.max_joint_accel_rad_s2 * wp.accel_percent / 100.0
+    travel = robot.max_joint_speed_rad_s * pc.travel_speed_percent / 100.0
+    travel_accel = robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0
+    q2, q3 = geo.joints_for(0.0, 0.0)
+    q2e, q3e = geo.joints_for(math.radians(wp.elevation_deg[0]), math.radians(wp.elevation_deg[1]))
+    wrists, prefer = {}, np.asarray(after[3:], float)
+    for name, pose in wp.poses.items():  # each orientation: the least wrist travel from the one before
+        R = geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
+        wrists[name] = prefer = _nearest_turn(geo.wrist_for(q2, q3, R, wrist_limits, prefer), prefer, wrist_limits)
+    out: list[Move] = []
+    for k, mv in enumerate(wp.moves):
+        start = np.array([geo.base, q2e, q3e, *wrists[mv.pose]])
+        end = start.copy()
+        start[mv.joint - 1] += math.radians(mv.from_deg)
+        end[mv.joint - 1] += math.radians(mv.to_deg)
+        name = f"w{k + 1}-{mv.pose}-j{mv.joint}"
+        if np.max(np.abs(np.asarray(out[-1].target_rad if out else after) - start)) > 1e-9:
+            out.append(Move(f"to {name} start", "travel", tuple(start), travel, travel_accel))
+        out.append(Move(f"{name} fwd", "wrist", tuple(end), speed, accel, wrist=f"{name}-fwd"))
+        out.append(Move(f"{name} back", "wrist", tuple(start), speed, accel, wrist=f"{name}-back"))
+    return out
 
 
 def expected_durations(plan: Plan, start_q: np.ndarray | None) -> list[float]:
@@ -149,11 +208,12 @@ def remaining_plan(config: Config, plan: Plan, done: set[str]) -> Plan:
     approach = robot.max_joint_speed_rad_s * config.safety.approach_speed_percent / 100.0
     moves: list[Move] = []
     for i, m in enumerate(plan.moves):
-        if m.sweep is None or m.sweep.name in done:
+        if m.recorded_name is None or m.recorded_name in done:
             continue
         start = plan.moves[i - 1].target_rad
         if not moves or moves[-1].target_rad != start:
             kind, speed = ("approach", approach) if not moves else ("travel", travel)
-            moves.append(Move(f"to {m.sweep.name} start", kind, start, speed, m.accel_rad_s2))
+            moves.append(Move(f"to {m.recorded_name} start", kind, start, speed,
+                              min(m.accel_rad_s2, robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0)))
         moves.append(m)
     return Plan(plan.procedure, tuple(moves))

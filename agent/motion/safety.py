@@ -55,6 +55,8 @@ class SafetyGate:
         vmax = robot.max_joint_speed_rad_s
         cap = vmax * s.max_speed_percent / 100.0
         approach_cap = vmax * s.approach_speed_percent / 100.0
+        wrist_pct = s.max_speed_percent if s.max_wrist_speed_percent is None else s.max_wrist_speed_percent
+        wrist_cap = vmax * wrist_pct / 100.0
         margin = s.joint_limit_margin_rad
         (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
         if not plan.moves:
@@ -72,7 +74,11 @@ class SafetyGate:
                     problems.append(f"{where}: joint {j + 1} target {math.degrees(v):.1f}° outside limits "
                                     f"[{math.degrees(lo):.0f}, {math.degrees(hi):.0f}]° less "
                                     f"{math.degrees(margin):.0f}° margin")
-            if m.speed_rad_s > cap * (1 + 1e-9):
+            if m.kind == "wrist" and m.speed_rad_s > wrist_cap * (1 + 1e-9):
+                problems.append(f"{where}: wrist move at {100 * m.speed_rad_s / vmax:.2f} % above the cap "
+                                f"{wrist_pct:g} % (safety.max_wrist_speed_percent; the inertia part's moves are "
+                                "never slowed down to fit)")
+            elif m.kind != "wrist" and m.speed_rad_s > cap * (1 + 1e-9):
                 problems.append(f"{where}: speed {100 * m.speed_rad_s / vmax:.2f} % above the cap "
                                 f"{s.max_speed_percent:g} %")
             if i == 0 and m.speed_rad_s > approach_cap * (1 + 1e-9):
@@ -102,7 +108,7 @@ class SafetyGate:
         checks = [
             f"{len(plan.moves)} moves within joint limits less {math.degrees(margin):.0f}° margin",
             f"every speed <= {s.max_speed_percent:g} % of {math.degrees(vmax):.0f}°/s; first move <= "
-            f"{s.approach_speed_percent:g} %",
+            f"{s.approach_speed_percent:g} %" + (f"; wrist moves <= {wrist_pct:g} %" if plan.wrist_moves else ""),
             f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
         ]
         return Verdict(not problems, problems, checks if not problems else [])

@@ -29,8 +29,9 @@ def format_plan(plan: Plan, durations: Sequence[float]) -> str:
     known = [d for d in durations if math.isfinite(d)]
     total = sum(known)
     unknown = len(known) < len(durations)
+    wrist = f", {len(plan.wrist_moves)} wrist moves for the inertia" if plan.wrist_moves else ""
     lines = [f"Plan: procedure {plan.procedure.name}, {len(plan.moves)} moves per run "
-             f"({len(plan.sweeps)} recorded sweeps)", "  " + fmt(head), "  " + "  ".join("-" * w for w in widths)]
+             f"({len(plan.sweeps)} recorded sweeps{wrist})", "  " + fmt(head), "  " + "  ".join("-" * w for w in widths)]
     lines += ["  " + fmt(r) for r in rows]
     lines.append(f"  robot time per run: {total:.1f} s" + (" plus the approach move (where the robot stands is "
                                                           "not known yet)" if unknown else ""))

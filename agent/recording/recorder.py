@@ -67,10 +67,12 @@ class RunRecorder:
         self._phase = name
         old = self.manifest["phases"].get(name)
         if resume and old is not None:
-            for entry in old.get("sweeps", []):
-                if entry.get("status") != "complete" and (self.run_dir / entry["file"]).exists():
-                    (self.run_dir / entry["file"]).replace(self.run_dir / (entry["file"] + ".incomplete"))
-            old["sweeps"] = [e for e in old.get("sweeps", []) if e.get("status") == "complete"]
+            for key in ("sweeps", "wrist_moves"):
+                for entry in old.get(key, []):
+                    if entry.get("status") != "complete" and (self.run_dir / entry["file"]).exists():
+                        (self.run_dir / entry["file"]).replace(self.run_dir / (entry["file"] + ".incomplete"))
+                if key in old:
+                    old[key] = [e for e in old[key] if e.get("status") == "complete"]
             old.update(resumed_utc=utc_now(), status="recording", **info)
         else:
             self.manifest["phases"][name] = {"started_utc": utc_now(), "sweeps": [], **info}
@@ -111,17 +113,20 @@ class RunRecorder:
         return json.loads(json.dumps(self.manifest["phases"].get(name, {})))
 
     def begin_sweep(self, move: Move) -> None:
-        if self._phase is None or move.sweep is None:
-            raise ValueError("begin_sweep needs an open phase and a sweep move")
-        rel = f"{self._phase}/{move.sweep.name}.csv"
+        """Open the file of a recorded move: a sweep (manifest ``sweeps``) or a wrist move (``wrist_moves``)."""
+        if self._phase is None or move.recorded_name is None:
+            raise ValueError("begin_sweep needs an open phase and a sweep or wrist move")
+        rel = f"{self._phase}/{move.recorded_name}.csv"
         f = open(self.run_dir / rel, "w", encoding="utf-8", newline="")  # header with the first sample: its columns
-        entry = {"file": rel, "name": move.sweep.name, "pose": move.sweep.pose, "joint": move.sweep.joint,
-                 "direction": move.sweep.direction, "speed_percent": move.sweep.speed_percent,
-                 "target_deg": [round(math.degrees(v), 6) for v in move.target_rad],
-                 "started_utc": utc_now(), "status": "recording", "samples": 0}
+        entry = {"file": rel, "name": move.recorded_name}
+        if move.sweep is not None:
+            entry.update(pose=move.sweep.pose, joint=move.sweep.joint, direction=move.sweep.direction,
+                         speed_percent=move.sweep.speed_percent)
+        entry.update(target_deg=[round(math.degrees(v), 6) for v in move.target_rad], started_utc=utc_now(),
+                     status="recording", samples=0)
         with self._lock:
             self._file, self._entry, self._targets = f, entry, None
-        self.manifest["phases"][self._phase]["sweeps"].append(entry)
+        self.manifest["phases"][self._phase].setdefault("sweeps" if move.sweep else "wrist_moves", []).append(entry)
         self.write_manifest()
 
     def end_sweep(self, status: str, stream: dict[str, Any] | None = None) -> None:

@@ -176,3 +176,34 @@ def load_phase(run_dir: Path, phase: str, gains_nm_per_unit: np.ndarray,
         t, q, effort = read_sweep_csv(path)
         out[key] = SweepData(key, t, q, effort * gains, str(path))
     return out
+
+
+@dataclass(frozen=True)
+class WristRecord:
+    """One wrist move of the inertia part in one phase (effort in N·m)."""
+
+    name: str
+    t: np.ndarray  # (n,) s
+    q: np.ndarray  # (n, 6) rad
+    effort_nm: np.ndarray  # (n, 6)
+
+
+def load_wrist_moves(run_dir: Path, phase: str, gains_nm_per_unit: np.ndarray,
+                     manifest: dict[str, Any] | None = None) -> dict[str, WristRecord]:
+    """The complete wrist moves of one phase by name (empty for a run recorded without the inertia part)."""
+    run_dir = Path(run_dir)
+    manifest = manifest or load_manifest(run_dir)
+    source = str(run_dir / "manifest.json")
+    info = (manifest.get("phases") or {}).get(phase) or {}
+    entries = info.get("wrist_moves", []) if isinstance(info, Mapping) else []
+    if not isinstance(entries, list):
+        raise DataError(f"{source}: phases.{phase}.wrist_moves must be a list")
+    out: dict[str, WristRecord] = {}
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, Mapping) or not isinstance(entry.get("name"), str) or "file" not in entry:
+            raise DataError(f"{source}: phases.{phase}.wrist_moves[{i}] needs a name and a file")
+        if entry.get("status") != "complete":
+            continue
+        t, q, effort = read_sweep_csv(run_dir / str(entry["file"]))
+        out[entry["name"]] = WristRecord(entry["name"], t, q, effort * np.asarray(gains_nm_per_unit, float))
+    return out

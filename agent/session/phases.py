@@ -111,6 +111,7 @@ class PhaseRunner:
                 if move.sweep is not None:
                     check_kinematics(self.config, self.driver, q_now, f"at the start of sweep {move.label}")
                     self.pose_checks += 1
+                if move.recorded_name is not None:  # a sweep, or a wrist move of the inertia part
                     self.driver.begin_stats()
                     self.recorder.begin_sweep(move)
                 self.out(f"  [{name}] {i + 1}/{n} {move.label}")
@@ -120,10 +121,13 @@ class PhaseRunner:
                 self.current_q(after=time.monotonic(), near=move.target_rad)  # the stream caught up with the move
                 if self.progress is not None:
                     self.progress.end_move()
-                if move.sweep is not None:
+                if move.recorded_name is not None:
                     stats = self.driver.end_stats()
                     if stats is not None and stats.gaps:
                         self.recorder.end_sweep("gap", stats.to_json())
+                        if move.sweep is None:  # a wrist move with a hole is left out of the inertia fit
+                            i += 1
+                            continue
                         if retries_left <= 0:
                             raise SupervisionTrip(
                                 f"sweep {move.label} has a hole in its sample stream (largest gap "

@@ -59,11 +59,11 @@ def load_resume(config: Config, plan: Plan, run_dir: Path) -> ResumeState:
     if manifest.get("plan_fingerprint") != plan.fingerprint():
         raise ConfigError("--resume", f"the plan changed since {run_dir} was recorded although the YAML did not "
                                       f"(the procedure file {plan.procedure.name!r} changed?); start a new run instead")
-    all_sweeps = {m.sweep.name for m in plan.sweeps}
+    all_sweeps = {m.recorded_name for m in plan.moves if m.recorded_name}  # sweeps and wrist moves
     phases = []
     for phase, mounted in manifest.get("phases_planned") or []:
         entry = manifest.get("phases", {}).get(phase, {})
-        done = {s["name"] for s in entry.get("sweeps", []) if s.get("status") == "complete"}
+        done = {s["name"] for s in entry.get("sweeps", []) + entry.get("wrist_moves", []) if s.get("status") == "complete"}
         if done != all_sweeps:
             phases.append((phase, bool(mounted), done))
     if not phases:

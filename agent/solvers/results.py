@@ -128,7 +128,28 @@ def format_table(result: RunResult, truth: dict[str, Any] | None = None) -> str:
         lines.append(f"quality checks {verdict}" + (f" ({checks})" if checks else ""))
         for reason in result.quality.get("reasons", []):
             lines.append(f"  - {reason}")
+    lines.extend(inertia_lines(result.extra, truth))
     return "\n".join(lines)
+
+
+def inertia_lines(extra: dict[str, Any], truth: dict[str, Any] | None = None) -> list[str]:
+    """The inertia part's lines of the summary (none for a run without wrist moves)."""
+    part = extra.get("inertia")
+    if part is None:
+        return []
+    tensor, std = extra.get("inertia_com_kgm2"), extra.get("inertia_com_std_kgm2")
+    if tensor is None:
+        return [f"inertia: not given ({part.get('refused')})"]
+    names = ("xx", "xy", "xz", "yy", "yz", "zz")
+    idx = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    cells = [f"I{n} {tensor[i][j]:.5f} ± {1.96 * std[i][j]:.5f}" for n, (i, j) in zip(names, idx)]
+    out = ["inertia about the CoM [kg·m², flange axes, ± 95 %]: " + ", ".join(cells)]
+    if truth is not None and truth.get("inertia_com_kgm2") is not None:
+        t = truth["inertia_com_kgm2"]
+        out.append("  truth: " + ", ".join(f"I{n} {t[i][j]:.5f}" for n, (i, j) in zip(names, idx)))
+    if part.get("inconsistency"):
+        out.append(f"  (the data alone gave a tensor that is {part['inconsistency']}: projected onto the possible ones)")
+    return out
 
 
 def _pm(value: float, std: float | None, digits: int) -> str:

@@ -1,0 +1,115 @@
+"""Wrist procedure files (procedures/wrist_*.yaml): the fast wrist moves that carry the payload's inertia.
+
+Mass and centre of mass come from the slow sweeps; the inertia tensor needs the payload's
+inertial torques, which are large only where a wrist joint accelerates hard. A wrist procedure
+names tool orientations (the arm frame of link 3, as in the sweep procedures), the arm's
+elevations while the wrist moves, and per move the wrist joint (4, 5 or 6) and its travel
+relative to the orientation's wrist angles. Each move runs there and back; both legs are recorded,
+once with the empty flange and once with the tool. Speed and acceleration are percent of the
+robot's maxima, and the safety gate refuses a move above the YAML's caps by name (never slowed).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from payload_agent.configuration.procedure import ARM_AXES, PoseSpec
+from payload_agent.configuration.yamlcheck import Node
+from payload_agent.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class WristMoveSpec:
+    pose: str
+    joint: int  # 1-based: 4, 5 or 6
+    from_deg: float  # relative to the pose's wrist angle of that joint
+    to_deg: float
+
+
+@dataclass(frozen=True)
+class WristProcedure:
+    name: str
+    description: str
+    speed_percent: float  # of the robot's max joint speed
+    accel_percent: float  # of the robot's max joint acceleration
+    elevation_deg: tuple[float, float]  # links 2 and 3 above horizontal while the wrist moves
+    poses: dict[str, PoseSpec]
+    moves: tuple[WristMoveSpec, ...]
+    fingerprint: str
+
+
+def load_wrist_procedure(name_or_path: str, key: str = "procedure.inertia") -> WristProcedure:
+    """A bundled wrist procedure by name (``wrist_inertia``) or a YAML file by path."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") and path.exists():
+        text, source = path.read_text(encoding="utf-8"), str(path)
+    else:
+        res = resources.files("payload_agent.procedures").joinpath(f"{name_or_path}.yaml")
+        if not res.is_file():
+            bundled = sorted(p.name[:-5] for p in resources.files("payload_agent.procedures").iterdir()
+                             if p.name.startswith("wrist") and p.name.endswith(".yaml"))
+            raise ConfigError(key, f"no wrist procedure {name_or_path!r}; bundled: {', '.join(bundled)}")
+        text, source = res.read_text(encoding="utf-8"), f"procedures/{name_or_path}.yaml"
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError("<file>", f"not valid YAML: {exc}", source) from None
+    return parse_wrist_procedure(data, source)
+
+
+def parse_wrist_procedure(data, source: str = "<wrist procedure>") -> WristProcedure:
+    top = Node(data, "", source)
+    name = top.string("name")
+    description = top.string("description", "")
+    speed = top.number("speed_percent", gt=0, max=100)
+    accel = top.number("accel_percent", gt=0, max=100)
+    elev = top.numbers("elevation_deg", 2, min=-90, max=90)
+    poses_node = top.child("poses")
+    if not isinstance(poses_node.data, dict) or not poses_node.data:
+        raise top.error("poses", "expected a mapping of pose names to {tool_x, tool_z}")
+    poses = {}
+    for pose_name in poses_node.data:
+        p = poses_node.child(str(pose_name))
+        tx = p.string("tool_x", choices=ARM_AXES)
+        tz = p.string("tool_z", choices=ARM_AXES)
+        if tx.lstrip("-") == tz.lstrip("-"):
+            raise p.error("tool_z", f"must be perpendicular to tool_x ({tx}), got {tz}")
+        p.reject_unknown(["tool_x", "tool_z"])
+        poses[str(pose_name)] = PoseSpec(str(pose_name), tx, tz)
+    raw = top.raw("moves")
+    if not isinstance(raw, list) or not raw:
+        raise top.error("moves", "expected a non-empty list of {pose, joint, range_deg}")
+    moves = []
+    for i, item in enumerate(raw):
+        m = Node(item, f"moves[{i}]", source)
+        pose = m.string("pose", choices=sorted(poses))
+        joint = m.integer("joint", min=4, max=6)
+        lo, hi = m.numbers("range_deg", 2, min=-360, max=360)
+        if abs(hi - lo) < 20:
+            raise m.error("range_deg", f"needs at least 20 degrees of travel, got [{lo:g}, {hi:g}]")
+        m.reject_unknown(["pose", "joint", "range_deg"])
+        moves.append(WristMoveSpec(pose, joint, lo, hi))
+    top.reject_unknown(["name", "description", "speed_percent", "accel_percent", "elevation_deg", "poses", "moves"])
+    fp = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+    return WristProcedure(name, description, speed, accel, (elev[0], elev[1]), poses, tuple(moves), fp)
+
+
+def inertia_procedure_key(node: Node) -> str | None:
+    """``procedure.inertia``: false/absent (mass and CoM only), true (the bundled ``wrist_inertia``) or a name."""
+    value = node.raw("inertia", False)
+    if value is False:
+        return None
+    name = "wrist_inertia" if value is True else value
+    if not isinstance(name, str) or not name.strip():
+        raise node.error("inertia", f"expected true, false or a wrist procedure name, got {value!r}")
+    try:
+        load_wrist_procedure(name, node.key("inertia"))
+    except ConfigError as exc:
+        raise node.error("inertia", exc.problem) from None
+    return name

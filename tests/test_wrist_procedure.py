@@ -1,0 +1,97 @@
+"""The inertia part of the procedure (procedures/wrist_inertia.yaml): planned, checked whole, refused by name."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import DELETE, ROOT, tweak
+from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.wrist_procedure import parse_wrist_procedure
+from payload_agent.errors import ConfigError
+from payload_agent.motion.planner import make_plan, remaining_plan
+from payload_agent.motion.safety import SafetyGate
+
+SIM = ROOT / "configs" / "sim-ec66.yaml"
+
+
+def config(**changes):
+    """The simulated EC66 without the inertia part and without a wrist speed cap, then ``changes``."""
+    data = yaml.safe_load(SIM.read_text())
+    data = tweak(tweak(data, "procedure.inertia", False), "safety.max_wrist_speed_percent", DELETE)
+    for path, value in changes.items():
+        data = tweak(data, path, value)
+    return parse_config(data, source="sim-ec66.yaml")
+
+
+def start(cfg):
+    return np.radians(cfg.simulation.start_deg)
+
+
+def test_the_wrist_moves_follow_the_sweeps_and_pass_the_gate_within_their_own_cap():
+    cfg = config(**{"procedure.inertia": True, "safety.max_wrist_speed_percent": 100})
+    plan = make_plan(cfg)
+    wrist = plan.wrist_moves
+    assert len(wrist) == 12 and len({m.wrist for m in wrist}) == 12  # six moves, there and back
+    assert plan.moves.index(wrist[0]) > plan.moves.index(plan.sweeps[-1])
+    for m in wrist:  # one wrist joint turns, at the procedure's speed and acceleration
+        prev = np.asarray(plan.moves[plan.moves.index(m) - 1].target_rad)
+        turned = np.flatnonzero(np.abs(np.asarray(m.target_rad) - prev) > 1e-9)
+        assert len(turned) == 1 and turned[0] >= 3
+        assert m.speed_rad_s == pytest.approx(0.95 * cfg.robot.max_joint_speed_rad_s)
+        assert m.accel_rad_s2 == pytest.approx(cfg.robot.max_joint_accel_rad_s2)
+    assert all(np.max(np.abs(np.subtract(b.target_rad, a.target_rad))) > 0 for a, b in zip(plan.moves, plan.moves[1:]))
+    verdict = SafetyGate(cfg).check(plan, start(cfg))
+    assert verdict.ok, verdict.describe()
+    # the plan's fingerprint (what a stored baseline depends on) changes with the inertia part
+    assert plan.fingerprint() != make_plan(config()).fingerprint()
+    # a resumed run redoes the wrist moves not yet recorded, after a move to the first one's start
+    rest = remaining_plan(cfg, plan, {m.sweep.name for m in plan.sweeps} | {wrist[0].wrist})
+    assert [m.wrist for m in rest.moves if m.kind == "wrist"] == [m.wrist for m in wrist[1:]]
+    assert rest.moves[0].kind == "approach" and SafetyGate(cfg).check(rest, np.asarray(wrist[0].target_rad)).ok
+
+
+def test_a_wrist_move_faster_than_the_yaml_allows_is_refused_by_name_not_slowed():
+    cfg = config(**{"procedure.inertia": True})  # max_wrist_speed_percent defaults to max_speed_percent (25 %)
+    plan = make_plan(cfg)
+    assert plan.wrist_moves[0].speed_rad_s == pytest.approx(0.95 * cfg.robot.max_joint_speed_rad_s)  # not slowed
+    verdict = SafetyGate(cfg).check(plan, start(cfg))
+    assert not verdict.ok
+    assert any("w1-c-j6 fwd" in p and "safety.max_wrist_speed_percent" in p for p in verdict.problems), verdict.problems
+
+
+def test_a_wrist_move_past_a_joint_limit_is_refused_naming_it(tmp_path):
+    data = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
+    data["moves"][1]["range_deg"] = [0, -120]  # joint 5 of pose c stands at -270 deg on the EC66: -390 is past -355
+    path = tmp_path / "wrist_far.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cfg = config(**{"procedure.inertia": str(path), "safety.max_wrist_speed_percent": 100})
+    plan = make_plan(cfg)
+    verdict = SafetyGate(cfg).check(plan, start(cfg))
+    assert not verdict.ok
+    assert any("w2-c-j5 fwd" in p and "joint 5" in p and "outside limits" in p for p in verdict.problems), \
+        verdict.problems
+
+
+@pytest.mark.parametrize("path, value, words", [
+    ("procedure.inertia", "wrist_nosuch", "no wrist procedure 'wrist_nosuch'"),
+    ("procedure.inertia", 3, "expected true, false or a wrist procedure name"),
+    ("safety.max_wrist_speed_percent", 130, "max_wrist_speed_percent"),
+])
+def test_bad_inertia_keys_are_refused_with_their_key_path(path, value, words):
+    with pytest.raises(ConfigError) as err:
+        config(**{path: value})
+    assert path in str(err.value) and words in str(err.value)
+
+
+def test_a_wrist_procedure_file_is_checked_key_by_key():
+    base = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
+    bad = dict(base, moves=[{"pose": "c", "joint": 3, "range_deg": [0, 60]}])
+    with pytest.raises(ConfigError, match=r"moves\[0\]\.joint"):
+        parse_wrist_procedure(bad)
+    bad = dict(base, moves=[{"pose": "c", "joint": 6, "range_deg": [0, 5]}])
+    with pytest.raises(ConfigError, match=r"moves\[0\]\.range_deg: needs at least 20 degrees"):
+        parse_wrist_procedure(bad)
+    with pytest.raises(ConfigError, match="speed_pecent"):
+        parse_wrist_procedure(dict(base, speed_pecent=50))
