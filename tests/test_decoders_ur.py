@@ -49,9 +49,10 @@ class Package:
     """What ur-rtde's RTDEReceiveInterface returns from its latest package (the getters the driver calls)."""
 
     def __init__(self, ts, q, cur, qd=(0.0,) * 6, modes=(7, 1, 0, 2), temps=(30.0,) * 6, payload=(0.0, (0, 0, 0)),
-                 tcp=(0.0,) * 6):
+                 tcp=(0.0,) * 6, targets=((0.0,) * 6, (0.0,) * 6)):
         self.ts, self.q, self.cur, self.qd, self.modes, self.temps = ts, list(q), list(cur), list(qd), modes, temps
         self.payload, self.tcp = payload, tcp
+        self.target_current, self.target_moment = list(targets[0]), list(targets[1])
 
     def isConnected(self):
         return True
@@ -67,6 +68,12 @@ class Package:
 
     def getActualQd(self):
         return self.qd
+
+    def getTargetCurrent(self):
+        return self.target_current
+
+    def getTargetMoment(self):
+        return self.target_moment
 
     def getRobotMode(self):
         return self.modes[0]
@@ -128,7 +135,8 @@ packages = st.builds(
     cur=st.one_of(six, any_len, st.lists(plausible, min_size=6, max_size=6)),
     qd=six, modes=st.tuples(ints, ints, ints, ints), temps=any_len,
     payload=st.tuples(doubles, st.lists(doubles, min_size=3, max_size=3)),
-    tcp=st.one_of(six, any_len))
+    tcp=st.one_of(six, any_len),
+    targets=st.tuples(st.one_of(six, any_len), st.one_of(six, any_len)))
 
 
 @FUZZ
@@ -149,7 +157,8 @@ def test_samples_are_finite_or_a_communication_error(pkgs):
             return  # the stream ends here, as in the base's reader
         if sample is not None:
             assert isinstance(sample, Sample)
-            assert all(math.isfinite(v) for v in (sample.t_ctrl, *sample.q, *sample.effort))
+            assert all(math.isfinite(v) for v in (sample.t_ctrl, *sample.q, *sample.effort,
+                                                   *sample.target_current, *sample.target_moment))
             assert drv.samples_missed >= 0
 
 

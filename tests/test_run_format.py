@@ -249,3 +249,27 @@ def test_payload_agents_own_manifest_matches_the_schema(tmp_path, robot_data):
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert validate(manifest, SCHEMA) == []
     rundata.check_manifest(manifest, "m")
+
+
+def test_a_sweep_redone_after_a_stream_gap_keeps_the_earlier_attempt(tmp_path, robot_data):
+    """The redo replaces the gap attempt in the phase's list (so the empty-run check sees one complete sweep),
+    and the gap attempt's samples stay on disk under the manifest's ``redone`` list."""
+    from payload_agent.recording.recorder import RunRecorder
+    from payload_agent.types import Sample
+
+    cfg = parse_config(robot_data)
+    sweep = make_plan(cfg).sweeps[0]
+    rec = RunRecorder(tmp_path / "run", {"format": "payload-agent-run/1", "phases": {}})
+    rec.begin_phase("empty")
+    for attempt, status in enumerate(("gap", "gap", "complete")):
+        rec.begin_sweep(sweep)
+        rec.sink(Sample(t_ctrl=float(attempt), t_recv=0.0, q=(0.0,) * 6, effort=(float(attempt),) * 6))
+        rec.end_sweep(status, {"gaps": 1} if status == "gap" else None)
+    rec.end_phase("complete")
+    phase = json.loads((tmp_path / "run" / "manifest.json").read_text())["phases"]["empty"]
+    assert [e["status"] for e in phase["sweeps"]] == ["complete"]
+    assert [r["file"] for r in phase["redone"]] == [f"empty/{sweep.sweep.name}.csv.incomplete",
+                                                    f"empty/{sweep.sweep.name}.csv.incomplete-2"]
+    for attempt, r in enumerate(phase["redone"]):
+        rows = list(csv.reader((tmp_path / "run" / r["file"]).open()))
+        assert float(rows[1][0]) == attempt  # each attempt's own samples, none overwritten

@@ -117,6 +117,7 @@ class RunRecorder:
         if self._phase is None or move.recorded_name is None:
             raise ValueError("begin_sweep needs an open phase and a sweep or wrist move")
         rel = f"{self._phase}/{move.recorded_name}.csv"
+        self._set_aside_earlier_attempt(move.recorded_name, "sweeps" if move.sweep else "wrist_moves", rel)
         f = open(self.run_dir / rel, "w", encoding="utf-8", newline="")  # header with the first sample: its columns
         entry = {"file": rel, "name": move.recorded_name}
         if move.sweep is not None:
@@ -128,6 +129,23 @@ class RunRecorder:
             self._file, self._entry, self._targets = f, entry, None
         self.manifest["phases"][self._phase].setdefault("sweeps" if move.sweep else "wrist_moves", []).append(entry)
         self.write_manifest()
+
+    def _set_aside_earlier_attempt(self, name: str, key: str, rel: str) -> None:
+        """A sweep recorded again (redone after a stream gap): the earlier attempt leaves the phase's list for
+        its ``redone`` list and its data stays on disk as ``<file>.incomplete[-N]``, never overwritten."""
+        entries = self.manifest["phases"][self._phase]
+        earlier = [e for e in entries.get(key, []) if e.get("name") == name and e.get("status") != "complete"]
+        if not earlier:
+            return
+        redone = entries.setdefault("redone", [])
+        for e in earlier:
+            n = sum(1 for r in redone if r.get("name") == name)
+            kept = rel + ".incomplete" + (f"-{n + 1}" if n else "")
+            if (self.run_dir / rel).exists():
+                (self.run_dir / rel).replace(self.run_dir / kept)
+            redone.append({"name": name, "file": kept, "problem": f"recorded again after status {e.get('status')!r}",
+                           "stream": e.get("stream")})
+        entries[key] = [e for e in entries[key] if e not in earlier]
 
     def end_sweep(self, status: str, stream: dict[str, Any] | None = None) -> None:
         """Close the sweep's file; ``stream`` is the driver's stream statistics for it (manifest)."""

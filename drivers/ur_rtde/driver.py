@@ -244,6 +244,10 @@ class URRTDEDriver(URCapabilities, Driver):
             ts = ts2
         t_recv = time.monotonic()
         self._check_plausible(ts, q, cur)
+        for name, values in (("target_current", i_target), ("target_moment", tau_target)):
+            if len(values) != 6 or not all(math.isfinite(v) for v in values):
+                raise CommunicationError(f"the RTDE stream from {self.host} sent {name} {list(values)}, not six "
+                                         "finite numbers: the data is corrupt")
         if self._last_ts is not None:
             steps = (ts - self._last_ts) * self.frequency_hz  # inf if the timestamps are absurdly far apart
             gap = int(round(steps)) - 1 if math.isfinite(steps) else 0
