@@ -35,7 +35,8 @@ def sim_robot(tmp_path: Path, name: str = "clisim") -> Path:
 
 
 def _env(tmp_path: Path) -> dict[str, str]:
-    return {**os.environ, "XDG_STATE_HOME": str(tmp_path / "xdg-state"), "PYTHONUNBUFFERED": "1"}
+    return {**os.environ, "XDG_STATE_HOME": str(tmp_path / "xdg-state"), "PYTHONUNBUFFERED": "1",
+            "PYTHONFAULTHANDLER": "1"}
 
 
 def _cli(args: list[str], env: dict, stdin=subprocess.DEVNULL, timeout: float = 240) -> subprocess.CompletedProcess:
@@ -76,7 +77,13 @@ def test_sigterm_at_the_prompt_exits_143_without_a_run_folder(tmp_path):
     try:
         assert asked.wait(120), "".join(seen)[-2000:]
         proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(60)
+        try:
+            rc = proc.wait(60)
+        except subprocess.TimeoutExpired:  # hung on the way out (seen once in CI): every thread's stack, then fail
+            proc.send_signal(signal.SIGABRT)  # PYTHONFAULTHANDLER: the tracebacks go to stderr
+            proc.wait(10)
+            pytest.fail("no exit within 60 s of SIGTERM at the prompt; the process's threads:\n"
+                        + proc.stderr.read()[-6000:])
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -172,7 +172,10 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + ", ".join(f"{k}: {v}" for k, v in keys.items()))
     con.say(f"Written with the rest of {config.source} to {path}; run it with:\n"
             f"  payload-agent run --robot {path}")
+    if config.procedure.inertia is not None:
+        con.say(f"The robot time above is the mass and centre-of-mass part; the written file keeps "
+                f"procedure.inertia ({config.procedure.inertia}), whose wrist moves come on top (`plan` shows them).")
     out["chosen"] = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                      "mass_std_g": best.mass_std_g, "cog_std_mm": best.cog_std_mm, "procedure_keys": keys,
-                     "robot_file": str(path)}
+                     "robot_file": str(path), "inertia_part": config.procedure.inertia}
     return out
