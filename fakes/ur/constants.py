@@ -7,8 +7,6 @@ UR's RTDE guide). Fake-side model values (gains, noise, temperatures, the defaul
 from __future__ import annotations
 
 import math
-import random
-import socket
 
 RTDE_PORT = 30004
 DASHBOARD_PORT = 29999
@@ -58,21 +56,8 @@ DEFAULT_STEADY_JOINT_TEMPS_C = (34.5, 37.0, 36.0, 38.5, 37.5, 37.0)
 JOINT_TEMP_TAU_S = 1800.0
 
 
-def pick_loopback_host(rng: random.Random | None = None, attempts: int = 50) -> str:
-    """A 127.0.0.x address (x in 2..250) on which the UR ports can be bound right now."""
-    rng = rng or random.Random()
-    for _ in range(attempts):
-        host = f"127.0.0.{rng.randint(2, 250)}"
-        socks = []
-        try:
-            for port in (RTDE_PORT, DASHBOARD_PORT, *SCRIPT_PORTS):
-                s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-                socks.append(s)
-                s.bind((host, port))
-            return host
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise OSError("no free 127.0.0.x address for the fake UR controller's ports")
+def pick_loopback_host() -> str:
+    """A 127.0.0.x address on which the UR ports can be bound right now (``fakes.base.free_loopback_host``)."""
+    from payload_agent.fakes.base import free_loopback_host
+
+    return free_loopback_host((RTDE_PORT, DASHBOARD_PORT, *SCRIPT_PORTS))
