@@ -524,9 +524,10 @@ def test_no_reply_to_the_move_command_is_a_trip_and_a_stop_over_the_dashboard(ur
     assert report.acknowledged and report.via == "new connection"
     assert ur.first_event_after("stop", t0).detail == "dashboard stop"
     assert not [e for e in ur.events if e.kind == "move" and e.t > t0]
-    # the next move works again (a new control interface, its script uploaded again)
+    # the next move works again (a new control interface, its script uploaded again); to FAR, where the arm
+    # has not gone (the swallowed move left it where it stood): a real move, not one of zero length
     settle(ur, fresh)
-    fresh.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
+    fresh.move_joints(FAR, 1.0, 3.0, timeout_s=10.0)
 
 
 def test_replies_a_little_late_are_waited_for(ur2, fresh):
@@ -544,3 +545,4 @@ def test_a_move_that_never_reports_finished_trips_and_stops(ur2, fresh):
     with pytest.raises(MotionNotFinished, match="did not report the move finished"):
         fresh.move_joints([0.1, -1.5, 1.5, -1.5, -1.5, 0.1], 1.0, 3.0, timeout_s=20.0)
     assert ur.first_event_after("stop", t0) is not None
+
