@@ -57,10 +57,8 @@ def load_procedure(name_or_path: str) -> Procedure:
     return parse_procedure(data, source)
 
 
-def parse_procedure(data, source: str = "<procedure>") -> Procedure:
-    top = Node(data, "", source)
-    name = top.string("name")
-    description = top.string("description", "")
+def parse_poses(top: Node) -> dict[str, PoseSpec]:
+    """A procedure file's ``poses``: each name with its tool orientation (two perpendicular arm axes)."""
     poses_node = top.child("poses")
     poses = {}
     for pose_name in poses_node.data:
@@ -71,6 +69,14 @@ def parse_procedure(data, source: str = "<procedure>") -> Procedure:
             raise p.error("tool_z", f"must be perpendicular to tool_x ({tx}), got {tz}")
         p.reject_unknown(["tool_x", "tool_z"])
         poses[str(pose_name)] = PoseSpec(str(pose_name), tx, tz)
+    return poses
+
+
+def parse_procedure(data, source: str = "<procedure>") -> Procedure:
+    top = Node(data, "", source)
+    name = top.string("name")
+    description = top.string("description", "")
+    poses = parse_poses(top)
     sweeps_raw = top.raw("sweeps")
     if not isinstance(sweeps_raw, list) or not sweeps_raw:
         raise top.error("sweeps", "expected a non-empty list of {pose, joint}")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import yaml
 
-from payload_agent.configuration.procedure import ARM_AXES, PoseSpec
+from payload_agent.configuration.procedure import PoseSpec, parse_poses
 from payload_agent.configuration.yamlcheck import Node
 from payload_agent.errors import ConfigError
 
@@ -70,18 +70,9 @@ def parse_wrist_procedure(data, source: str = "<wrist procedure>") -> WristProce
     speed = top.number("speed_percent", gt=0, max=100)
     accel = top.number("accel_percent", gt=0, max=100)
     elev = top.numbers("elevation_deg", 2, min=-90, max=90)
-    poses_node = top.child("poses")
-    if not isinstance(poses_node.data, dict) or not poses_node.data:
+    poses = parse_poses(top)
+    if not poses:
         raise top.error("poses", "expected a mapping of pose names to {tool_x, tool_z}")
-    poses = {}
-    for pose_name in poses_node.data:
-        p = poses_node.child(str(pose_name))
-        tx = p.string("tool_x", choices=ARM_AXES)
-        tz = p.string("tool_z", choices=ARM_AXES)
-        if tx.lstrip("-") == tz.lstrip("-"):
-            raise p.error("tool_z", f"must be perpendicular to tool_x ({tx}), got {tz}")
-        p.reject_unknown(["tool_x", "tool_z"])
-        poses[str(pose_name)] = PoseSpec(str(pose_name), tx, tz)
     raw = top.raw("moves")
     if not isinstance(raw, list) or not raw:
         raise top.error("moves", "expected a non-empty list of {pose, joint, range_deg}")
