@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from payload_agent.errors import NoTerminalError
+from payload_agent.output.line_input import read_line
 
 LOGGER = "payload_agent"
 CONSOLE_LOGGER = "payload_agent.console"
@@ -166,7 +167,7 @@ class Console:
             try:
                 self.human.write(prompt)
                 self.human.flush()
-                line = self.stdin.readline()
+                line = read_line(self.stdin)
             except (OSError, ValueError, EOFError):
                 raise NoTerminalError(_no_terminal(prompt, answer_flag)) from None
             if line == "":  # end of input: stdin closed or </dev/null
