@@ -301,8 +301,7 @@ class Driver(OptionalCapabilities, abc.ABC):
         deadline = time.monotonic() + timeout_s
         started = self._start_move(target, speed, accel)
         if started is not None and started.state == "refused":
-            self.supervisor.commanded = False  # nothing of ours runs: no stop may go out
-            raise MotionAbortedError(started.describe())
+            self._confirm_refusal(started)
         while True:
             self.check_supervision()
             status = self._move_status()
@@ -316,6 +315,19 @@ class Driver(OptionalCapabilities, abc.ABC):
             time.sleep(self.move_poll_s)
         self.supervisor.finished()  # the controller reported our move finished
         self._check_at_target(target, time.monotonic())
+
+    def _confirm_refusal(self, started: MoveStatus) -> None:
+        """A refusal counts only from a controller that still talks; one that is the link dropping as the move
+        went out (seen with UR's moveJ) may leave our move running: a lost connection, so the arm is stopped."""
+        try:  # samples three periods on (past one already on its way), a working command channel
+            self.stream.wait(self.gap_limit_s + 0.25, time.monotonic() + 3 * self.nominal_period_s, "")
+            alive = self._command_alive()
+        except CommunicationError:
+            alive = False
+        if not alive:
+            raise CommunicationError(f"the link failed as the move was sent ({started.describe()})")
+        self.supervisor.commanded = False  # nothing of ours runs: no stop may go out
+        raise MotionAbortedError(started.describe())
 
     def _check_at_target(self, target: np.ndarray, t_done: float) -> None:
         """The arm stands within ``target_tolerance_rad`` of the target, on a sample received after the
@@ -347,11 +359,8 @@ class Driver(OptionalCapabilities, abc.ABC):
         return self.supervisor.armed
 
     def command_ok(self) -> None:
-        """A driver that polls its controller during a move calls this after every good reply.
-
-        From the first call in a move on, the watchdog also trips when no good reply came for
-        ``Supervision.max_reply_wait_s`` (a controller that stopped answering, or answers far too late).
-        """
+        """A driver that polls its controller during a move calls this after every good reply: from the first
+        call in a move on, the watchdog also trips when none came for ``Supervision.max_reply_wait_s``."""
         self.supervisor.command_ok()
 
     def check_supervision(self) -> None:
@@ -381,7 +390,6 @@ class Driver(OptionalCapabilities, abc.ABC):
         the pendant's program, and that is not ours to stop. Returns whether a stop was sent.
         """
         return self.supervisor.stop(self._connected)
-
 
 
 def as_joint_vector(values: Sequence[float], n: int = 6) -> np.ndarray:

@@ -17,7 +17,7 @@ import pytest
 from payload_agent.configuration.options import option
 from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MotionLimits, aborted, refused
 from payload_agent.drivers.settings import Supervision
-from payload_agent.errors import MotionAbortedError, RobotNotReadyError
+from payload_agent.errors import MotionAbortedError, RobotNotReadyError, SupervisionTrip
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 LIMITS = MotionLimits(1.0, 5.0)
@@ -91,6 +91,30 @@ def test_a_refused_start_sends_no_stop():
     with pytest.raises(MotionAbortedError, match="busy with command 7"):
         _run(drv)
     assert drv.log == ["move"] and not drv.motion_commanded
+
+
+class DroppingStub(Stub):
+    """The link goes down while the move is sent: the start answers "refused" and no sample comes after it."""
+
+    dropped = False
+
+    def _start_move(self, target, speed_rad_s, accel_rad_s2):
+        self.dropped = True
+        return super()._start_move(target, speed_rad_s, accel_rad_s2)
+
+    def _read_sample(self, timeout_s: float) -> Sample | None:
+        if self.dropped:
+            time.sleep(timeout_s)
+            return None
+        return super()._read_sample(timeout_s)
+
+
+def test_a_refusal_from_a_controller_that_went_silent_is_a_lost_link_and_stops():
+    drv = DroppingStub(start=refused("the controller refused the move"))
+    with pytest.raises(SupervisionTrip):  # the stream watchdog or the refusal check, whichever sees it first
+        _run(drv)
+    assert drv.log == ["move", "stop"]
+    assert drv.last_stop_report is not None and drv.last_stop_report.acknowledged
 
 
 def test_an_abort_stops_first_and_then_reads_its_reason():

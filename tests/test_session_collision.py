@@ -8,6 +8,7 @@ while B ran, and A's move is still under way afterwards (A then stops its own mo
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 
@@ -15,8 +16,10 @@ import numpy as np
 import pytest
 
 from payload_agent.configuration.config import load_config
+from payload_agent.drivers.registry import make_driver
+from payload_agent.drivers.settings import Supervision
 from payload_agent.errors import MotionAbortedError, RobotNotReadyError
-from payload_agent.session.connection import build_driver, simulated_cell
+from payload_agent.session.connection import build_driver, motion_limits, simulated_cell
 from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 from conftest import ROOT
@@ -31,11 +34,21 @@ def _wait(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.01)
 
 
+def _patient_driver(config, options):
+    """Session A, the other program whose motion B must leave alone: it shares this process (and the GIL) with
+    the simulated controller and with B's whole session, whose planning can starve A's threads for seconds on a
+    loaded host. A real other program has its own process, so A waits long for replies and samples here;
+    B's supervision, the thing under test, keeps the YAML's."""
+    patient = {k: v for k, v in (("reply_timeout_s", 30.0), ("timeout_s", 10.0)) if hasattr(options, k)}
+    return make_driver(dataclasses.replace(options, **patient), motion_limits(config),
+                       Supervision(max_stream_gap_s=10.0, stop_ack_timeout_s=2.0, max_reply_wait_s=30.0))
+
+
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_a_refused_session_never_stops_the_motion_of_another(robot, tmp_path):
     config = load_config(ROOT / "configs" / f"{robot}.yaml")
     with simulated_cell(config) as cell:
-        a = build_driver(config, cell.options)
+        a = _patient_driver(config, cell.options)
         a.connect()
         try:
             a.start_stream(lambda sample: None)
