@@ -118,7 +118,7 @@ def ur_config(tmp_path, speed_percent: float, accel_deg_s2: float | None = None)
 def test_a_move_faster_than_ur_rtde_moveJ_accepts_is_refused_by_the_plan_naming_move_and_limit(tmp_path):
     # 100 % of the UR5e's 180 deg/s is pi rad/s: within the YAML's caps, above the 3.14 rad/s ur-rtde's moveJ takes
     cfg = ur_config(tmp_path, 100)
-    verdict = SafetyGate(cfg).check(make_plan(cfg), start(cfg))
+    verdict = SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg))
     assert not verdict.ok
     wrist = [p for p in verdict.problems if "3.14 rad/s" in p]
     assert wrist and all("ur_rtde driver's move command" in p and "UR_JOINT_VELOCITY_MAX" in p for p in wrist)
@@ -126,14 +126,14 @@ def test_a_move_faster_than_ur_rtde_moveJ_accepts_is_refused_by_the_plan_naming_
     assert not [p for p in verdict.problems if p not in wrist and "approach" not in p]  # nothing else is wrong
     # the shipped 95 % passes the same check
     cfg = ur_config(tmp_path, 95)
-    assert SafetyGate(cfg).check(make_plan(cfg), start(cfg)).ok
+    assert SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg)).ok
 
 
 def test_an_acceleration_above_ur_rtde_moveJ_limit_is_refused_and_other_drivers_have_none(tmp_path):
     cfg = ur_config(tmp_path, 50, accel_deg_s2=3000)  # 52 rad/s² where ur-rtde's moveJ takes at most 40
-    verdict = SafetyGate(cfg).check(make_plan(cfg), start(cfg))
+    verdict = SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg))
     assert any("w1-c-j6 fwd" in p and "40 rad/s²" in p and "UR_JOINT_ACCELERATION_MAX" in p for p in verdict.problems)
     # the Elite EC driver declares no command limit of its own: the same speeds in rad/s pass its gate
     ec = config(**{"procedure.inertia": True, "safety.max_wrist_speed_percent": 100})
     assert type(ec.driver_options).command_limits.max_joint_speed_rad_s is None
-    assert SafetyGate(ec).check(make_plan(ec), start(ec)).ok
+    assert SafetyGate(ec).check(turned_to(ec, make_plan(ec), start(ec)), start(ec)).ok
