@@ -97,3 +97,34 @@ def test_gate_executes_only_the_next_approved_move(sim_ec66_data):
         gate.execute(driver, plan.moves[0], start + 0.1)
     gate.execute(driver, plan.moves[0], start)
     assert driver.moves == [plan.moves[0].target_rad]
+
+
+def test_first_move_at_travel_speed_only_from_our_own_matching_resting_pose(sim_ec66_data, tmp_path):
+    """Issue 23: a verify may leave the arm's resting pose at travel speed, only when the live angles match the
+    record our last completed phase wrote; otherwise the approach cap holds. The record survives a round trip,
+    and an unreadable one counts as none (the slow approach)."""
+    from payload_agent.recording import resting_pose
+
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    start = np.radians(cfg.simulation.start_deg)
+    vmax = cfg.robot.max_joint_speed_rad_s
+    travel = vmax * cfg.procedure.travel_speed_percent / 100.0
+    assert travel > vmax * cfg.safety.approach_speed_percent / 100.0
+    first = dataclasses.replace(plan.moves[0], speed_rad_s=travel)
+    fast = dataclasses.replace(plan, moves=(first, *plan.moves[1:]))
+    assert resting_pose.load(tmp_path) is None
+    rec = resting_pose.record(tmp_path, start, tmp_path / "run-1")
+    assert resting_pose.load(tmp_path) == rec
+    assert not SafetyGate(cfg).check(fast, start).ok  # no record given: the approach cap
+    assert SafetyGate(cfg, rec).check(fast, start).ok  # standing where our run left it
+    moved = start + np.radians([0, 0.5, 0, 0, 0, 0])  # someone moved joint 2 by half a degree
+    problems = SafetyGate(cfg, rec).check(fast, moved).problems
+    assert any("0.50° from the recorded resting pose" in p for p in problems), problems
+    too_fast = dataclasses.replace(plan, moves=(dataclasses.replace(first, speed_rad_s=travel * 1.5),
+                                                *plan.moves[1:]))
+    assert any("travel speed from our own resting pose" in p for p in SafetyGate(cfg, rec).check(too_fast, start).problems)
+    resting_pose.clear(tmp_path)
+    assert resting_pose.load(tmp_path) is None
+    resting_pose.path_for(tmp_path).write_text("{not json")
+    assert resting_pose.load(tmp_path) is None

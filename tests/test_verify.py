@@ -112,6 +112,44 @@ def test_cli_verify_apply_writes_the_library_payload_and_exit_codes(identified, 
     assert again.setting_matches is True and again.applied is None and back is not None
 
 
+def test_a_verify_from_our_own_resting_pose_starts_at_travel_speed(identified):
+    """Issue 23: where our last completed motion left the arm (the record in the state folder, matching the live
+    angles), the verify's first move runs at travel speed; once someone else moved the arm, the slow approach."""
+    import math
+    import time
+
+    from payload_agent.recording import resting_pose
+
+    config, cell, _ = identified
+    root = RobotState.for_config(config).root
+    vmax = config.robot.max_joint_speed_rad_s
+
+    def verify():
+        lines = []
+        o = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lines.append,
+                                              detail=lambda s: None, mount=_mount(*TRUTH)))
+        first = load_manifest(o.run_dir)["plan"][0]
+        return o, "\n".join(lines), 100 * math.radians(first["speed_deg_s"]) / vmax
+
+    first, _, _ = verify()
+    rec = resting_pose.load(root)
+    assert rec is not None and rec.run_dir == str(first.run_dir) and rec.matches(cell.robot.snapshot().q)
+    again, text, pct = verify()
+    assert "first move runs at travel speed" in text and pct == pytest.approx(config.procedure.travel_speed_percent)
+    assert again.robot_time_s <= 5.0
+    # the cell's program moves the arm 2° (and leaves it there): the record no longer matches
+    q = np.asarray(cell.robot.snapshot().q, float)
+    cell.robot.move_joints(q + np.radians([2.0, 0, 0, 0, 0, 0]), 0.2, 1.0)
+    deadline = time.monotonic() + 30
+    while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(2.0),
+                                                             abs_tol=1e-3)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    moved, text, pct = verify()
+    assert "travel speed" not in text and pct == pytest.approx(config.safety.approach_speed_percent)
+    assert resting_pose.load(root).run_dir == str(moved.run_dir)  # and the new record is where it ended
+
+
 class _DeafController:
     """A driver whose controller accepts the payload write and keeps its old setting (remote mode off, a
     program that sets its own payload)."""

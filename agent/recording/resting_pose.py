@@ -1,0 +1,92 @@
+"""Where this agent's last completed motion left the arm: ``<state>/<robot>/resting_pose.json``.
+
+Why: the first move of a session runs at the slow approach speed because the arm may stand anywhere,
+on a path nobody checked. When it still stands exactly where our own last session's completed motion
+left it (the record, checked against the live joint angles), that is a pose our own approved plan
+reached and stood at; a verify can then start from it at travel speed instead of creeping there at
+approach speed (issue 23: a known-tool change within 8 s of robot time). The safety gate still checks
+the whole plan, that first path included, and does the comparison with the live angles itself.
+
+The record is removed before a phase's first move and written only when a phase completed and the
+arm stands at its last target, so a crash, a stop, a lost link or motion by anyone else leaves either
+no record or one the live angles no longer match: the next session then approaches slowly as always.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from payload_agent.recording.state import write_json_atomic
+
+FILE_NAME = "resting_pose.json"
+FORMAT = "payload-agent-resting-pose/1"
+# a standing arm's reported angles agree with the record far closer than this (encoder resolution and
+# noise: thousandths of a degree); a pose that differs more was moved by someone, and counts as unknown
+MATCH_TOL_RAD = math.radians(0.1)
+
+
+@dataclass(frozen=True)
+class RestingPose:
+    """The joint angles (rad) where our last completed phase left the arm, and which run left it there."""
+
+    q_rad: tuple[float, ...]
+    run_dir: str
+    recorded_utc: str
+
+    def offset_rad(self, q: Sequence[float]) -> float:
+        """The largest joint difference to ``q`` (inf when the joint counts differ)."""
+        q = np.asarray(q, float)
+        if q.shape != (len(self.q_rad),):
+            return math.inf
+        return float(np.max(np.abs(q - np.asarray(self.q_rad))))
+
+    def matches(self, q: Sequence[float]) -> bool:
+        return self.offset_rad(q) <= MATCH_TOL_RAD
+
+    def describe(self) -> str:
+        return (f"[{', '.join(f'{math.degrees(v):.2f}' for v in self.q_rad)}]° where run "
+                f"{Path(self.run_dir).name} left it ({self.recorded_utc})")
+
+
+def path_for(state_root: Path) -> Path:
+    return Path(state_root) / FILE_NAME
+
+
+def load(state_root: Path) -> RestingPose | None:
+    """The record, or None when there is none or it cannot be read (then nobody knows where the arm is:
+    the slow approach, the safe side)."""
+    p = path_for(state_root)
+    try:
+        data = json.loads(p.read_text("utf-8"))
+        if data.get("format") != FORMAT:
+            return None
+        q = tuple(float(v) for v in data["q_rad"])
+        if not q or not all(math.isfinite(v) for v in q):
+            return None
+        return RestingPose(q, str(data["run_dir"]), str(data["recorded_utc"]))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def clear(state_root: Path) -> None:
+    """Forget the record: called before our motion starts (the arm leaves the recorded pose)."""
+    try:
+        path_for(state_root).unlink()
+    except FileNotFoundError:
+        pass
+
+
+def record(state_root: Path, q: Sequence[float], run_dir: Path) -> RestingPose:
+    """Write the record: the arm stands at ``q`` after a completed phase of the run in ``run_dir``."""
+    pose = RestingPose(tuple(float(v) for v in q), str(run_dir),
+                       datetime.now().astimezone().isoformat(timespec="seconds"))
+    write_json_atomic(path_for(state_root), {"format": FORMAT, "q_rad": list(pose.q_rad), "run_dir": pose.run_dir,
+                                             "recorded_utc": pose.recorded_utc})
+    return pose
