@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from payload_agent.configuration.config import Config
+from payload_agent.configuration.procedure import Procedure
 from payload_agent.errors import DataError, PlanError
 from payload_agent.motion.planner import Move, Plan, make_plan, move_duration_s
 from payload_agent.recording.rundata import SweepData
@@ -72,9 +73,9 @@ class Candidate:
                 f"approach from where the arm stands); {self.limits.describe()}")
 
 
-def segments(config: Config) -> list[Segment]:
-    """Every sub-range candidate of every up-sweep of the identification plan."""
-    plan = make_plan(config)
+def segments(config: Config, plan: Plan | None = None) -> list[Segment]:
+    """Every sub-range candidate of every up-sweep of the identification plan (``plan``: already made)."""
+    plan = plan if plan is not None else make_plan(config)
     out = []
     for i, m in enumerate(plan.moves):
         if m.sweep is None or m.sweep.direction != "up":
@@ -108,9 +109,12 @@ def _at_an_end(s: Segment, segs: list[Segment]) -> bool:
                                                                                       abs_tol=1e-9)
 
 
-def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = False) -> Plan:
+def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = False,
+               procedure: Procedure | None = None) -> Plan:
     """The verify plan; ``from_rest``: the arm stands at our own recorded resting pose
-    (``recording.resting_pose``), so the first move may run at travel speed (the gate checks that itself)."""
+    (``recording.resting_pose``), so the first move may run at travel speed (the gate checks that itself).
+    ``procedure``: the identification plan's (made once by the caller: ``make_plan`` solves the wrist poses,
+    far too slow to repeat for each of hundreds of candidates)."""
     vmax = config.robot.max_joint_speed_rad_s
     approach = vmax * config.safety.approach_speed_percent / 100.0
     travel = vmax * config.procedure.travel_speed_percent / 100.0
@@ -128,7 +132,7 @@ def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = Fals
                           SweepKey(s.pose, s.joint, "up", s.speed_percent)))
         moves.append(Move(f"verify {label} down", "sweep", s.start, s.speed_rad_s, s.accel_rad_s2,
                           SweepKey(s.pose, s.joint, "down", s.speed_percent)))
-    return Plan(make_plan(config).procedure, tuple(moves))
+    return Plan(procedure if procedure is not None else make_plan(config).procedure, tuple(moves))
 
 
 def robot_time_s(plan: Plan, start_q: np.ndarray) -> float:
@@ -145,7 +149,8 @@ def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepDa
     """The shortest verify motion whose predicted limits meet the targets; when none within ``max_motion_s``
     does, the most sensitive one within it (the session states its limits); the budget is only exceeded
     when no candidate fits it at all. ``from_rest``: the first move at travel speed (see ``build_plan``)."""
-    segs = segments(config)
+    full = make_plan(config)  # once: the candidates share its procedure
+    segs = segments(config, full)
     if not segs:
         raise PlanError("the procedure has no up-sweep long enough for a verify motion")
     singles = [(s,) for s in segs]
@@ -154,7 +159,7 @@ def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepDa
              if a.pose != b.pose and a.joint == b.joint and math.isclose(_length(a), _length(b))]
     scored = []
     for segs_ in singles + pairs:
-        plan = build_plan(config, segs_, from_rest)
+        plan = build_plan(config, segs_, from_rest, full.procedure)
         motion = robot_time_s(plan, np.asarray(plan.moves[0].target_rad))
         scored.append((motion, robot_time_s(plan, start_q), segs_, plan))
     # the least robot time from where the arm stands (approach included), then the shorter motion: the arm
