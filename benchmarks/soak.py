@@ -78,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--changes", type=int, default=200)
     p.add_argument("--time-scale", type=float, default=15.0)
     p.add_argument("--seed", type=int, default=23)
+    p.add_argument("--progress", action="store_true",
+                   help="one line per change as it ends (kind, outcome, wall and robot time), flushed")
     p.add_argument("--trace-memory", action="store_true",
                    help="tracemalloc (slower): print the allocation sites that grew most after the first 10 changes")
     args = p.parse_args(argv)
@@ -190,6 +192,10 @@ def main(argv: list[str] | None = None) -> int:
             if not ok:
                 wrong.append(f"change {i}: {kind} {name}: exit {code} {err} (moving {moving})")
         previous = f"{kind} ({res.action if res is not None else f'exit {code}'})"
+        if args.progress:
+            rt = res.robot_time_s if res is not None and res.robot_time_s is not None else None
+            print(f"change {i + 1}: {kind} {name}: {previous} in {wall[kind][-1]:.1f} s wall"
+                  + ("" if rt is None else f", {rt:.2f} s robot time") + ("" if ok else "  WRONG"), flush=True)
         if args.trace_memory and i == min(9, args.changes - 2):
             snapshot0 = tracemalloc.take_snapshot()
         if i % 25 == 0 or i == args.changes - 1:
