@@ -63,6 +63,9 @@ def test_run_tool_stores_into_the_library_and_verify_matches(identified):
     entry = library.require(db, config.robot.name, "gripper")
     assert entry.source == "identified" and entry.run_dir and entry.history_id is not None
     assert abs(entry.mass_kg - TRUTH[0]) < 0.03 and entry.mass_std_kg > 0
+    # the run's full covariance of [m, m·c] is stored with it (schema 2), and verify tests against it
+    assert entry.covariance_theta_si is not None
+    assert np.sqrt(entry.covariance_theta_si[0][0]) == pytest.approx(entry.mass_std_kg, rel=1e-6)
     lines = []
     outcome = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lines.append,
                                                 detail=lambda s: None, mount=_mount(*TRUTH)))

@@ -178,7 +178,7 @@ class OpcUaServer:
         for ax in "XYZ":
             n[f"CoM{ax}"] = await self._var(cart, idx, ax, math.nan, D, "mm")
         for ax in "ABC":
-            await self._var(orient, idx, ax, 0.0, D, "deg")
+            n[f"Orient{ax}"] = await self._var(orient, idx, ax, 0.0, D, "deg")
         inertia = await load.add_object(idx, "Inertia")
         for ax in "XYZ":
             n[f"I{ax}"] = await self._var(inertia, idx, ax, math.nan, D, "kgm2")
@@ -235,6 +235,8 @@ class OpcUaServer:
         await n["Mass"].write_value(ua.Variant(jobs.load.mass_kg, D))
         for ax, v in zip("XYZ", jobs.load.cog_mm):
             await n[f"CoM{ax}"].write_value(ua.Variant(float(v), D))
+        for ax, v in zip("ABC", jobs.load.orientation_deg):
+            await n[f"Orient{ax}"].write_value(ua.Variant(float(v), D))
         for ax, i in zip("XYZ", range(3)):
             value = math.nan if jobs.load.inertia_kgm2 is None else float(jobs.load.inertia_kgm2[i])
             status = ua.StatusCode(ua.StatusCodes.Good if jobs.load.inertia_kgm2 is not None

@@ -152,7 +152,8 @@ def _verify_connected(config: Config, opts: VerifyOptions, state: RobotState, dr
         baseline = load_phase(state.baseline_dir, "empty", np.asarray(gains, float))
         sigma = vs.noise_std(baseline)
         theta0 = vs.theta_of(entry.mass_kg, entry.cog_mm)
-        S0 = vs.theta_cov(entry.mass_kg, entry.cog_mm, entry.mass_std_kg, entry.cog_std_mm)
+        S0 = (np.asarray(entry.covariance_theta_si, float) if entry.covariance_theta_si is not None  # the run's own
+              else vs.theta_cov(entry.mass_kg, entry.cog_mm, entry.mass_std_kg, entry.cog_std_mm))  # σ only: diagonal
         resting = resting_pose.load(state.root)
         from_rest = resting is not None and resting.matches(start_q)
         cand = verify_plan.choose(config, start_q, baseline, sigma, theta0, S0, opts.mass_limit_percent,
@@ -236,9 +237,17 @@ def _open_recorder(config: Config, cand, info, driver, entry: ToolEntry, stored,
 
 
 def write_and_check(driver, entry: ToolEntry, out: Callable[[str], None]) -> PayloadSetting:
-    """Write the library's payload to the controller and read it back; CommunicationError naming the likely
-    cause when the controller refused it or reads back something else."""
+    """Write the library's payload to the controller (its inertia too, where the entry has one and the driver
+    writes it) and read it back; CommunicationError naming the likely cause when the controller refused it or
+    reads back something else."""
     new = PayloadSetting(entry.mass_kg, entry.cog_m)
+    tensor = entry.inertia_tensor()
+    if tensor is not None:
+        why = driver.payload_inertia_support()
+        if why:
+            out(f"Inertia of tool {entry.name!r} not written: {why}")
+        else:
+            new = replace(new, inertia_com_kgm2=tuple(tuple(float(v) for v in row) for row in tensor))
     try:
         current = driver.read_payload()
         if current.tool_num is not None:
