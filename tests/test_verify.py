@@ -202,10 +202,16 @@ def test_tool_changes_through_watch_verify_known_and_identify_new_tools(identifi
         return 0
 
     for name in ("gripper", "gripper", "vacuum"):
+        before = np.asarray(cell.robot.snapshot().q, float)
         trig.write_text(name + "\n")
         assert watch(wcfg, lambda: 1 / 0, run_tool=run_tool, out=lambda s: None, max_runs=1) == 0
     assert [r.action for r in results] == ["verified", "verified", "identified-new"]
     assert results[1].robot_time_s <= 8.0 and results[1].applied, results[1]
+    # the identification hands the arm back where the change found it (the last verify's start), so the next
+    # known tool starts from its own resting pose near its verify motion
+    assert np.max(np.abs(np.asarray(cell.robot.snapshot().q, float) - before)) < np.radians(0.2)
+    after_new = change_tool(config, "gripper", cell=cell, out=lambda s: None, mount=_mount(*TRUTH))
+    assert after_new.action == "verified" and after_new.robot_time_s <= 8.0, after_new
     vac = library.require(db, config.robot.name, "vacuum")
     assert abs(vac.mass_kg - 1.2) < 0.03 and results[2].run_dirs
     # a tool number names the tool too; a wrong tool under a known name is identified again and stored
