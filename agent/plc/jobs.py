@@ -82,7 +82,8 @@ def flange_load(mass_kg: float, cog_mm, tensor_kgm2, tool: str) -> FlangeLoad:
     from payload_agent.output.payload_forms import payload_forms
 
     p = payload_forms(float(mass_kg), [c / 1000.0 for c in cog], tensor_kgm2)["principal"]
-    return FlangeLoad(float(mass_kg), cog, tuple(p["j_kgm2"]), tool, tuple(p["abc_deg"]))  # type: ignore[arg-type]
+    abc = tuple(round(float(v), 9) for v in p["abc_deg"])  # not 30.00000000000001
+    return FlangeLoad(float(mass_kg), cog, tuple(p["j_kgm2"]), tool, abc)  # type: ignore[arg-type]
 
 
 @dataclass
