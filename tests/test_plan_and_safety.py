@@ -128,3 +128,24 @@ def test_first_move_at_travel_speed_only_from_our_own_matching_resting_pose(sim_
     assert resting_pose.load(tmp_path) is None
     resting_pose.path_for(tmp_path).write_text("{not json")
     assert resting_pose.load(tmp_path) is None
+
+
+def test_a_resting_path_matches_only_angles_on_that_path(sim_ec66_data, tmp_path):
+    """After a stop of our own supervision the record is the path of the move under way: angles on the straight
+    joint-space line match it (the gate then allows travel speed), angles off it or past its ends do not."""
+    from payload_agent.recording import resting_pose
+
+    a, b = np.radians([0, -30, 60, 0, 90, 0]), np.radians([0, -50, 80, 0, 90, 40])
+    rec = resting_pose.record(tmp_path, a, tmp_path / "run-2", q_to=b)
+    assert resting_pose.load(tmp_path) == rec and "on the path" in rec.describe()
+    assert rec.matches(a) and rec.matches(b) and rec.matches(a + 0.37 * (b - a))
+    assert not rec.matches(a + 0.37 * (b - a) + np.radians([0, 0, 0, 0.3, 0, 0]))  # off the line
+    assert not rec.matches(b + 0.05 * (b - a))  # beyond where the move was going
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    travel = cfg.robot.max_joint_speed_rad_s * cfg.procedure.travel_speed_percent / 100.0
+    fast = dataclasses.replace(plan, moves=(dataclasses.replace(plan.moves[0], speed_rad_s=travel), *plan.moves[1:]))
+    mid = a + 0.5 * (b - a)
+    on_path = SafetyGate(cfg, rec).check(fast, mid).problems
+    assert not any("approach cap" in p for p in on_path)  # travel speed allowed from the stopped move's path
+    assert any("approach cap" in p for p in SafetyGate(cfg, rec).check(fast, mid + np.radians(1.0)).problems)

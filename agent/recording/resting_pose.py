@@ -7,9 +7,13 @@ reached and stood at; a verify can then start from it at travel speed instead of
 approach speed (issue 23: a known-tool change within 8 s of robot time). The safety gate still checks
 the whole plan, that first path included, and does the comparison with the live angles itself.
 
-The record is removed before a phase's first move and written only when a phase completed and the
-arm stands at its last target, so a crash, a stop, a lost link or motion by anyone else leaves either
-no record or one the live angles no longer match: the next session then approaches slowly as always.
+The record is removed before a phase's first move and written when a phase completed with the arm at
+its last target, or, after a stop our own supervision made because the link to the controller failed
+(``CommunicationError``: a stalled stream, no reply, a dropped connection), as the path of the move that
+was under way: the arm then stands somewhere on that approved joint-space line (the gate refuses a move
+that starts off it), and the next session checks the live angles against the line. A stop the
+controller made itself (a fault, perhaps a collision), Ctrl-C, any other exception or motion by anyone
+else leaves no record, or one the live angles no longer match: the next session approaches slowly.
 """
 
 from __future__ import annotations
@@ -34,25 +38,35 @@ MATCH_TOL_RAD = math.radians(0.1)
 
 @dataclass(frozen=True)
 class RestingPose:
-    """The joint angles (rad) where our last completed phase left the arm, and which run left it there."""
+    """Where our last session left the arm: at ``q_rad`` (rad), or, with ``q_to_rad``, somewhere on the straight
+    joint-space path from ``q_rad`` to ``q_to_rad`` (the move our supervision stopped); which run left it."""
 
     q_rad: tuple[float, ...]
     run_dir: str
     recorded_utc: str
+    q_to_rad: tuple[float, ...] | None = None
 
     def offset_rad(self, q: Sequence[float]) -> float:
-        """The largest joint difference to ``q`` (inf when the joint counts differ)."""
+        """The largest joint difference of ``q`` to the pose or to the nearest point of the path (inf when the
+        joint counts differ)."""
         q = np.asarray(q, float)
-        if q.shape != (len(self.q_rad),):
+        a = np.asarray(self.q_rad)
+        if q.shape != a.shape:
             return math.inf
-        return float(np.max(np.abs(q - np.asarray(self.q_rad))))
+        nearest = a
+        if self.q_to_rad is not None:
+            d = np.asarray(self.q_to_rad) - a
+            if float(d @ d) > 0.0:
+                nearest = a + float(np.clip((q - a) @ d / (d @ d), 0.0, 1.0)) * d
+        return float(np.max(np.abs(q - nearest)))
 
     def matches(self, q: Sequence[float]) -> bool:
         return self.offset_rad(q) <= MATCH_TOL_RAD
 
     def describe(self) -> str:
-        return (f"[{', '.join(f'{math.degrees(v):.2f}' for v in self.q_rad)}]° where run "
-                f"{Path(self.run_dir).name} left it ({self.recorded_utc})")
+        deg = (lambda q: "[" + ", ".join(f"{math.degrees(v):.2f}" for v in q) + "]°")
+        where = deg(self.q_rad) if self.q_to_rad is None else f"on the path {deg(self.q_rad)} -> {deg(self.q_to_rad)}"
+        return f"{where} where run {Path(self.run_dir).name} left it ({self.recorded_utc})"
 
 
 def path_for(state_root: Path) -> Path:
@@ -68,9 +82,10 @@ def load(state_root: Path) -> RestingPose | None:
         if data.get("format") != FORMAT:
             return None
         q = tuple(float(v) for v in data["q_rad"])
-        if not q or not all(math.isfinite(v) for v in q):
+        to = None if data.get("q_to_rad") is None else tuple(float(v) for v in data["q_to_rad"])
+        if not q or not all(math.isfinite(v) for v in q + (to or ())) or (to is not None and len(to) != len(q)):
             return None
-        return RestingPose(q, str(data["run_dir"]), str(data["recorded_utc"]))
+        return RestingPose(q, str(data["run_dir"]), str(data["recorded_utc"]), to)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
@@ -83,10 +98,12 @@ def clear(state_root: Path) -> None:
         pass
 
 
-def record(state_root: Path, q: Sequence[float], run_dir: Path) -> RestingPose:
-    """Write the record: the arm stands at ``q`` after a completed phase of the run in ``run_dir``."""
-    pose = RestingPose(tuple(float(v) for v in q), str(run_dir),
-                       datetime.now().astimezone().isoformat(timespec="seconds"))
+def record(state_root: Path, q: Sequence[float], run_dir: Path, q_to: Sequence[float] | None = None) -> RestingPose:
+    """Write the record: the arm stands at ``q`` after a completed phase of the run in ``run_dir`` (with ``q_to``:
+    somewhere on the path from ``q`` to ``q_to``, the move our supervision stopped)."""
+    pose = RestingPose(tuple(float(v) for v in q), str(run_dir), datetime.now().astimezone().isoformat(timespec="seconds"),
+                       None if q_to is None else tuple(float(v) for v in q_to))
     write_json_atomic(path_for(state_root), {"format": FORMAT, "q_rad": list(pose.q_rad), "run_dir": pose.run_dir,
-                                             "recorded_utc": pose.recorded_utc})
+                                             "recorded_utc": pose.recorded_utc,
+                                             "q_to_rad": None if pose.q_to_rad is None else list(pose.q_to_rad)})
     return pose

@@ -6,7 +6,8 @@ samples go to the recorder with the driver's stream statistics; a sweep whose st
 gap is never marked complete: it is redone where the user allowed retries, otherwise the
 phase aborts. Any exception, Ctrl-C or supervision trip stops the robot; what was recorded
 stays on disk. The resting-pose record (``recording.resting_pose``) is removed before the first
-move and written again only when the phase completed with the arm standing at its last target.
+move and written again when the phase completed with the arm standing at its last target, or as the
+path of the move under way when a communication failure made our supervision stop it.
 """
 
 from __future__ import annotations
@@ -148,6 +149,12 @@ class PhaseRunner:
                 i += 1
         except BaseException as exc:
             self.stop_robot()
+            if isinstance(exc, CommunicationError) and n:  # our supervision stopped it on this move's path
+                try:
+                    resting_pose.record(state_root, plan.moves[i - 1].target_rad if i else start_q,
+                                        self.recorder.run_dir, plan.moves[min(i, n - 1)].target_rad)
+                except OSError:
+                    pass  # no record: the next session approaches slowly, as after any other stop
             if self.progress is not None:
                 self.progress.close()
             stats = self.driver.end_stats()
