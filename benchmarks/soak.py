@@ -78,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--changes", type=int, default=200)
     p.add_argument("--time-scale", type=float, default=15.0)
     p.add_argument("--seed", type=int, default=23)
+    p.add_argument("--progress", action="store_true",
+                   help="one line per change as it ends (kind, outcome, wall and robot time), flushed")
     p.add_argument("--trace-memory", action="store_true",
                    help="tracemalloc (slower): print the allocation sites that grew most after the first 10 changes")
     args = p.parse_args(argv)
@@ -108,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     counts: Counter = Counter()
     wall: dict[str, list[float]] = defaultdict(list)
     robot: list[float] = []
+    slow: Counter = Counter()  # verified known tools over 8 s of robot time, by what the change before left
+    previous = "the first identification"
     wrong: list[str] = []
     samples = []
     fd0 = len(os.listdir("/proc/self/fd"))
@@ -173,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
                 ok = False
             if res.action == "verified" and res.robot_time_s is not None:
                 robot.append(res.robot_time_s)
+                if res.robot_time_s > 8.0:
+                    slow[previous] += 1
             counts[(kind, res.action if ok else "WRONG " + res.action)] += 1
             if not ok:
                 wrong.append(f"change {i}: {kind} {name}: {res.action}, entry {entry}, setting {setting}")
@@ -185,6 +191,11 @@ def main(argv: list[str] | None = None) -> int:
             counts[(kind, label if ok else f"WRONG exit {code}")] += 1
             if not ok:
                 wrong.append(f"change {i}: {kind} {name}: exit {code} {err} (moving {moving})")
+        previous = f"{kind} ({res.action if res is not None else f'exit {code}'})"
+        if args.progress:
+            rt = res.robot_time_s if res is not None and res.robot_time_s is not None else None
+            print(f"change {i + 1}: {kind} {name}: {previous} in {wall[kind][-1]:.1f} s wall"
+                  + ("" if rt is None else f", {rt:.2f} s robot time") + ("" if ok else "  WRONG"), flush=True)
         if args.trace_memory and i == min(9, args.changes - 2):
             snapshot0 = tracemalloc.take_snapshot()
         if i % 25 == 0 or i == args.changes - 1:
@@ -210,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     if robot:
         print(f"robot time of a verified known tool: median {np.median(robot):.1f} s, max {max(robot):.1f} s "
               f"(approach included; {sum(r <= 8.0 for r in robot)}/{len(robot)} within 8 s)")
+        if slow:
+            print("  over 8 s, by the change before: " + ", ".join(f"{k} {n}" for k, n in slow.most_common()))
     print(f"\n{'after':>6} {'RSS MB':>8} {'open fds':>9} {'threads':>8} {'state kB':>9} {'runs kB':>9} {'run dirs':>9}")
     for row in samples:
         print(f"{row[0]:>6} {row[1]:>8.1f} {row[2]:>9} {row[3]:>8} {row[4]:>9} {row[5]:>9} {row[6]:>9}")

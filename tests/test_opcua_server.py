@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import shutil
 import socket
 import time
 
@@ -46,8 +47,11 @@ def served(tmp_path_factory):
     data = tweak(data, "storage", {"runs_dir": str(tmp / "runs"), "state_dir": str(tmp / "state")})
     config = parse_config(data, source="test")
     db = library.tool_library_path(RobotState.for_config(config).root)
+    # its inertia: principal moments 4, 6, 2 g·m² about axes turned 30° about the flange z axis
+    c, s_ = math.cos(math.radians(30)), math.sin(math.radians(30))
+    xx, yy, xy = 0.004 * c * c + 0.006 * s_ * s_, 0.004 * s_ * s_ + 0.006 * c * c, (0.004 - 0.006) * c * s_
     library.store(db, config.robot.name, ToolEntry("gripper", 2.0, (40.0, -25.0, 70.0), 0.002, (0.5, 0.5, 0.6),
-                                                   number=3))
+                                                   inertia_com_kgm2=(xx, yy, 0.002, xy, 0.0, 0.0), number=3))
     users = (UserSpec("plc", hash_password("secret", iterations=1000), "operator"),
              UserSpec("scada", hash_password("look", iterations=1000), "reader"))
     url = f"opc.tcp://127.0.0.1:{_free_port()}/payload-agent/"
@@ -57,26 +61,45 @@ def served(tmp_path_factory):
     key, cert = tmp / "client-key.pem", tmp / "client-cert.der"
     asyncio.run(setup_self_signed_certificate(key, cert, "urn:payload-agent:test-client", "localhost",
                                               [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "test client"}))
+    shutil.copy(cert, tmp / "certs" / "trusted" / "plc.der")  # the administrator trusts this client
+    stranger_key, stranger = tmp / "stranger-key.pem", tmp / "stranger-cert.der"
+    asyncio.run(setup_self_signed_certificate(stranger_key, stranger, "urn:payload-agent:test-client", "localhost",
+                                              [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "stranger"}))
     try:
-        yield dict(url=url, cert=cert, key=key, jobs=jobs, cell=cell, config=config, certs=tmp / "certs")
+        yield dict(url=url, cert=cert, key=key, jobs=jobs, cell=cell, config=config, certs=tmp / "certs",
+                   stranger=(stranger, stranger_key))
     finally:
         server.stop()
         cell.close()
 
 
-async def _client(s, user=None, password=None) -> Client:
+async def _client(s, user=None, password=None, cert=None) -> Client:
     c = Client(s["url"], timeout=20)
     c.application_uri = "urn:payload-agent:test-client"
     if user is not None:
         c.set_user(user)
         c.set_password(password)
-    await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{s['cert']},{s['key']}")
+    cert, key = cert or (s["cert"], s["key"])
+    await c.set_security_string(f"Basic256Sha256,SignAndEncrypt,{cert},{key}")
     return c
 
 
 async def _robot(c: Client):
     idx = await c.get_namespace_index(NAMESPACE)
     return idx, await c.nodes.objects.get_child([f"{idx}:PayloadAgent", f"{idx}:sim-ec66"])
+
+
+async def _load(c: Client, robot):
+    """FlangeLoad's parts by their standard browse names (Robotics LoadType, spatial types in namespace 0)."""
+    idx = await c.get_namespace_index(NAMESPACE)
+    rob = await c.get_namespace_index("http://opcfoundation.org/UA/Robotics/")
+    load = await robot.get_child(f"{idx}:FlangeLoad")
+    com = await load.get_child(f"{rob}:CenterOfMass")
+    return rob, load, {"Mass": await load.get_child(f"{rob}:Mass"), "CenterOfMass": com,
+                       "Inertia": await load.get_child(f"{rob}:Inertia"),
+                       **{k: await com.get_child(["0:CartesianCoordinates", f"0:{k}"]) for k in "XYZ"},
+                       **{k: await com.get_child(["0:Orientation", f"0:{k}"]) for k in "ABC"},
+                       **{f"I{k}": await load.get_child([f"{rob}:Inertia", f"0:{k}"]) for k in "XYZ"}}
 
 
 async def _wait(node, value, timeout_s=WAIT_S):
@@ -103,7 +126,8 @@ def test_secure_by_default(served):
         await _unencrypted_session_refused(served["url"])  # ... and activates no session on such a channel
         async with await _client(served, "scada", "look") as c:  # a reader browses and reads, never calls
             idx, robot = await _robot(c)
-            assert math.isnan(await (await robot.get_child([f"{idx}:FlangeLoad", f"{idx}:Mass"])).read_value())
+            _, _, load = await _load(c, robot)
+            assert math.isnan(await load["Mass"].read_value())
             with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
                 await robot.call_method(f"{idx}:Apply", ua.Variant("gripper", ua.VariantType.String))
             execute = await robot.get_child([f"{idx}:Handshake", f"{idx}:Apply", f"{idx}:Execute"])
@@ -144,9 +168,20 @@ def test_handshake_apply_busy_done_and_error_codes(served):
             idx, robot = await _robot(c)
             tools = await robot.get_child(f"{idx}:Tools")
             assert [(await t.read_browse_name()).Name for t in await tools.get_children()] == ["gripper"]
-            mass = await robot.get_child([f"{idx}:FlangeLoad", f"{idx}:Mass"])
-            units = await (await mass.get_child(f"{idx}:EngineeringUnits")).read_value()
+            rob, flange_load, load = await _load(c, robot)
+            mass = load["Mass"]
+            units = await (await mass.get_child("0:EngineeringUnits")).read_value()
             assert units.DisplayName.Text == "kg"
+            # the standard types: FlangeLoad is a Robotics LoadType, Mass an AnalogUnitType, CenterOfMass a
+            # 3DFrameType and Inertia a 3DVectorType (OPC 10000-5); the groups are DI FunctionalGroupTypes
+            assert await flange_load.read_type_definition() == ua.NodeId(1018, rob)
+            assert await mass.read_type_definition() == ua.NodeId(ua.ObjectIds.AnalogUnitType)
+            assert await load["CenterOfMass"].read_type_definition() == ua.NodeId(ua.ObjectIds.ThreeDFrameType)
+            assert await load["Inertia"].read_type_definition() == ua.NodeId(ua.ObjectIds.ThreeDVectorType)
+            di = await c.get_namespace_index("http://opcfoundation.org/UA/DI/")
+            assert await (await robot.get_child(f"{idx}:Handshake")).read_type_definition() == ua.NodeId(1005, di)
+            status = (await load["IX"].read_data_value(raise_on_bad_status=False)).StatusCode
+            assert status.value == ua.StatusCodes.BadWaitingForInitialData  # no inertia known yet
             blk = {k: await robot.get_child([f"{idx}:Handshake", f"{idx}:Apply", f"{idx}:{k}"])
                    for k in ("Execute", "ToolName", "Busy", "Done", "Error", "ErrorID", "Message")}
             verify_err = await robot.get_child([f"{idx}:Handshake", f"{idx}:Verify", f"{idx}:ErrorID"])
@@ -179,9 +214,14 @@ def test_handshake_apply_busy_done_and_error_codes(served):
             assert await blk["Error"].read_value() is False
             assert cell.controller.payload_setting()["m"] == pytest.approx(2.0)
             await _wait(mass, 2.0)
-            x = await robot.get_child([f"{idx}:FlangeLoad", f"{idx}:CenterOfMass", f"{idx}:CartesianCoordinates",
-                                       f"{idx}:X"])
-            assert await x.read_value() == pytest.approx(40.0)
+            assert await load["X"].read_value() == pytest.approx(40.0)
+            frame = await load["CenterOfMass"].read_value()  # the structured value says the same
+            assert frame.CartesianCoordinates.Z == pytest.approx(70.0)
+            # the library's inertia as principal moments with the orientation of their axes (LoadType)
+            assert [await load[f"I{k}"].read_value() for k in "XYZ"] == pytest.approx([0.004, 0.006, 0.002])
+            assert [await load[k].read_value() for k in "ABC"] == pytest.approx([30.0, 0.0, 0.0], abs=1e-6)
+            assert frame.Orientation.A == pytest.approx(30.0) and (await load["Inertia"].read_value()).Y == \
+                pytest.approx(0.006)
             last = {k: await (await robot.get_child([f"{idx}:LastResult", f"{idx}:{k}"])).read_value()
                     for k in ("Command", "Tool", "Verdict", "CenterOfMass")}
             assert last["Command"] == "Apply" and last["Tool"] == "gripper" and last["Verdict"] == "applied"
@@ -193,3 +233,29 @@ def test_handshake_apply_busy_done_and_error_codes(served):
             assert await blk["ErrorID"].read_value() == 5
 
     asyncio.run(main())
+
+
+def test_only_trusted_client_certificates_open_a_session(served):
+    """A client whose certificate is not in the trust folder is refused at CreateSession, whatever its password;
+    its certificate is kept in rejected/ and, moved into trusted/ by the administrator, is accepted."""
+    trusted, rejected = served["certs"] / "trusted", served["certs"] / "rejected"
+
+    async def main():
+        with pytest.raises(Exception, match="BadCertificateUntrusted"):
+            async with await _client(served, "plc", "secret", cert=served["stranger"]):
+                pass
+        kept = list(rejected.glob("*.der"))
+        assert len(kept) == 1
+        async with await _client(served, "scada", "look"):  # the trusted client still gets in
+            pass
+        shutil.move(str(kept[0]), trusted / kept[0].name)  # the administrator admits it
+        async with await _client(served, "scada", "look", cert=served["stranger"]) as c:
+            idx, robot = await _robot(c)
+            assert await (await robot.get_child(f"{idx}:State")).read_value()
+        (trusted / kept[0].name).unlink()  # and revokes it: refused again, without a restart
+        with pytest.raises(Exception, match="BadCertificateUntrusted"):
+            async with await _client(served, "scada", "look", cert=served["stranger"]):
+                pass
+
+    asyncio.run(main())
+    assert not served["jobs"].busy

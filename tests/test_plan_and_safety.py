@@ -138,3 +138,55 @@ def test_a_wrist_at_180_degrees_is_reached_the_short_way_and_the_plan_stays_the_
     assert np.allclose(steps, np.degrees(np.diff([m.target_rad for m in plan.moves], axis=0)))  # same moves
     assert SafetyGate(cfg).check(turned, start).ok, SafetyGate(cfg).check(turned, start).describe()
     assert make_plan(cfg).fingerprint() == plan.fingerprint()  # the plan itself does not depend on the start
+
+
+def test_first_move_at_travel_speed_only_from_our_own_matching_resting_pose(sim_ec66_data, tmp_path):
+    """Issue 23: a verify may leave the arm's resting pose at travel speed, only when the live angles match the
+    record our last completed phase wrote; otherwise the approach cap holds. The record survives a round trip,
+    and an unreadable one counts as none (the slow approach)."""
+    from payload_agent.recording import resting_pose
+
+    cfg = parse_config(sim_ec66_data)
+    start = np.radians(cfg.simulation.start_deg)
+    plan = turned_to(cfg, make_plan(cfg), start)  # as the run has it
+    vmax = cfg.robot.max_joint_speed_rad_s
+    travel = vmax * cfg.procedure.travel_speed_percent / 100.0
+    assert travel > vmax * cfg.safety.approach_speed_percent / 100.0
+    first = dataclasses.replace(plan.moves[0], speed_rad_s=travel)
+    fast = dataclasses.replace(plan, moves=(first, *plan.moves[1:]))
+    assert resting_pose.load(tmp_path) is None
+    rec = resting_pose.record(tmp_path, start, tmp_path / "run-1")
+    assert resting_pose.load(tmp_path) == rec
+    assert not SafetyGate(cfg).check(fast, start).ok  # no record given: the approach cap
+    assert SafetyGate(cfg, rec).check(fast, start).ok  # standing where our run left it
+    moved = start + np.radians([0, 0.5, 0, 0, 0, 0])  # someone moved joint 2 by half a degree
+    problems = SafetyGate(cfg, rec).check(fast, moved).problems
+    assert any("0.50° from the recorded resting pose" in p for p in problems), problems
+    too_fast = dataclasses.replace(plan, moves=(dataclasses.replace(first, speed_rad_s=travel * 1.5),
+                                                *plan.moves[1:]))
+    assert any("travel speed from our own resting pose" in p for p in SafetyGate(cfg, rec).check(too_fast, start).problems)
+    resting_pose.clear(tmp_path)
+    assert resting_pose.load(tmp_path) is None
+    resting_pose.path_for(tmp_path).write_text("{not json")
+    assert resting_pose.load(tmp_path) is None
+
+
+def test_a_resting_path_matches_only_angles_on_that_path(sim_ec66_data, tmp_path):
+    """After a stop of our own supervision the record is the path of the move under way: angles on the straight
+    joint-space line match it (the gate then allows travel speed), angles off it or past its ends do not."""
+    from payload_agent.recording import resting_pose
+
+    a, b = np.radians([0, -30, 60, 0, 90, 0]), np.radians([0, -50, 80, 0, 90, 40])
+    rec = resting_pose.record(tmp_path, a, tmp_path / "run-2", q_to=b)
+    assert resting_pose.load(tmp_path) == rec and "on the path" in rec.describe()
+    assert rec.matches(a) and rec.matches(b) and rec.matches(a + 0.37 * (b - a))
+    assert not rec.matches(a + 0.37 * (b - a) + np.radians([0, 0, 0, 0.3, 0, 0]))  # off the line
+    assert not rec.matches(b + 0.05 * (b - a))  # beyond where the move was going
+    cfg = parse_config(sim_ec66_data)
+    plan = make_plan(cfg)
+    travel = cfg.robot.max_joint_speed_rad_s * cfg.procedure.travel_speed_percent / 100.0
+    fast = dataclasses.replace(plan, moves=(dataclasses.replace(plan.moves[0], speed_rad_s=travel), *plan.moves[1:]))
+    mid = a + 0.5 * (b - a)
+    on_path = SafetyGate(cfg, rec).check(fast, mid).problems
+    assert not any("approach cap" in p for p in on_path)  # travel speed allowed from the stopped move's path
+    assert any("approach cap" in p for p in SafetyGate(cfg, rec).check(fast, mid + np.radians(1.0)).problems)

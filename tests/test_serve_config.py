@@ -28,3 +28,14 @@ def test_bad_config_names_the_key(data, key):
     with pytest.raises(ConfigError) as exc:
         parse_serve_config(data, "serve.yaml")
     assert key in str(exc.value) and "serve.yaml" in str(exc.value)
+
+
+def test_trusted_clients_folder(tmp_path):
+    """The trust folder of client certificates: default None (the server uses <state>/<robot>/opcua/trusted); a
+    path that exists but is a file is refused naming the key."""
+    assert parse_serve_config(None).trusted_clients_dir is None
+    cfg = parse_serve_config({"opcua": {"trusted_clients": str(tmp_path / "trusted")}})
+    assert cfg.trusted_clients_dir == tmp_path / "trusted"
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ConfigError, match="opcua.trusted_clients.*not a folder"):
+        parse_serve_config({"opcua": {"trusted_clients": str(tmp_path / "afile")}}, "serve.yaml")

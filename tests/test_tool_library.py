@@ -109,3 +109,124 @@ def test_cli_tools_commands(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:  # refused by the parser before any session starts
         main(["run", "--robot", str(cfg), "--tool", "bad/name"])
     assert exc.value.code == 2
+
+
+V1_COLUMNS = """
+    mass_kg REAL NOT NULL, cog_x_mm REAL NOT NULL, cog_y_mm REAL NOT NULL, cog_z_mm REAL NOT NULL,
+    mass_std_kg REAL, cog_std_x_mm REAL, cog_std_y_mm REAL, cog_std_z_mm REAL,
+    inertia_com_kgm2 TEXT, inertia_com_std_kgm2 TEXT, number INTEGER,
+    run_dir TEXT, history_id INTEGER, source TEXT NOT NULL, time_utc TEXT NOT NULL, note TEXT"""
+V1_NAMES = [c.split()[0] for c in V1_COLUMNS.split(",")]
+
+
+def _v1_library(db):
+    """A tool library as payload-agent wrote it before schema version 2 (σ only, no covariance column)."""
+    import sqlite3
+
+    conn = sqlite3.connect(db)
+    conn.executescript(f"""
+        CREATE TABLE tools (robot TEXT NOT NULL, name TEXT NOT NULL, {V1_COLUMNS}, PRIMARY KEY (robot, name));
+        CREATE UNIQUE INDEX tools_number ON tools (robot, number) WHERE number IS NOT NULL;
+        CREATE TABLE tool_versions (id INTEGER PRIMARY KEY AUTOINCREMENT, robot TEXT NOT NULL, name TEXT NOT NULL,
+                                    action TEXT NOT NULL, {V1_COLUMNS});
+        CREATE INDEX tool_versions_name ON tool_versions (robot, name, id);
+        PRAGMA user_version = 1;""")
+    row = (ROBOT, "old-gripper", 1.5, 10.0, 20.0, 30.0, 0.003, 0.4, 0.5, 0.6, "[0.01, 0.02, 0.03, 0, 0, 0]", None, 4,
+           "runs/old", 9, "identified", "2026-01-01T00:00:00+00:00", None)
+    marks = ", ".join("?" for _ in row)
+    conn.execute(f"INSERT INTO tools VALUES ({marks})", row)
+    conn.execute("INSERT INTO tool_versions (robot, name, action, mass_kg, cog_x_mm, cog_y_mm, cog_z_mm, source, "
+                 "time_utc) VALUES (?, ?, 'stored', 1.4, 10, 20, 30, 'identified', '2025-12-01T00:00:00+00:00')",
+                 (ROBOT, "old-gripper"))
+    conn.execute(f"INSERT INTO tool_versions (robot, name, action, {', '.join(V1_NAMES)}) "
+                 f"VALUES (?, ?, 'stored', {', '.join('?' for _ in row[2:])})", (ROBOT, "old-gripper", *row[2:]))
+    conn.commit()
+    conn.close()
+
+
+COV = ((4e-6, 1e-7, -2e-7, 3e-7), (1e-7, 9e-8, 0.0, 1e-8), (-2e-7, 0.0, 8e-8, 0.0), (3e-7, 1e-8, 0.0, 1.2e-7))
+
+
+def test_a_version_1_library_is_upgraded_in_place(tmp_path):
+    """Schema v1 -> v2: the first read adds the covariance column to both tables, keeps every row and the history,
+    and the file then takes entries with a covariance; a file of a newer version is refused, not rewritten."""
+    import sqlite3
+
+    db = tmp_path / "tools.sqlite"
+    _v1_library(db)
+    old = library.require(db, ROBOT, "old-gripper")  # a read upgrades it
+    assert old.mass_kg == 1.5 and old.number == 4 and old.covariance_theta_si is None
+    assert old.inertia_com_kgm2 == (0.01, 0.02, 0.03, 0, 0, 0)
+    with sqlite3.connect(db) as conn:
+        assert conn.execute("PRAGMA user_version").fetchone()[0] == library.SCHEMA_VERSION == 2
+        for table in ("tools", "tool_versions"):
+            assert "covariance_theta_si" in [r[1] for r in conn.execute(f"PRAGMA table_info({table})")]
+    assert [v.entry.mass_kg for v in library.versions(db, ROBOT, "old-gripper")] == [1.4, 1.5]
+    library.store(db, ROBOT, entry("old-gripper", 1.6, covariance_theta_si=COV))
+    got = library.require(db, ROBOT, "old-gripper")
+    assert got.covariance_theta_si == COV and got.number == 4  # the number carried over from the v1 row
+    assert [v.entry.covariance_theta_si for v in library.versions(db, ROBOT, "old-gripper")] == [None, None, COV]
+    other = tmp_path / "other.sqlite"
+    _v1_library(other)
+    with sqlite3.connect(other) as conn:
+        conn.execute("PRAGMA user_version = 3")
+    with pytest.raises(DataError, match="newer payload-agent"):
+        library.list_tools(other, ROBOT)
+
+
+def test_covariance_and_inertia_stored_exported_and_shown(tmp_path, capsys):
+    """The run's covariance of θ (its [m, m·c] block) and inertia are stored, survive export/import (format 2; a
+    format-1 export still imports), bad matrices are refused naming the key, and `tools show` prints the inertia
+    as tensor and principal moments with their axes."""
+    import math
+
+    import numpy as np
+
+    db = tmp_path / "tools.sqlite"
+    big = np.zeros((5, 5))
+    big[:4, :4] = COV
+    big[4, 4] = 7.0  # a fit with more parameters: only the [m, m·c] block is the tool's
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    tensor = R @ np.diag([0.004, 0.006, 0.002]) @ R.T
+    stored = library.store_result(db, ROBOT, "rotated", {
+        "mass_kg": 2.0, "cog_mm": [40, -25, 70], "mass_std_kg": 0.002, "cog_std_mm": [0.5, 0.6, 0.7], "run_dir": "r",
+        "covariance_theta_si": big.tolist(), "inertia_com_kgm2": tensor.tolist(),
+        "inertia_com_std_kgm2": (np.full((3, 3), 1e-5)).tolist()}, 3)
+    assert stored.covariance_theta_si == COV
+    moments, abc = library.require(db, ROBOT, "rotated").principal_inertia()
+    assert sorted(moments) == pytest.approx([0.002, 0.004, 0.006])
+    assert moments[0] == pytest.approx(0.004) and abc == pytest.approx((30.0, 0.0, 0.0), abs=1e-6)
+    path = tmp_path / "tools.json"
+    path.write_text(json.dumps(transfer.export_document(db, ROBOT)))
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "payload-agent-tools/2"
+    stored, _ = transfer.import_file(tmp_path / "b.sqlite", ROBOT, path)
+    assert stored[0].covariance_theta_si == COV and stored[0].inertia_com_kgm2 == pytest.approx(
+        [tensor[0, 0], tensor[1, 1], tensor[2, 2], tensor[0, 1], tensor[0, 2], tensor[1, 2]])
+    for bad, why in (([[1, 0], [0, 1]], "4 rows of 4 numbers"), ([[1, 2, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                [0, 0, 0, 1]], "not symmetric"),
+                     ([[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "not positive semi-definite")):
+        doc["tools"][0]["covariance_theta_si"] = bad
+        path.write_text(json.dumps(doc))
+        with pytest.raises(DataError, match=r"tools\[0\].covariance_theta_si: .*" + why):
+            transfer.import_file(tmp_path / "c.sqlite", ROBOT, path)
+    doc["format"] = "payload-agent-tools/1"
+    del doc["tools"][0]["covariance_theta_si"]
+    path.write_text(json.dumps(doc))
+    stored, _ = transfer.import_file(tmp_path / "d.sqlite", ROBOT, path)
+    assert stored[0].covariance_theta_si is None
+    # `tools show`
+    data = tweak(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), "storage.state_dir",
+                 str(tmp_path / "state"))
+    cfg = tmp_path / "robot.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    sim_db = tmp_path / "state" / "sim-ec66" / "tools.sqlite"
+    library.store(sim_db, "sim-ec66", library.require(db, ROBOT, "rotated"))
+    library.store(sim_db, "sim-ec66", entry("plain"))
+    assert main(["tools", "--robot", str(cfg), "show", "rotated"]) == 0
+    out = capsys.readouterr().out
+    assert "principal moments JX, JY, JZ kg·m²: 0.00400, 0.00600, 0.00200" in out
+    assert "axes A, B, C (z-y'-x'' from the flange axes): 30.0, " in out and "covariance of [m, m·cx, m·cy, m·cz]" in out
+    assert main(["tools", "--robot", str(cfg), "show", "plain"]) == 0
+    assert "inertia: not identified" in capsys.readouterr().out

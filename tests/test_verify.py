@@ -63,6 +63,9 @@ def test_run_tool_stores_into_the_library_and_verify_matches(identified):
     entry = library.require(db, config.robot.name, "gripper")
     assert entry.source == "identified" and entry.run_dir and entry.history_id is not None
     assert abs(entry.mass_kg - TRUTH[0]) < 0.03 and entry.mass_std_kg > 0
+    # the run's full covariance of [m, m·c] is stored with it (schema 2), and verify tests against it
+    assert entry.covariance_theta_si is not None
+    assert np.sqrt(entry.covariance_theta_si[0][0]) == pytest.approx(entry.mass_std_kg, rel=1e-6)
     lines = []
     outcome = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lines.append,
                                                 detail=lambda s: None, mount=_mount(*TRUTH)))
@@ -110,6 +113,44 @@ def test_cli_verify_apply_writes_the_library_payload_and_exit_codes(identified, 
     again = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lambda s: None,
                                               detail=lambda s: None, mount=_mount(*TRUTH)))
     assert again.setting_matches is True and again.applied is None and back is not None
+
+
+def test_a_verify_from_our_own_resting_pose_starts_at_travel_speed(identified):
+    """Issue 23: where our last completed motion left the arm (the record in the state folder, matching the live
+    angles), the verify's first move runs at travel speed; once someone else moved the arm, the slow approach."""
+    import math
+    import time
+
+    from payload_agent.recording import resting_pose
+
+    config, cell, _ = identified
+    root = RobotState.for_config(config).root
+    vmax = config.robot.max_joint_speed_rad_s
+
+    def verify():
+        lines = []
+        o = verify_tool(config, VerifyOptions(tool="gripper", assume_yes=True, cell=cell, out=lines.append,
+                                              detail=lambda s: None, mount=_mount(*TRUTH)))
+        first = load_manifest(o.run_dir)["plan"][0]
+        return o, "\n".join(lines), 100 * math.radians(first["speed_deg_s"]) / vmax
+
+    first, _, _ = verify()
+    rec = resting_pose.load(root)
+    assert rec is not None and rec.run_dir == str(first.run_dir) and rec.matches(cell.robot.snapshot().q)
+    again, text, pct = verify()
+    assert "first move runs at travel speed" in text and pct == pytest.approx(config.procedure.travel_speed_percent)
+    assert again.robot_time_s <= 5.0
+    # the cell's program moves the arm 2° (and leaves it there): the record no longer matches
+    q = np.asarray(cell.robot.snapshot().q, float)
+    cell.robot.move_joints(q + np.radians([2.0, 0, 0, 0, 0, 0]), 0.2, 1.0)
+    deadline = time.monotonic() + 30
+    while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(2.0),
+                                                             abs_tol=1e-3)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    moved, text, pct = verify()
+    assert "travel speed" not in text and pct == pytest.approx(config.safety.approach_speed_percent)
+    assert resting_pose.load(root).run_dir == str(moved.run_dir)  # and the new record is where it ended
 
 
 class _DeafController:
@@ -161,10 +202,16 @@ def test_tool_changes_through_watch_verify_known_and_identify_new_tools(identifi
         return 0
 
     for name in ("gripper", "gripper", "vacuum"):
+        before = np.asarray(cell.robot.snapshot().q, float)
         trig.write_text(name + "\n")
         assert watch(wcfg, lambda: 1 / 0, run_tool=run_tool, out=lambda s: None, max_runs=1) == 0
     assert [r.action for r in results] == ["verified", "verified", "identified-new"]
     assert results[1].robot_time_s <= 8.0 and results[1].applied, results[1]
+    # the identification hands the arm back where the change found it (the last verify's start), so the next
+    # known tool starts from its own resting pose near its verify motion
+    assert np.max(np.abs(np.asarray(cell.robot.snapshot().q, float) - before)) < np.radians(0.2)
+    after_new = change_tool(config, "gripper", cell=cell, out=lambda s: None, mount=_mount(*TRUTH))
+    assert after_new.action == "verified" and after_new.robot_time_s <= 8.0, after_new
     vac = library.require(db, config.robot.name, "vacuum")
     assert abs(vac.mass_kg - 1.2) < 0.03 and results[2].run_dirs
     # a tool number names the tool too; a wrong tool under a known name is identified again and stored

@@ -3,6 +3,10 @@
 It validates the whole plan (joint limits with margin, speed cap, floor and reach
 box along every joint-space path, slow first approach) before the first move, and
 then executes exactly the approved moves, in order, nothing else.
+
+The first move may run at travel speed instead of the approach speed only when the gate was given our
+own resting-pose record (``recording.resting_pose``) and the angles the plan starts from match it: the
+arm then stands where our last completed motion left it, not somewhere unknown.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import SafetyError
 from payload_agent.motion.planner import Move, Plan, move_duration_s
+from payload_agent.recording.resting_pose import RestingPose
 
 PATH_CHECK_POINTS = 60
 MAX_SINGLE_MOVE_RAD = math.radians(200.0)
@@ -40,8 +45,11 @@ APPROACH_UNKNOWN = "current joint angles unknown"
 
 
 class SafetyGate:
-    def __init__(self, config: Config):
+    def __init__(self, config: Config, resting: RestingPose | None = None):
+        """``resting``: where our last completed motion left the arm; a plan starting there may make its first
+        move at travel speed (checked against the start angles at every ``check``)."""
         self.config = config
+        self.resting = resting
         self.kin = config.robot.kinematics
         self.safety = config.safety
         self._approved: tuple[Move, ...] | None = None
@@ -54,7 +62,16 @@ class SafetyGate:
         problems: list[str] = []
         vmax = robot.max_joint_speed_rad_s
         cap = vmax * s.max_speed_percent / 100.0
-        approach_cap = vmax * s.approach_speed_percent / 100.0
+        first_pct, first_what = s.approach_speed_percent, "approach cap"
+        if self.resting is not None and start_q is not None:
+            if self.resting.matches(start_q):
+                first_pct = max(s.approach_speed_percent, min(self.config.procedure.travel_speed_percent,
+                                                              s.max_speed_percent))
+                first_what = "travel speed from our own resting pose"
+            else:
+                first_what = (f"approach cap (the arm stands {math.degrees(self.resting.offset_rad(start_q)):.2f}° "
+                              "from the recorded resting pose)")
+        first_cap = vmax * first_pct / 100.0
         wrist_pct = s.max_speed_percent if s.max_wrist_speed_percent is None else s.max_wrist_speed_percent
         wrist_cap = vmax * wrist_pct / 100.0
         margin = s.joint_limit_margin_rad
@@ -81,9 +98,9 @@ class SafetyGate:
             elif m.kind != "wrist" and m.speed_rad_s > cap * (1 + 1e-9):
                 problems.append(f"{where}: speed {100 * m.speed_rad_s / vmax:.2f} % above the cap "
                                 f"{s.max_speed_percent:g} %")
-            if i == 0 and m.speed_rad_s > approach_cap * (1 + 1e-9):
-                problems.append(f"{where}: first move at {100 * m.speed_rad_s / vmax:.2f} %, approach cap is "
-                                f"{s.approach_speed_percent:g} %")
+            if i == 0 and m.speed_rad_s > first_cap * (1 + 1e-9):
+                problems.append(f"{where}: first move at {100 * m.speed_rad_s / vmax:.2f} %, {first_what} is "
+                                f"{first_pct:g} %")
             if m.accel_rad_s2 <= 0 or m.accel_rad_s2 > robot.max_joint_accel_rad_s2 * (1 + 1e-9):
                 problems.append(f"{where}: acceleration outside (0, max_joint_accel]")
             problems.extend(self._driver_limit_problems(where, m))
@@ -109,7 +126,8 @@ class SafetyGate:
         checks = [
             f"{len(plan.moves)} moves within joint limits less {math.degrees(margin):.0f}° margin",
             f"every speed <= {s.max_speed_percent:g} % of {math.degrees(vmax):.0f}°/s; first move <= "
-            f"{s.approach_speed_percent:g} %" + (f"; wrist moves <= {wrist_pct:g} %" if plan.wrist_moves else ""),
+            f"{first_pct:g} %" + (f" ({first_what})" if first_pct > s.approach_speed_percent else "")
+            + (f"; wrist moves <= {wrist_pct:g} %" if plan.wrist_moves else ""),
             f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
         ]
         return Verdict(not problems, problems, checks if not problems else [])

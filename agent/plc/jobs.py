@@ -70,6 +70,20 @@ class FlangeLoad:
     cog_mm: tuple[float, float, float] = (float("nan"),) * 3
     inertia_kgm2: tuple[float, float, float] | None = None  # principal moments, when identified
     tool: str = ""
+    orientation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # A, B, C of the principal axes (z-y'-x'')
+
+
+def flange_load(mass_kg: float, cog_mm, tensor_kgm2, tool: str) -> FlangeLoad:
+    """The LoadType content of a payload: the inertia tensor about the CoM (flange axes; None: unknown) as
+    principal moments with the orientation of their axes (``output.payload_forms``, the KUKA / OPC 40010 form)."""
+    cog = tuple(float(c) for c in cog_mm)
+    if tensor_kgm2 is None:
+        return FlangeLoad(float(mass_kg), cog, None, tool)  # type: ignore[arg-type]
+    from payload_agent.output.payload_forms import payload_forms
+
+    p = payload_forms(float(mass_kg), [c / 1000.0 for c in cog], tensor_kgm2)["principal"]
+    abc = tuple(round(float(v), 9) for v in p["abc_deg"])  # not 30.00000000000001
+    return FlangeLoad(float(mass_kg), cog, tuple(p["j_kgm2"]), tool, abc)  # type: ignore[arg-type]
 
 
 @dataclass
@@ -200,8 +214,9 @@ class RobotJobs:
             if entry is not None and entry.number is None:
                 library.store(db, self.config.robot.name, replace(entry, number=self._number, time_utc=""))
         if outcome.applied is not None:
-            self.load = FlangeLoad(outcome.applied.mass_kg, tuple(1000 * c for c in outcome.applied.cog_m),
-                                   None, tool or "")  # type: ignore[arg-type]
+            tensor = outcome.result.extra.get("inertia_com_kgm2")  # the identified one, None when refused
+            self.load = flange_load(outcome.applied.mass_kg, [1000 * c for c in outcome.applied.cog_m], tensor,
+                                    tool or "")
 
     def _verify(self, tool: str | None) -> None:
         from payload_agent.session.verify import VerifyOptions, verify_tool
@@ -214,7 +229,8 @@ class RobotJobs:
         self.last = LastResult(command, outcome.expected.name, verdict, r.mass_kg, r.cog_mm, r.mass_std_kg,
                                r.cog_std_mm, str(outcome.run_dir), _now(), r.describe(outcome.expected.name))
         if verdict == "match" and outcome.setting_matches:
-            self.load = FlangeLoad(outcome.expected.mass_kg, outcome.expected.cog_mm, None, outcome.expected.name)
+            e = outcome.expected
+            self.load = flange_load(e.mass_kg, e.cog_mm, e.inertia_tensor(), e.name)
 
     def _apply(self, tool: str | None) -> None:
         from payload_agent.recording.state import RobotState
@@ -237,11 +253,7 @@ class RobotJobs:
         self.last = LastResult("Apply", tool, "applied", back.mass_kg, tuple(1000 * c for c in back.cog_m),
                                entry.mass_std_kg or float("nan"), entry.cog_std_mm or (float("nan"),) * 3, "",
                                _now())  # type: ignore[arg-type]
-        inertia = entry.inertia_com_kgm2
-        # principal moments only where the tensor is diagonal in flange axes (orientation A, B, C = 0)
-        principal = tuple(inertia[:3]) if inertia is not None and max(map(abs, inertia[3:])) < 1e-12 else None
-        self.load = FlangeLoad(back.mass_kg, tuple(1000 * c for c in back.cog_m), principal,
-                               tool)  # type: ignore[arg-type]
+        self.load = flange_load(back.mass_kg, [1000 * c for c in back.cog_m], entry.inertia_tensor(), tool)
 
 
 def _now() -> str:

@@ -1,15 +1,15 @@
 """`payload-agent serve` over OPC UA (asyncua): per robot its flange load, tool library, last result and state,
 and the Identify / Verify / Apply jobs with the PLCopen handshake (``plc.jobs``).
 
-Address space, under Objects/PayloadAgent/<robot>/ (namespace ``NAMESPACE``; docs/plc.md lists every node):
+Address space, under Objects/PayloadAgent/<robot>/ (namespace ``NAMESPACE``; docs/plc.md lists every node),
+built on the official OPC 10000-100 (DI) and OPC 40010-1 (Robotics) nodesets (``opcua_model``):
 
-- ``FlangeLoad``: the payload this agent last wrote or verified, in the form of OPC 40010-1 (Robotics)
-  §7.23 LoadType: ``Mass`` (Double, EngineeringUnits kg), ``CenterOfMass`` as a 3DFrame
-  (``CartesianCoordinates`` X, Y, Z in mm relative to the flange; ``Orientation`` A, B, C of the principal
-  axes of inertia, 0 = flange axes), ``Inertia`` as a 3DVector (principal moments X, Y, Z, kg·m², status
-  BadWaitingForInitialData until an inertia is known). The node structure and names follow LoadType;
-  the companion specification's nodeset itself is not loaded (its type definitions are not referenced);
-- ``Tools``: one object per library tool (Mass, CenterOfMass [x, y, z] mm, their σ, Number);
+- ``FlangeLoad``: a Robotics ``LoadType`` instance: the payload this agent last wrote or verified,
+  ``Mass`` (kg), ``CenterOfMass`` (3DFrame: X, Y, Z in mm from the flange; A, B, C of the principal axes
+  of inertia), ``Inertia`` (3DVector: the principal moments, kg·m², BadWaitingForInitialData until an
+  inertia is known), and the agent's ``ToolName``;
+- ``Tools`` (DI FunctionalGroupType): one object per library tool (Mass, CenterOfMass [x, y, z] mm, their σ,
+  Number, and the inertia's principal moments and axes where the library has them);
 - ``LastResult``: Command, Tool, Verdict, Mass, CenterOfMass, MassStd, CenterOfMassStd, RunDir, Time, Message;
 - ``State``: idle / busy: <command> / the last failure;
 - ``Handshake/Identify``, ``Handshake/Verify``, ``Handshake/Apply``: the PLCopen blocks (Execute and ToolName
@@ -18,9 +18,10 @@ Address space, under Objects/PayloadAgent/<robot>/ (namespace ``NAMESPACE``; doc
   runs fails with BadInvalidState); a job a method started shows its progress in the same block.
 
 Security: the only endpoint is Basic256Sha256 SignAndEncrypt; the server certificate and key are created on
-first start in ``cert_dir``. Sessions authenticate with a user name and password (``serve_config``):
-operators may write and call, readers only browse and read; anonymous sessions are refused unless
-``anonymous_read``, and then only read.
+first start in ``cert_dir``. Only client applications whose certificate is in the trust folder
+(``opcua_trust``; default ``cert_dir/trusted``) may open a session; sessions then authenticate with a
+user name and password (``serve_config``): operators may write and call, readers only browse and read;
+anonymous sessions are refused unless ``anonymous_read``, and then only read.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User,
 from asyncua.server.user_managers import UserManager
 
 from payload_agent.plc.jobs import COMMANDS, RobotJobs
+from payload_agent.plc.opcua_model import Namespaces, add_flange_load, add_group, load_standard_types, unit, write_load
+from payload_agent.plc.opcua_trust import ClientTrustList
 from payload_agent.plc.serve_config import ServeConfig
 from payload_agent.recording.state import RobotState
 from payload_agent.tools import library
@@ -45,20 +48,8 @@ from payload_agent.tools import library
 NAMESPACE = "urn:payload-agent:plc"
 APP_URI = "urn:payload-agent:server"
 POLL_S = 0.05
-_UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
-UNITS = {"kg": ("KGM", "kg", "kilogram"), "mm": ("MMT", "mm", "millimetre"), "deg": ("DD", "°", "degree"),
-         "kgm2": ("B32", "kg·m²", "kilogram metre squared")}
 _NO_WRITE = {ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary),
              ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)}
-
-
-def _unit(code: str) -> ua.EUInformation:
-    unece, shown, text = UNITS[code]
-    unit_id = 0
-    for ch in unece:
-        unit_id = (unit_id << 8) | ord(ch)
-    return ua.EUInformation(NamespaceUri=_UNECE, UnitId=unit_id, DisplayName=ua.LocalizedText(shown),
-                            Description=ua.LocalizedText(text))
 
 
 class _Users(UserManager):
@@ -105,6 +96,10 @@ class OpcUaServer:
                  log: Callable[[str], None] = lambda text: None):
         self.serve, self.robots, self.cert_dir, self.log = serve, robots, Path(cert_dir), log
         self.server = Server(user_manager=_Users(serve))
+        self.trust = ClientTrustList(serve.trusted_clients_dir or self.cert_dir / "trusted", self.cert_dir / "rejected",
+                                     log)
+        self._ns: Namespaces | None = None
+        self._loads: dict[str, object] = {}
         self._blocks: dict[tuple[str, str], _Block] = {}
         self._nodes: dict[str, dict[str, object]] = {}
         self._task: asyncio.Task | None = None
@@ -136,15 +131,23 @@ class OpcUaServer:
         self.server.set_identity_tokens(tokens)
         await self.server.load_certificate(str(cert))
         await self.server.load_private_key(str(key))
-        idx = await self.server.register_namespace(NAMESPACE)
+        self.trust.ensure_folders()
+        self.server.set_certificate_validator(self.trust)
+        self._ns = await load_standard_types(self.server, NAMESPACE)
+        idx = self._ns.own
         root = await self.server.nodes.objects.add_object(idx, "PayloadAgent")
         for jobs in self.robots:
             await self._robot_nodes(idx, root, jobs)
         await self.server.start()
         self._task = asyncio.create_task(self._poll())
+        n_trusted = len(self.trust.trusted())
         self.log(f"OPC UA: serving {', '.join(j.config.robot.name for j in self.robots)} at {self.serve.endpoint} "
                  "(Basic256Sha256 SignAndEncrypt; " + ("anonymous read allowed" if self.serve.anonymous_read
-                                                      else "no anonymous sessions") + ")")
+                                                      else "no anonymous sessions")
+                 + f"; {n_trusted} trusted client certificate(s) in {self.trust.trusted_dir})")
+        if not n_trusted:
+            self.log(f"OPC UA: no client can open a session until its certificate is in {self.trust.trusted_dir} "
+                     f"(a refused client's certificate is kept in {self.trust.rejected_dir} to move over)")
 
     async def stop(self) -> None:
         if self._task is not None:
@@ -156,10 +159,10 @@ class OpcUaServer:
         await self.server.stop()
 
     # -- address space ---------------------------------------------------------------------
-    async def _var(self, parent, idx, name, value, vtype, unit: str | None = None, writable: bool = False):
+    async def _var(self, parent, idx, name, value, vtype, unit_code: str | None = None, writable: bool = False):
         node = await parent.add_variable(idx, name, ua.Variant(value, vtype))
-        if unit is not None:
-            await node.add_property(idx, "EngineeringUnits", _unit(unit))
+        if unit_code is not None:
+            await node.add_property(0, "EngineeringUnits", unit(unit_code))
         if writable:
             await node.set_writable()
         return node
@@ -170,29 +173,20 @@ class OpcUaServer:
         n: dict[str, object] = {}
         D, S = ua.VariantType.Double, ua.VariantType.String
         n["State"] = await self._var(obj, idx, "State", jobs.state, S)
-        load = await obj.add_object(idx, "FlangeLoad")
-        n["Mass"] = await self._var(load, idx, "Mass", math.nan, D, "kg")
-        com = await load.add_object(idx, "CenterOfMass")
-        cart = await com.add_object(idx, "CartesianCoordinates")
-        orient = await com.add_object(idx, "Orientation")
-        for ax in "XYZ":
-            n[f"CoM{ax}"] = await self._var(cart, idx, ax, math.nan, D, "mm")
-        for ax in "ABC":
-            await self._var(orient, idx, ax, 0.0, D, "deg")
-        inertia = await load.add_object(idx, "Inertia")
-        for ax in "XYZ":
-            n[f"I{ax}"] = await self._var(inertia, idx, ax, math.nan, D, "kgm2")
+        assert self._ns is not None
+        self._loads[name] = await add_flange_load(obj, self._ns)
+        load = await obj.get_child(f"{idx}:FlangeLoad")
         n["LoadTool"] = await self._var(load, idx, "ToolName", "", S)
-        n["Tools"] = await obj.add_folder(idx, "Tools")
-        last = await obj.add_object(idx, "LastResult")
-        for key, vt, unit in (("Command", S, None), ("Tool", S, None), ("Verdict", S, None), ("Mass", D, "kg"),
+        n["Tools"] = await add_group(obj, self._ns, "Tools")
+        last = await add_group(obj, self._ns, "LastResult")
+        for key, vt, u in (("Command", S, None), ("Tool", S, None), ("Verdict", S, None), ("Mass", D, "kg"),
                               ("MassStd", D, "kg"), ("RunDir", S, None), ("Time", S, None), ("Message", S, None)):
-            n[f"Last{key}"] = await self._var(last, idx, key, "" if vt == S else math.nan, vt, unit)
+            n[f"Last{key}"] = await self._var(last, idx, key, "" if vt == S else math.nan, vt, u)
         for key in ("CenterOfMass", "CenterOfMassStd"):
             n[f"Last{key}"] = await self._var(last, idx, key, [math.nan] * 3, D, "mm")
-        handshakes = await obj.add_folder(idx, "Handshake")
+        handshakes = await add_group(obj, self._ns, "Handshake")
         for command in COMMANDS:
-            blk = await handshakes.add_object(idx, command)
+            blk = await add_group(handshakes, self._ns, command)
             outputs = {k: await self._var(blk, idx, k, v, t) for k, v, t in (
                 ("Busy", False, ua.VariantType.Boolean), ("Done", False, ua.VariantType.Boolean),
                 ("Error", False, ua.VariantType.Boolean), ("ErrorID", 0, ua.VariantType.Int32),
@@ -227,19 +221,18 @@ class OpcUaServer:
             await self._var(obj, idx, "MassStd", math.nan if t.mass_std_kg is None else t.mass_std_kg, D, "kg")
             await self._var(obj, idx, "CenterOfMassStd", list(t.cog_std_mm or (math.nan,) * 3), D, "mm")
             await self._var(obj, idx, "Number", t.number or 0, ua.VariantType.Int32)
+            principal = t.principal_inertia()
+            if principal is not None:
+                await self._var(obj, idx, "PrincipalMoments", list(principal[0]), D, "kgm2")
+                await self._var(obj, idx, "PrincipalAxesABC", list(principal[1]), D, "deg")
 
     async def _refresh(self, jobs: RobotJobs) -> None:
         n = self._nodes[jobs.config.robot.name]
         D, S = ua.VariantType.Double, ua.VariantType.String
         await n["State"].write_value(ua.Variant(jobs.state, S))
-        await n["Mass"].write_value(ua.Variant(jobs.load.mass_kg, D))
-        for ax, v in zip("XYZ", jobs.load.cog_mm):
-            await n[f"CoM{ax}"].write_value(ua.Variant(float(v), D))
-        for ax, i in zip("XYZ", range(3)):
-            value = math.nan if jobs.load.inertia_kgm2 is None else float(jobs.load.inertia_kgm2[i])
-            status = ua.StatusCode(ua.StatusCodes.Good if jobs.load.inertia_kgm2 is not None
-                                   else ua.StatusCodes.BadWaitingForInitialData)
-            await n[f"I{ax}"].write_value(ua.DataValue(ua.Variant(value, D), StatusCode=status))
+        load = jobs.load
+        await write_load(self._loads[jobs.config.robot.name], load.mass_kg, load.cog_mm,  # type: ignore[arg-type]
+                         load.orientation_deg, load.inertia_kgm2)
         await n["LoadTool"].write_value(ua.Variant(jobs.load.tool, S))
         last = jobs.last
         for key, value in (("Command", last.command), ("Tool", last.tool), ("Verdict", last.verdict),

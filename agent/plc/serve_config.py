@@ -3,6 +3,7 @@
     opcua:
       endpoint: opc.tcp://127.0.0.1:4840/payload-agent/   # binds here; 0.0.0.0 for every interface
       anonymous_read: false      # true: anonymous sessions may browse and read (never write or call)
+      trusted_clients: /etc/payload-agent/opcua-trusted   # optional; default <state>/<robot>/opcua/trusted/
     users:                       # user names for OPC UA sessions; passwords as hashes (serve_config.hash_password)
       - {name: plc, password: "pbkdf2_sha256$200000$<salt hex>$<hash hex>", role: operator}   # may start jobs
       - {name: scada, password: "pbkdf2_sha256$...", role: reader}                            # read only
@@ -14,6 +15,8 @@
 Security is not optional: the OPC UA server offers Basic256Sha256 with SignAndEncrypt only, and its
 certificate is created on first start in the robot's state folder (``<state>/<robot>/opcua/``).
 Without any operator no one can start a job; without ``anonymous_read`` anonymous sessions are refused.
+Only client applications whose certificate (DER or PEM) is in the ``trusted_clients`` folder may open a
+session at all (``plc.opcua_trust``); a refused one's certificate is kept in ``<state>/<robot>/opcua/rejected/``.
 """
 
 from __future__ import annotations
@@ -72,6 +75,7 @@ class ServeConfig:
     users: tuple[UserSpec, ...] = ()
     modbus: ModbusSpec | None = None
     source: str = "<serve config>"
+    trusted_clients_dir: Path | None = None  # None: <state>/<robot>/opcua/trusted/
 
     def user(self, name: str | None, password: str | None) -> UserSpec | None:
         for u in self.users:
@@ -84,12 +88,17 @@ class ServeConfig:
 def parse_serve_config(data, source: str = "<serve config>") -> ServeConfig:
     top = Node(data if data is not None else {}, "", source)
     top.reject_unknown(["opcua", "users", "modbus"])
-    endpoint, anonymous = ServeConfig.endpoint, False
+    endpoint, anonymous, trusted = ServeConfig.endpoint, False, None
     if top.has("opcua"):
         o = top.child("opcua")
         endpoint = o.string("endpoint", ServeConfig.endpoint)
         anonymous = o.boolean("anonymous_read", False)
-        o.reject_unknown(["endpoint", "anonymous_read"])
+        if o.has("trusted_clients"):
+            trusted = Path(o.string("trusted_clients")).expanduser()
+            if trusted.exists() and not trusted.is_dir():
+                raise o.error("trusted_clients", f"{trusted} is not a folder (a folder of client certificates, "
+                                                 "DER or PEM)")
+        o.reject_unknown(["endpoint", "anonymous_read", "trusted_clients"])
         url = urlparse(endpoint)
         if url.scheme != "opc.tcp" or not url.hostname or not url.port:
             raise o.error("endpoint", f"expected opc.tcp://HOST:PORT/PATH, got {endpoint!r}")
@@ -114,7 +123,7 @@ def parse_serve_config(data, source: str = "<serve config>") -> ServeConfig:
         modbus = ModbusSpec(m.string("host", "127.0.0.1"), m.integer("port", 5020, min=0, max=65535),
                             m.integer("unit", 1, min=0, max=247))
         m.reject_unknown(["host", "port", "unit"])
-    return ServeConfig(endpoint, anonymous, tuple(users), modbus, source)
+    return ServeConfig(endpoint, anonymous, tuple(users), modbus, source, trusted)
 
 
 def load_serve_config(path: Path) -> ServeConfig:

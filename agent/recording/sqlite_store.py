@@ -3,16 +3,19 @@
 Each file carries its schema version in ``PRAGMA user_version``. A new file gets its schema in
 one ``BEGIN IMMEDIATE`` transaction, so two first writers (a `watch` run and a manual `run`)
 cannot both create it; a file written by a newer payload-agent, or a table of the right name
-without a version, is refused with what to do rather than read wrongly. Writers use WAL so
-readers are never blocked; connections are in autocommit mode (transactions are explicit).
+without a version, is refused with what to do rather than read wrongly. A file of an older
+version is upgraded in place, in one ``BEGIN IMMEDIATE`` transaction, by the schema's migrations
+(statements from version k to k + 1, applied in order), the first time it is opened, for reading
+too: a crash mid-way leaves the old version intact. Writers use WAL so readers are never blocked;
+connections are in autocommit mode (transactions are explicit).
 """
 
 from __future__ import annotations
 
 import sqlite3
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from payload_agent.errors import DataError
 
@@ -25,6 +28,7 @@ class StoreSchema:
     table: str  # the main table: its presence without a version means a foreign file
     version: int
     statements: Sequence[str]  # CREATE TABLE / INDEX statements of this version
+    migrations: Mapping[int, Sequence[str]] = field(default_factory=dict)  # k: statements from version k to k + 1
 
 
 def connect(db: Path) -> sqlite3.Connection:
@@ -40,15 +44,24 @@ def _ensure_schema(conn: sqlite3.Connection, db: Path, schema: StoreSchema) -> N
     if version > schema.version:
         raise DataError(f"{db}: {schema.what} schema version {version} was written by a newer payload-agent "
                         f"(this one reads version {schema.version}); upgrade payload-agent")
+    missing = [k for k in range(max(version, 1), schema.version) if k not in schema.migrations]
+    if version > 0 and missing:
+        raise DataError(f"{db}: {schema.what} schema version {version} cannot be upgraded to {schema.version} by "
+                        f"this payload-agent (no migration from version {missing[0]})")
     conn.execute("BEGIN IMMEDIATE")
     try:
-        if conn.execute("PRAGMA user_version").fetchone()[0] == 0:
+        version = conn.execute("PRAGMA user_version").fetchone()[0]  # another process may have done it meanwhile
+        if version == 0:
             if conn.execute("SELECT name FROM sqlite_master WHERE name = ?", (schema.table,)).fetchone():
                 raise DataError(f"{db}: has a {schema.table} table but no schema version; not a payload-agent "
                                 f"{schema.what} (move it away)")
             for stmt in schema.statements:
                 conn.execute(stmt)
-            conn.execute(f"PRAGMA user_version = {int(schema.version)}")
+        else:
+            for k in range(version, schema.version):
+                for stmt in schema.migrations[k]:
+                    conn.execute(stmt)
+        conn.execute(f"PRAGMA user_version = {int(schema.version)}")
         conn.execute("COMMIT")
     except BaseException:
         conn.execute("ROLLBACK")
@@ -87,6 +100,9 @@ def read_rows(db: Path, schema: StoreSchema, sql: str, args: Sequence = ()) -> l
             if version > schema.version:
                 raise DataError(f"{db}: {schema.what} schema version {version} was written by a newer "
                                 f"payload-agent (this one reads version {schema.version}); upgrade payload-agent")
+        if version < schema.version:  # an older file: upgraded in place first (see the module docstring)
+            open_for_write(db, schema).close()
+        with closing(connect(db)) as conn:
             return conn.execute(sql, tuple(args)).fetchall()
     except sqlite3.DatabaseError as exc:
         raise DataError(f"{db}: not a usable {schema.what} ({exc})") from None

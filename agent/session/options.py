@@ -32,6 +32,9 @@ class RunOptions:
     report: bool = True
     retry_sweeps: int = 0  # redo a sweep whose sample stream had a gap, up to this many times per phase
     resume: Path | None = None  # an incomplete run folder to finish (only its unfinished sweeps are recorded)
+    # end with a travel move back to where the arm stood when the session started (part of the plan the gate
+    # approves whole): a tool change hands the arm back where the cell had it, near the next verify's start
+    return_to_start: bool = False
 
     @property
     def asks(self) -> bool:

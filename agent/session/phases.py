@@ -5,7 +5,9 @@ flange pose the controller reports is compared with the YAML's kinematics. Every
 samples go to the recorder with the driver's stream statistics; a sweep whose stream had a
 gap is never marked complete: it is redone where the user allowed retries, otherwise the
 phase aborts. Any exception, Ctrl-C or supervision trip stops the robot; what was recorded
-stays on disk.
+stays on disk. The resting-pose record (``recording.resting_pose``) is removed before the first
+move and written again when the phase completed with the arm standing at its last target, or as the
+path of the move under way when a communication failure made our supervision stop it.
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from payload_agent.motion.crosscheck import compare_pose
 from payload_agent.motion.planner import Plan
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.output.stop_text import stop_sentence
+from payload_agent.recording import resting_pose
 from payload_agent.recording.recorder import RunRecorder
+from payload_agent.recording.state import RobotState
 
 SAMPLE_WAIT_S = 5.0
 SETTLE_WAIT_S = 15.0  # after a move: the stream may lag the finished reply (a loaded host, a fast simulation)
@@ -98,6 +102,8 @@ class PhaseRunner:
         start_q = self.current_q()
         self.gate.approve(plan, start_q)  # the approach path starts wherever the robot stands now
         check_kinematics(self.config, self.driver, start_q, f"before the {name} run")
+        state_root = RobotState.for_config(self.config).root
+        resting_pose.clear(state_root)  # the arm is about to leave it
         self.recorder.begin_phase(name, resume, joint_temperatures_c={"start": joint_temperatures(self.driver)})
         if self.progress is not None:
             self.progress.begin_phase(name)
@@ -143,6 +149,12 @@ class PhaseRunner:
                 i += 1
         except BaseException as exc:
             self.stop_robot()
+            if isinstance(exc, CommunicationError) and n:  # our supervision stopped it on this move's path
+                try:
+                    resting_pose.record(state_root, plan.moves[i - 1].target_rad if i else start_q,
+                                        self.recorder.run_dir, plan.moves[min(i, n - 1)].target_rad)
+                except OSError:
+                    pass  # no record: the next session approaches slowly, as after any other stop
             if self.progress is not None:
                 self.progress.close()
             stats = self.driver.end_stats()
@@ -155,6 +167,8 @@ class PhaseRunner:
                                          f"{self.recorder.run_dir}") from None
             raise
         self.recorder.end_phase("complete", joint_temperatures_end=joint_temperatures(self.driver))
+        if n:
+            resting_pose.record(state_root, self.current_q(near=plan.moves[-1].target_rad), self.recorder.run_dir)
 
     def stop_robot(self) -> None:
         """Stop the move this session commanded, if one may still run (the driver sends nothing otherwise)."""

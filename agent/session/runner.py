@@ -93,6 +93,8 @@ class Session:
             current = baselines.describe_for(config, plan, probe.info, source_run=Path("."),
                                              joint_temperatures_c=joint_temperatures(driver))
             chosen = mode.select(config, plan, opts, state, current, probe.info, out)
+            if opts.return_to_start:
+                chosen = _returning(config, chosen, probe.q)
             durations = _show_and_confirm(config, opts, ui, driver, gate, chosen.todo[0][2], probe.q, chosen.phases)
             changing = len(chosen.todo) > 1 or mode.empties_flange
             first, mounted, _ = chosen.todo[0]
@@ -144,6 +146,20 @@ class Session:
                 error.outcome, error.run_dir = outcome, outcome.run_dir
                 raise error from None
         return outcome
+
+
+def _returning(config: Config, chosen: Selection, start_q) -> Selection:
+    """``chosen`` whose last phase ends with a travel move back to ``start_q``, where the arm stood before the
+    session's first move (``RunOptions.return_to_start``); the gate checks it with the rest of that phase."""
+    from dataclasses import replace
+
+    from payload_agent.motion.planner import Move
+
+    phase, mounted, last = chosen.todo[-1]
+    travel = config.robot.max_joint_speed_rad_s * config.procedure.travel_speed_percent / 100.0
+    accel = next((m.accel_rad_s2 for m in reversed(last.moves) if m.kind == "travel"), last.moves[-1].accel_rad_s2)
+    back = Move("return to where the session started", "travel", tuple(float(v) for v in start_q), travel, accel)
+    return replace(chosen, todo=[*chosen.todo[:-1], (phase, mounted, Plan(last.procedure, (*last.moves, back)))])
 
 
 def _check_controller(config: Config, mode: Mode, ui: OperatorUI, driver: Driver, plan: Plan) -> Probe:

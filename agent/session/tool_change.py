@@ -85,7 +85,9 @@ def _identify(config: Config, name: str | None, action: str, cell, out, earlier:
               mount) -> ToolChangeResult:
     from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
-    outcome = run_identification(config, RunOptions(unattended=True, apply=True, tool=name),
+    # the arm goes back where the change found it (the last verify's start, or where the cell left it): the next
+    # known-tool change then starts near its verify motion, not ~180° of wrist away at the inertia part's end
+    outcome = run_identification(config, RunOptions(unattended=True, apply=True, tool=name, return_to_start=True),
                                          OperatorUI(out=out, progress=False),
                                          SimulatedCellUse(cell=cell, on_cell=mount))
     est = outcome.result.primary if outcome.result is not None else None

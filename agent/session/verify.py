@@ -32,6 +32,7 @@ from payload_agent.errors import (CommunicationError, MotionAbortedError, Payloa
 from payload_agent.evaluation.calibration import effective_gains
 from payload_agent.motion.planner import make_plan
 from payload_agent.motion.safety import SafetyGate
+from payload_agent.recording import resting_pose
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.rundata import load_phase
 from payload_agent.recording.state import RobotState
@@ -151,16 +152,21 @@ def _verify_connected(config: Config, opts: VerifyOptions, state: RobotState, dr
         baseline = load_phase(state.baseline_dir, "empty", np.asarray(gains, float))
         sigma = vs.noise_std(baseline)
         theta0 = vs.theta_of(entry.mass_kg, entry.cog_mm)
-        S0 = vs.theta_cov(entry.mass_kg, entry.cog_mm, entry.mass_std_kg, entry.cog_std_mm)
+        S0 = (np.asarray(entry.covariance_theta_si, float) if entry.covariance_theta_si is not None  # the run's own
+              else vs.theta_cov(entry.mass_kg, entry.cog_mm, entry.mass_std_kg, entry.cog_std_mm))  # σ only: diagonal
+        resting = resting_pose.load(state.root)
+        from_rest = resting is not None and resting.matches(start_q)
         cand = verify_plan.choose(config, start_q, baseline, sigma, theta0, S0, opts.mass_limit_percent,
-                                  opts.cog_limit_mm)
+                                  opts.cog_limit_mm, from_rest=from_rest)
         out(f"Expected: {_expected_name(entry)}; baseline of {stored.recorded_utc}, effort noise "
             f"[{', '.join(f'{s:.3f}' for s in sigma[1:])}] N·m (joints 2-6)")
         out(f"Verify motion: {cand.describe()}")
         if not cand.limits.meets(opts.mass_limit_percent, opts.cog_limit_mm):
             out(f"Note: no verify motion within the baseline's sweeps reaches {opts.mass_limit_percent:g} % / "
                 f"{opts.cog_limit_mm:g} mm; this is the most sensitive one")
-        gate = SafetyGate(config)
+        if from_rest:
+            out(f"The arm rests at {resting.describe()}: the first move runs at travel speed")  # type: ignore[union-attr]
+        gate = SafetyGate(config, resting if from_rest else None)  # the gate compares it with the angles itself
         verdict = gate.check(cand.plan, start_q)
         out("Safety gate: " + verdict.describe())
         gate.approve(cand.plan, start_q)  # refuses with every problem listed
@@ -231,9 +237,17 @@ def _open_recorder(config: Config, cand, info, driver, entry: ToolEntry, stored,
 
 
 def write_and_check(driver, entry: ToolEntry, out: Callable[[str], None]) -> PayloadSetting:
-    """Write the library's payload to the controller and read it back; CommunicationError naming the likely
-    cause when the controller refused it or reads back something else."""
+    """Write the library's payload to the controller (its inertia too, where the entry has one and the driver
+    writes it) and read it back; CommunicationError naming the likely cause when the controller refused it or
+    reads back something else."""
     new = PayloadSetting(entry.mass_kg, entry.cog_m)
+    tensor = entry.inertia_tensor()
+    if tensor is not None:
+        why = driver.payload_inertia_support()
+        if why:
+            out(f"Inertia of tool {entry.name!r} not written: {why}")
+        else:
+            new = replace(new, inertia_com_kgm2=tuple(tuple(float(v) for v in row) for row in tensor))
     try:
         current = driver.read_payload()
         if current.tool_num is not None:

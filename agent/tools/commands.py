@@ -69,9 +69,8 @@ def cmd_tools(args, con) -> int:
         con.result(entry.describe())
         con.say(f"  from run {entry.run_dir or '(none recorded)'}; {entry.source} {entry.time_utc}"
                 + (f"; {entry.note}" if entry.note else ""))
-        if entry.inertia_com_kgm2 is not None:
-            con.say("  inertia about the CoM [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg·m²: "
-                    + ", ".join(f"{v:.5f}" for v in entry.inertia_com_kgm2))
+        for line in inertia_lines(entry):
+            con.result(line)
         con.say("History:")
         for v in hist:
             con.say(f"  #{v.id} {v.entry.time_utc} {v.action}: {v.entry.mass_kg:.4f} kg, "
@@ -103,6 +102,32 @@ def cmd_tools(args, con) -> int:
         con.say(f"Kept the library's own entries for {', '.join(skipped)} (pass --replace to overwrite them)")
     con.emit_json({"ok": True, "robot": robot, "imported": [e.name for e in stored], "skipped": skipped})
     return 0
+
+
+def inertia_lines(entry: library.ToolEntry) -> list[str]:
+    """What `tools show` says about the inertia and the covariance of mass and centre of mass."""
+    lines = []
+    principal = entry.principal_inertia()
+    if principal is None:
+        lines.append("  inertia: not identified (a run with the wrist moves, procedure.inertia, identifies it)")
+    else:
+        moments, abc = principal
+        std = entry.inertia_com_std_kgm2
+        lines.append("  inertia about the CoM [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg·m²: "
+                     + ", ".join(f"{v:.5f}" for v in entry.inertia_com_kgm2)  # type: ignore[union-attr]
+                     + ("" if std is None else " ± " + ", ".join(f"{1.96 * v:.5f}" for v in std) + " (95 %)"))
+        lines.append("  principal moments JX, JY, JZ kg·m²: " + ", ".join(f"{v:.5f}" for v in moments)
+                     + "; axes A, B, C (z-y'-x'' from the flange axes): " + ", ".join(f"{v:.1f}" for v in abc) + "°")
+    cov = entry.covariance_theta_si
+    if cov is not None:
+        import numpy as np
+
+        c = np.asarray(cov, float)
+        d = np.sqrt(np.maximum(np.diag(c), 1e-300))
+        r = c / np.outer(d, d)
+        lines.append("  covariance of [m, m·cx, m·cy, m·cz] stored (verify uses it); correlations of m with m·c: "
+                     + ", ".join(f"{v:+.2f}" for v in r[0, 1:]))
+    return lines
 
 
 TOOL_COMMANDS: dict[str, Callable[[Any, Any], int]] = {"tools": cmd_tools}

@@ -10,9 +10,15 @@ Two tables:
 - ``tool_versions``: every value a tool ever had, and its removal, oldest first: the tool's history.
   A removed tool keeps its versions, so ``tools show`` can still say what it was.
 
-Inertia: ``inertia_com_kgm2`` / ``inertia_com_std_kgm2`` (the tensor about the centre of mass as
-[Ixx, Iyy, Izz, Ixy, Ixz, Iyz] and its standard uncertainties) are reserved for the inertia
-identification; they are stored and exported when given and are None until then.
+Inertia: ``inertia_com_kgm2`` / ``inertia_com_std_kgm2``: the tensor about the centre of mass as
+[Ixx, Iyy, Izz, Ixy, Ixz, Iyz] and its standard uncertainties, kg·m², from the run's result when its
+inertia identification gave one (None otherwise).
+
+Covariance (schema version 2): ``covariance_theta_si``, the full 4×4 covariance of θ = [m, m·cx, m·cy, m·cz]
+(kg, kg·m) exactly as the run's ``result.json`` carries it: mass and centre of mass are correlated,
+and ``verify`` tests against this matrix rather than a diagonal built from the σ. A version-1 library
+(σ only) is upgraded in place the first time this version opens it (``MIGRATIONS``); its entries keep
+None there until re-identified.
 
 A tool optionally has a ``number`` (1..65535, unique per robot): what a PLC or a tool changer
 sends instead of the name (a register, an input pattern).
@@ -30,24 +36,27 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from payload_agent.errors import DataError
 from payload_agent.recording.sqlite_store import StoreSchema, open_for_write, read_rows
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 LIBRARY_NAME = "tools.sqlite"
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9 ._+-]{0,63}$")
 SOURCES = ("identified", "imported", "verified")
 
 _FIELDS = ("mass_kg", "cog_x_mm", "cog_y_mm", "cog_z_mm", "mass_std_kg", "cog_std_x_mm", "cog_std_y_mm",
            "cog_std_z_mm", "inertia_com_kgm2", "inertia_com_std_kgm2", "number", "run_dir", "history_id",
-           "source", "time_utc", "note")
+           "source", "time_utc", "note", "covariance_theta_si")
 _COLUMNS_SQL = """
     mass_kg REAL NOT NULL, cog_x_mm REAL NOT NULL, cog_y_mm REAL NOT NULL, cog_z_mm REAL NOT NULL,
     mass_std_kg REAL, cog_std_x_mm REAL, cog_std_y_mm REAL, cog_std_z_mm REAL,
-    inertia_com_kgm2 TEXT,       -- JSON [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the CoM, kg·m² (reserved)
-    inertia_com_std_kgm2 TEXT,   -- JSON, their standard uncertainties (reserved)
+    inertia_com_kgm2 TEXT,       -- JSON [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the CoM, kg·m²
+    inertia_com_std_kgm2 TEXT,   -- JSON, their standard uncertainties
     number INTEGER,              -- what a PLC / tool changer sends for this tool, NULL if none
-    run_dir TEXT, history_id INTEGER, source TEXT NOT NULL, time_utc TEXT NOT NULL, note TEXT"""
+    run_dir TEXT, history_id INTEGER, source TEXT NOT NULL, time_utc TEXT NOT NULL, note TEXT,
+    /* version 2: JSON, the 4×4 covariance of [m, m·cx, m·cy, m·cz], SI */ covariance_theta_si TEXT"""
 _SCHEMA = (
     f"CREATE TABLE tools (robot TEXT NOT NULL, name TEXT NOT NULL, {_COLUMNS_SQL}, PRIMARY KEY (robot, name))",
     "CREATE UNIQUE INDEX tools_number ON tools (robot, number) WHERE number IS NOT NULL",
@@ -55,6 +64,10 @@ _SCHEMA = (
     f"action TEXT NOT NULL, {_COLUMNS_SQL})",
     "CREATE INDEX tool_versions_name ON tool_versions (robot, name, id)",
 )
+MIGRATIONS = {  # version k -> k + 1, applied in place (``sqlite_store``)
+    1: ("ALTER TABLE tools ADD COLUMN covariance_theta_si TEXT",
+        "ALTER TABLE tool_versions ADD COLUMN covariance_theta_si TEXT"),
+}
 
 
 def utc_now() -> str:
@@ -83,14 +96,15 @@ class ToolEntry:
     cog_mm: tuple[float, float, float]
     mass_std_kg: float | None = None
     cog_std_mm: tuple[float, float, float] | None = None
-    inertia_com_kgm2: tuple[float, ...] | None = None  # reserved: [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
-    inertia_com_std_kgm2: tuple[float, ...] | None = None  # reserved
+    inertia_com_kgm2: tuple[float, ...] | None = None  # [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the CoM
+    inertia_com_std_kgm2: tuple[float, ...] | None = None  # their standard uncertainties
     number: int | None = None
     run_dir: str | None = None  # the run it was identified in
     history_id: int | None = None  # its row in history.sqlite
     source: str = "identified"  # identified | imported | verified
     time_utc: str = ""
     note: str | None = None
+    covariance_theta_si: tuple[tuple[float, ...], ...] | None = None  # 4×4 of [m, m·cx, m·cy, m·cz], SI
 
     @property
     def cog_m(self) -> tuple[float, float, float]:
@@ -102,7 +116,27 @@ class ToolEntry:
                 "inertia_com_kgm2": None if self.inertia_com_kgm2 is None else list(self.inertia_com_kgm2),
                 "inertia_com_std_kgm2": None if self.inertia_com_std_kgm2 is None else list(self.inertia_com_std_kgm2),
                 "number": self.number, "run_dir": self.run_dir, "history_id": self.history_id,
-                "source": self.source, "time_utc": self.time_utc, "note": self.note}
+                "source": self.source, "time_utc": self.time_utc, "note": self.note,
+                "covariance_theta_si": None if self.covariance_theta_si is None
+                else [list(row) for row in self.covariance_theta_si]}
+
+    def inertia_tensor(self) -> np.ndarray | None:
+        """The stored inertia about the CoM as the symmetric 3×3 tensor (flange axes), kg·m², or None."""
+        if self.inertia_com_kgm2 is None:
+            return None
+        xx, yy, zz, xy, xz, yz = self.inertia_com_kgm2
+        return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]], float)
+
+    def principal_inertia(self) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """(principal moments JX, JY, JZ kg·m², orientation A, B, C in degrees of their axes relative to the
+        flange, intrinsic z-y'-x''): the OPC 40010 LoadType / KUKA form (``output.payload_forms``), or None."""
+        tensor = self.inertia_tensor()
+        if tensor is None:
+            return None
+        from payload_agent.output.payload_forms import payload_forms
+
+        p = payload_forms(self.mass_kg, self.cog_m, tensor)["principal"]
+        return tuple(p["j_kgm2"]), tuple(p["abc_deg"])
 
     def describe(self) -> str:
         m = f"{self.mass_kg:.4f} kg" + ("" if self.mass_std_kg is None else f" ± {1.96 * self.mass_std_kg:.4f}")
@@ -123,7 +157,7 @@ class ToolVersion:
 
 
 # -- database ---------------------------------------------------------------------------------
-STORE = StoreSchema("tool library", "tools", SCHEMA_VERSION, _SCHEMA)
+STORE = StoreSchema("tool library", "tools", SCHEMA_VERSION, _SCHEMA, MIGRATIONS)
 
 
 def _open_for_write(db: Path) -> sqlite3.Connection:
@@ -137,17 +171,21 @@ def _read(db: Path, sql: str, args: tuple) -> list[sqlite3.Row]:
 def _row_values(e: ToolEntry) -> tuple:
     std = e.cog_std_mm if e.cog_std_mm is not None else (None, None, None)
     js = (lambda v: None if v is None else json.dumps([float(x) for x in v]))
+    cov = None if e.covariance_theta_si is None else json.dumps([[float(x) for x in r] for r in e.covariance_theta_si])
     return (float(e.mass_kg), *(float(c) for c in e.cog_mm), e.mass_std_kg, *std, js(e.inertia_com_kgm2),
-            js(e.inertia_com_std_kgm2), e.number, e.run_dir, e.history_id, e.source, e.time_utc or utc_now(), e.note)
+            js(e.inertia_com_std_kgm2), e.number, e.run_dir, e.history_id, e.source, e.time_utc or utc_now(), e.note,
+            cov)
 
 
 def _entry(r: sqlite3.Row) -> ToolEntry:
     std = (r["cog_std_x_mm"], r["cog_std_y_mm"], r["cog_std_z_mm"])
     tup = (lambda v: None if v is None else tuple(json.loads(v)))
+    cov = r["covariance_theta_si"]
     return ToolEntry(r["name"], r["mass_kg"], (r["cog_x_mm"], r["cog_y_mm"], r["cog_z_mm"]), r["mass_std_kg"],
                      None if any(s is None for s in std) else std, tup(r["inertia_com_kgm2"]),
                      tup(r["inertia_com_std_kgm2"]), r["number"], r["run_dir"], r["history_id"], r["source"],
-                     r["time_utc"], r["note"])
+                     r["time_utc"], r["note"],
+                     None if cov is None else tuple(tuple(float(x) for x in row) for row in json.loads(cov)))
 
 
 def check_entry(e: ToolEntry, where: str = "tool") -> ToolEntry:
@@ -166,11 +204,29 @@ def check_entry(e: ToolEntry, where: str = "tool") -> ToolEntry:
         v = getattr(e, key)
         if v is not None and (len(v) != 6 or not all(math.isfinite(x) for x in v)):
             raise DataError(f"{where}.{key}: expected six numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] in kg·m²")
+    if e.covariance_theta_si is not None:
+        check_covariance(e.covariance_theta_si, f"{where}.covariance_theta_si")
     if e.number is not None and not (isinstance(e.number, int) and 1 <= e.number <= 65535):
         raise DataError(f"{where}.number: {e.number!r} is not a tool number (an integer 1..65535)")
     if e.source not in SOURCES:
         raise DataError(f"{where}.source: {e.source!r} is not one of {', '.join(SOURCES)}")
     return e
+
+
+def check_covariance(cov, where: str) -> None:
+    """A covariance of θ: 4×4, finite, symmetric, positive semi-definite (a DataError naming ``where``)."""
+    try:
+        a = np.asarray(cov, dtype=float)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (4, 4) or not np.all(np.isfinite(a)):
+        raise DataError(f"{where}: expected a 4×4 matrix of finite numbers (the covariance of [m, m·cx, m·cy, m·cz], "
+                        "SI)")
+    scale = max(float(np.max(np.abs(a))), 1e-300)
+    if np.max(np.abs(a - a.T)) > 1e-9 * scale:
+        raise DataError(f"{where}: not symmetric")
+    if float(np.min(np.linalg.eigvalsh(a))) < -1e-9 * scale:
+        raise DataError(f"{where}: not positive semi-definite (a negative variance along some direction)")
 
 
 def store(db: Path, robot: str, entry: ToolEntry, action: str = "stored") -> ToolEntry:
@@ -262,10 +318,18 @@ def store_result(db: Path, robot: str, name: str, result: dict[str, Any], histor
                           else tuple(float(s) for s in result["cog_std_mm"]),  # type: ignore[arg-type]
                           inertia_com_kgm2=_opt6(result.get("inertia_com_kgm2")),
                           inertia_com_std_kgm2=_opt6(result.get("inertia_com_std_kgm2")),
-                          run_dir=str(result.get("run_dir")), history_id=history_id, source="identified")
+                          run_dir=str(result.get("run_dir")), history_id=history_id, source="identified",
+                          covariance_theta_si=_theta_cov(result.get("covariance_theta_si")))
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"the result cannot go into the tool library: {type(exc).__name__}: {exc}") from None
     return store(db, robot, entry)
+
+
+def _theta_cov(v: Any) -> tuple[tuple[float, ...], ...] | None:
+    """The [m, m·c] block of a result's ``covariance_theta_si`` (a fit with more parameters has more rows)."""
+    if v is None:
+        return None
+    return tuple(tuple(float(x) for x in row[:4]) for row in v[:4])
 
 
 def _opt6(v: Any) -> tuple[float, ...] | None:

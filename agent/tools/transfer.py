@@ -2,11 +2,15 @@
 
 The document (``FORMAT``)::
 
-    {"format": "payload-agent-tools/1", "robot": "ec66", "exported_utc": "...",
+    {"format": "payload-agent-tools/2", "robot": "ec66", "exported_utc": "...",
      "tools": [{"name": "gripper-A", "mass_kg": 2.0, "cog_mm": [40, -25, 70], "mass_std_kg": 0.002,
-                "cog_std_mm": [0.5, 0.5, 0.6], "inertia_com_kgm2": null, "inertia_com_std_kgm2": null,
+                "cog_std_mm": [0.5, 0.5, 0.6], "inertia_com_kgm2": [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] or null,
+                "inertia_com_std_kgm2": [...] or null, "covariance_theta_si": [[4 numbers] × 4] or null,
                 "number": 3, "run_dir": "...", "history_id": 12, "source": "identified",
                 "time_utc": "...", "note": null}, ...]}
+
+Version 2 adds ``covariance_theta_si`` (the library's schema version 2); version-1 documents (no
+covariance) are still imported.
 
 Import checks the whole document before it stores anything (a bad entry names its index and key);
 imported entries are marked ``source: imported`` with the exporting robot and their original time in
@@ -23,7 +27,8 @@ from typing import Any
 from payload_agent.errors import DataError
 from payload_agent.tools.library import ToolEntry, check_entry, get, list_tools, store, utc_now
 
-FORMAT = "payload-agent-tools/1"
+FORMAT = "payload-agent-tools/2"
+READABLE = ("payload-agent-tools/1", FORMAT)
 
 
 def export_document(db: Path, robot: str) -> dict[str, Any]:
@@ -40,12 +45,21 @@ def _floats(v: Any, n: int, where: str) -> tuple[float, ...] | None:
     return tuple(float(x) for x in v)
 
 
+def _matrix4(v: Any, where: str) -> tuple[tuple[float, ...], ...] | None:
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) != 4:
+        raise DataError(f"{where}: expected 4 rows of 4 numbers (the covariance of [m, m·cx, m·cy, m·cz], SI), "
+                        f"got {v!r}")
+    return tuple(_floats(row, 4, f"{where}[{i}]") for i, row in enumerate(v))  # type: ignore[misc]
+
+
 def parse_document(data: Any, source: str) -> tuple[str, list[ToolEntry]]:
     """(exporting robot, entries) of an export document; DataError naming the key that is wrong."""
     if not isinstance(data, dict):
         raise DataError(f"{source}: expected a JSON object with format, robot and tools")
-    if data.get("format") != FORMAT:
-        raise DataError(f"{source}: format: {data.get('format')!r}, expected {FORMAT!r}")
+    if data.get("format") not in READABLE:
+        raise DataError(f"{source}: format: {data.get('format')!r}, expected one of {', '.join(READABLE)}")
     tools = data.get("tools")
     if not isinstance(tools, list):
         raise DataError(f"{source}: tools: expected a list")
@@ -75,7 +89,8 @@ def parse_document(data: Any, source: str) -> tuple[str, list[ToolEntry]]:
                       inertia_com_kgm2=_floats(t.get("inertia_com_kgm2"), 6, f"{where}.inertia_com_kgm2"),
                       inertia_com_std_kgm2=_floats(t.get("inertia_com_std_kgm2"), 6, f"{where}.inertia_com_std_kgm2"),
                       number=number, run_dir=t.get("run_dir"), history_id=None, source="imported",
-                      time_utc=str(t.get("time_utc") or ""), note=t.get("note"))
+                      time_utc=str(t.get("time_utc") or ""), note=t.get("note"),
+                      covariance_theta_si=_matrix4(t.get("covariance_theta_si"), f"{where}.covariance_theta_si"))
         check_entry(dc_replace(e, time_utc=e.time_utc or "x"), where)
         if e.name in seen:
             raise DataError(f"{where}.name: tool {e.name!r} appears twice")

@@ -6,7 +6,8 @@ same wrist, and the comparison needs no model of the arm itself. Candidates: one
 or two of different poses (two tool orientations), over the first or the last ``length`` degrees
 of the full sweep, up and back. For each, the detection limits are predicted from the baseline's
 samples and noise (``verify_stats``), and the robot time from the trapezoidal profiles, the
-approach from where the arm stands included; the shortest candidate that meets the targets wins
+approach from where the arm stands included (at travel speed when the arm rests where our own last
+completed motion left it, ``recording.resting_pose``; else at the approach speed); the shortest candidate that meets the targets wins
 (none meets them: the most sensitive one, and the session says so).
 
 The result is an ordinary ``Plan`` (slow approach first), which the safety gate checks whole.
@@ -21,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from payload_agent.configuration.config import Config
+from payload_agent.configuration.procedure import Procedure
 from payload_agent.errors import DataError, PlanError
 from payload_agent.motion.planner import Move, Plan, make_plan, move_duration_s, turned_to
 from payload_agent.recording.rundata import SweepData
@@ -71,9 +73,9 @@ class Candidate:
                 f"approach from where the arm stands); {self.limits.describe()}")
 
 
-def segments(config: Config) -> list[Segment]:
-    """Every sub-range candidate of every up-sweep of the identification plan."""
-    plan = make_plan(config)
+def segments(config: Config, plan: Plan | None = None) -> list[Segment]:
+    """Every sub-range candidate of every up-sweep of the identification plan (``plan``: already made)."""
+    plan = plan if plan is not None else make_plan(config)
     out = []
     for i, m in enumerate(plan.moves):
         if m.sweep is None or m.sweep.direction != "up":
@@ -107,14 +109,22 @@ def _at_an_end(s: Segment, segs: list[Segment]) -> bool:
                                                                                       abs_tol=1e-9)
 
 
-def build_plan(config: Config, segs: tuple[Segment, ...]) -> Plan:
+def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = False,
+               procedure: Procedure | None = None) -> Plan:
+    """The verify plan; ``from_rest``: the arm stands at our own recorded resting pose
+    (``recording.resting_pose``), so the first move may run at travel speed (the gate checks that itself).
+    ``procedure``: the identification plan's (made once by the caller: ``make_plan`` solves the wrist poses,
+    far too slow to repeat for each of hundreds of candidates)."""
     vmax = config.robot.max_joint_speed_rad_s
     approach = vmax * config.safety.approach_speed_percent / 100.0
     travel = vmax * config.procedure.travel_speed_percent / 100.0
     moves: list[Move] = []
     for k, s in enumerate(segs):
         label = f"{s.pose}-j{s.joint}"
-        if k == 0:
+        if k == 0 and from_rest:
+            moves.append(Move(f"from the resting pose to verify {label} start", "approach", s.start, travel,
+                              s.accel_rad_s2))
+        elif k == 0:
             moves.append(Move(f"approach verify {label} start", "approach", s.start, approach, s.accel_rad_s2))
         else:
             moves.append(Move(f"to verify {label} start", "travel", s.start, travel, s.accel_rad_s2))
@@ -122,7 +132,7 @@ def build_plan(config: Config, segs: tuple[Segment, ...]) -> Plan:
                           SweepKey(s.pose, s.joint, "up", s.speed_percent)))
         moves.append(Move(f"verify {label} down", "sweep", s.start, s.speed_rad_s, s.accel_rad_s2,
                           SweepKey(s.pose, s.joint, "down", s.speed_percent)))
-    return Plan(make_plan(config).procedure, tuple(moves))
+    return Plan(procedure if procedure is not None else make_plan(config).procedure, tuple(moves))
 
 
 def robot_time_s(plan: Plan, start_q: np.ndarray) -> float:
@@ -135,11 +145,12 @@ def robot_time_s(plan: Plan, start_q: np.ndarray) -> float:
 
 def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepData], sigma: np.ndarray,
            theta0: np.ndarray, S0: np.ndarray, mass_limit_percent: float, cog_limit_mm: float,
-           max_motion_s: float = MAX_MOTION_S) -> Candidate:
+           max_motion_s: float = MAX_MOTION_S, from_rest: bool = False) -> Candidate:
     """The shortest verify motion whose predicted limits meet the targets; when none within ``max_motion_s``
     does, the most sensitive one within it (the session states its limits); the budget is only exceeded
-    when no candidate fits it at all."""
-    segs = segments(config)
+    when no candidate fits it at all. ``from_rest``: the first move at travel speed (see ``build_plan``)."""
+    full = make_plan(config)  # once: the candidates share its procedure
+    segs = segments(config, full)
     if not segs:
         raise PlanError("the procedure has no up-sweep long enough for a verify motion")
     singles = [(s,) for s in segs]
@@ -148,7 +159,7 @@ def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepDa
              if a.pose != b.pose and a.joint == b.joint and math.isclose(_length(a), _length(b))]
     scored = []
     for segs_ in singles + pairs:
-        plan = turned_to(config, build_plan(config, segs_), start_q)
+        plan = turned_to(config, build_plan(config, segs_, from_rest, full.procedure), start_q)
         motion = robot_time_s(plan, np.asarray(plan.moves[0].target_rad))
         scored.append((motion, robot_time_s(plan, start_q), segs_, plan))
     # the least robot time from where the arm stands (approach included), then the shorter motion: the arm
