@@ -128,6 +128,40 @@ def test_run_log_keeps_everything_said_from_the_start(tmp_path):
     assert "after the run" not in log and out.getvalue() == ""
 
 
+def test_a_run_log_holds_its_own_command_and_run_only(tmp_path, ec66_data):
+    """In one process (the tests, `watch`, a program that embeds the agent) neither a command that failed nor an
+    earlier run of the same command (one that ended in an exception included) leaves lines in a run log."""
+    port = _closed_port()
+    data = tweak(tweak(tweak(ec66_data, "driver.host", "127.0.0.1"), "driver.rpc_port", port),
+                 "driver.connect_timeout_s", 0.5)
+    assert cli.main(["run", "--robot", str(_robot_file(tmp_path, data)), "--yes", "-q"]) == 6
+    out = io.StringIO()
+    con = Console(-1, stdout=out, stderr=out)
+    con.say("the second command starts")
+    first, second = tmp_path / "first", tmp_path / "second"
+    first.mkdir()
+    second.mkdir()
+    handler = attach_run_log(first)
+    with pytest.raises(RuntimeError):
+        try:
+            con.say("the first run moves")
+            raise RuntimeError("the first run fails")
+        finally:  # as the runner ends every session
+            detach_run_log(handler)
+    con.say("between the runs")
+    handler = attach_run_log(second)
+    try:
+        con.say("the second run moves")
+    finally:
+        detach_run_log(handler)
+    one = (first / console_mod.RUN_LOG_NAME).read_text()
+    two = (second / console_mod.RUN_LOG_NAME).read_text()
+    assert f"127.0.0.1:{port}" not in one + two and "payload-agent: error" not in one + two  # the failed command
+    assert "the second command starts" in one and "the first run moves" in one and "the second run moves" not in one
+    assert "between the runs" in two and "the second run moves" in two
+    assert "the first run moves" not in two and "the second command starts" not in two
+
+
 def _closed_port() -> int:
     s = socket.socket()
     s.bind(("127.0.0.1", 0))

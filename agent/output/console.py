@@ -11,6 +11,9 @@ then carries exactly one JSON document, for cell software). Levels:
 Everything said is also logged (logger ``payload_agent.console``), and ``attach_run_log``
 adds ``RUN_DIR/run.log``: every line of the session at DEBUG, from the first line of the
 command (lines said before the run folder existed are kept in a backlog and written first).
+The backlog starts empty with each ``Console`` (a command) and again when a run log ends, so in
+one process (``watch``, the tests, an embedding program) no run log holds an earlier command's
+or an earlier run's lines, whether that one ended well or in an exception.
 
 ``ask`` asks on the terminal; with stdin closed or at end of input it raises NoTerminalError
 naming the flag that answers the question instead, so nothing ever moves unasked.
@@ -45,10 +48,14 @@ class _Backlog(logging.Handler):
         self.records: list[logging.LogRecord] = []
         self.capacity = capacity
 
-    def emit(self, record: logging.LogRecord) -> None:
+    def emit(self, record: logging.LogRecord) -> None:  # called under the handler's lock
         self.records.append(record)
         if len(self.records) > self.capacity:
             del self.records[: len(self.records) - self.capacity]
+
+    def clear(self) -> None:
+        with self.lock:
+            self.records = []
 
 
 class _NotConsole(logging.Filter):
@@ -63,10 +70,7 @@ _stream_handler: logging.Handler | None = None
 def setup_logging(verbosity: int = 0, stream: TextIO | None = None) -> None:
     """Library log records to the terminal (stderr): warnings, or everything with -v. Idempotent."""
     global _stream_handler
-    root = logging.getLogger(LOGGER)
-    root.setLevel(logging.DEBUG)
-    if _backlog not in root.handlers:
-        root.addHandler(_backlog)
+    root = _keep_backlog()
     if _stream_handler is not None:
         root.removeHandler(_stream_handler)
     _stream_handler = logging.StreamHandler(stream or sys.stderr)
@@ -81,27 +85,43 @@ def attach_run_log(run_dir: Path) -> logging.Handler:
 
     Call ``detach_run_log`` when the session ends (the runner does both; any caller may).
     """
-    root = logging.getLogger(LOGGER)
-    root.setLevel(logging.DEBUG)
-    if _backlog not in root.handlers:
-        root.addHandler(_backlog)
+    root = _keep_backlog()
     handler = logging.FileHandler(Path(run_dir) / RUN_LOG_NAME, encoding="utf-8")
     handler.setLevel(logging.DEBUG)
     handler.setFormatter(logging.Formatter(_FORMAT, _DATEFMT))
-    for record in list(_backlog.records):
-        handler.handle(record)
-    root.addHandler(handler)
+    with _backlog.lock:  # the early lines go to this log once (another run of the command must not repeat
+        for record in _backlog.records:  # them), and nothing said meanwhile is lost or out of order
+            handler.handle(record)
+        _backlog.records = []
+        root.addHandler(handler)
     return handler
 
 
 def detach_run_log(handler: logging.Handler | None) -> None:
+    """End a run log (also after a failed run): the next run's log starts with what is said after this."""
     if handler is None:
         return
     logging.getLogger(LOGGER).removeHandler(handler)
+    _backlog.clear()
     try:
         handler.close()
     except Exception:
         pass
+
+
+def begin_command_log() -> None:
+    """A new command (a ``Console``): its run log starts here, not with an earlier command of this process
+    (tests, an embedding program); from here on everything said is kept for it at DEBUG."""
+    _keep_backlog()
+    _backlog.clear()
+
+
+def _keep_backlog() -> logging.Logger:
+    root = logging.getLogger(LOGGER)
+    root.setLevel(logging.DEBUG)
+    if _backlog not in root.handlers:
+        root.addHandler(_backlog)
+    return root
 
 
 class Console:
@@ -115,6 +135,7 @@ class Console:
         self.stderr = stderr or sys.stderr
         self.stdin = stdin or sys.stdin
         self.log = logging.getLogger(CONSOLE_LOGGER)
+        begin_command_log()  # one Console per command: the run log keeps its every line, and no earlier command's
 
     @property
     def human(self) -> TextIO:

@@ -98,6 +98,16 @@ class PhaseRunner:
                     f"target {math.degrees(near[j]):.4f} deg (the newest sample, controller time {s.t_ctrl} s)")
             time.sleep(0.002)
 
+    def recorded_start(self) -> np.ndarray:
+        """The joint angles of a sample received after the move's file was opened, before the move goes out.
+
+        The file then starts with the arm at rest where the move starts, and the safety gate checks that
+        very sample against the plan. Without the wait a reader thread the scheduler holds back while the
+        move is sent (RTDE's receive interface keeps only the newest package) would join late, and the
+        recording would begin wherever the arm had got to (seen: a sweep recorded from 2° past its start).
+        """
+        return self.current_q(after=time.monotonic())
+
     def run_phase(self, name: str, plan: Plan, resume: bool = False) -> None:
         start_q = self.current_q()
         self.gate.approve(plan, start_q)  # the approach path starts wherever the robot stands now
@@ -120,6 +130,7 @@ class PhaseRunner:
                 if move.recorded_name is not None:  # a sweep, or a wrist move of the inertia part
                     self.driver.begin_stats()
                     self.recorder.begin_sweep(move)
+                    q_now = self.recorded_start()
                 self.out(f"  [{name}] {i + 1}/{n} {move.label}")
                 if self.progress is not None:
                     self.progress.begin_move(i + 1, move, q_now)

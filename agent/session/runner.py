@@ -134,8 +134,10 @@ class Session:
                 _mark_stopped(config, recorder, exc, opts, out, stop_sent)
             raise
         finally:
-            driver.close()
-            detach_run_log(log)
+            try:
+                driver.close()
+            finally:  # a second Ctrl-C while closing must not leave this run's log attached to the next
+                detach_run_log(log)
         if outcome.result is not None:
             from payload_agent.evaluation.quality import require_passed
 
