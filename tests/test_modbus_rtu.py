@@ -1,7 +1,8 @@
 """Modbus RTU: the same driver over a serial line, a pseudo-terminal pair carrying bytes at the baud rate.
 
 The simulated robot serves the generic float32 map (it has a controller clock, so the simulation may
-run faster than real time); the identification runs end to end through the runner.
+run faster than real time) from a process of its own, as a real device would (``fakes.hosted``); the
+identification runs end to end through the runner.
 """
 
 import json
@@ -17,11 +18,7 @@ from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.base import MotionLimits, Supervision
 from payload_agent.drivers.modbus.driver import ModbusDriver
-from payload_agent.drivers.modbus.options import parse_modbus_options, resolve_map
 from payload_agent.errors import CommunicationError, SupervisionTrip
-from payload_agent.fakes.arms import ur5e_spec
-from payload_agent.fakes.modbus.controller import SimulatedModbusRobot
-from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.session.options import QUIET, SimulatedCellUse
 from payload_agent.session.runner import RunOptions, run_identification
 from payload_agent.session.simulation import SimulatedCell
@@ -29,14 +26,18 @@ from payload_agent.session.simulation import SimulatedCell
 Q0 = np.radians([0, -60, 60, -150, -30, 0])
 
 
-def _rtu(**opts):
-    raw = {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0", "baudrate": 115200,
-           "preset": "generic_float32", "unit_id": 7, **opts}
-    options = parse_modbus_options(raw)
-    robot = SimRobot(ur5e_spec(), q0_rad=Q0, tick_s=0.008, noise_nm=0.3, seed=5)
-    fake = SimulatedModbusRobot(robot, resolve_map(options), gains=[1.0] * 6, transport="rtu", unit_id=7,
-                                baudrate=115200, owns_robot=True).start()
-    return fake, fake.bound_options(options)
+def _rtu():
+    """A simulated robot behind the generic float32 map as RTU unit 7 at 115200 baud, in a process of its own
+    (fakes.hosted), at Q0; and the driver options pointed at its pty."""
+    data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
+    data = tweak(data, "driver", {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0",
+                                  "baudrate": 115200, "preset": "generic_float32", "unit_id": 7})
+    data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
+    data = tweak(data, "simulation.noise_nm", 0.3)
+    data = tweak(data, "simulation.seed", 5)
+    data = tweak(data, "simulation.start_deg", [float(v) for v in np.degrees(Q0)])
+    cell = SimulatedCell(parse_config(data, source="test")).start()
+    return cell.controller, cell.options
 
 
 def test_rtu_move_stream_and_stop_on_a_cut_line():
