@@ -33,7 +33,7 @@ def checked_request(target_rad: Sequence[float], speed_rad_s: float, accel_rad_s
     for what, v in (("speed", speed_rad_s), ("acceleration", accel_rad_s2), ("timeout", timeout_s)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise MotionAbortedError(f"move {what} {v!r} is not a positive number; nothing was sent")
-    if speed_rad_s > limits.max_joint_speed_rad_s + 1e-12:
+    if speed_rad_s > limits.max_joint_speed_rad_s * (1 + 1e-9):  # the safety gate's own tolerance
         raise SafetyError(f"joint speed {speed_rad_s} rad/s above the robot's {limits.max_joint_speed_rad_s} rad/s "
                           "(robot.max_joint_speed_deg_s); nothing was sent")
     if max_accel_rad_s2 is not None and accel_rad_s2 > max_accel_rad_s2:
