@@ -3,15 +3,16 @@
 Connect (``_open``): open the bus, put every drive in NMT PRE-OPERATIONAL, check it is a CiA 402
 drive (0x1000), read its identity, write its producer heartbeat (0x1017), its consumer heartbeat
 of the agent and its reaction to losing it (0x1016, 0x6007: ``watch``), its PDO layout
-(``pdo.configure_pdos``), its quick stop deceleration and target window, read its rated torque
-or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
+(``pdo.configure_pdos``), its quick stop deceleration and target window and profile position mode
+(0x6060 = 1, confirmed in 0x6061), read its rated torque or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
 heartbeat), and wait for every drive's first TPDO; then ``watch.SdoWatch`` polls the drives' SDO
 servers until close. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
 
 Motion (``_start_move`` / ``_move_status``, see ``motion``): the first move enables the drives through the CiA 402
-power state machine in profile position mode (0x6060 = 1); each move sends profile velocity
+power state machine (a drive that leaves OPERATION ENABLED later is a monitor fault, refused by
+``_prepare_move``); each move sends profile velocity
 and acceleration/deceleration (0x6081/0x6083/0x6084, RPDO3/RPDO4) scaled so all joints arrive
 together (``model.profile.synchronised_joint_rates``) and every target (0x607A) with the
 new-set-point bit in one synchronous RPDO batch, waits for each drive's set-point acknowledge, completes the
