@@ -37,6 +37,7 @@ import numpy as np
 
 from payload_agent.configuration.options import option
 from payload_agent.drivers.capabilities import OptionalCapabilities
+from payload_agent.drivers.move_request import as_joint_vector, checked_request
 from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted, refused
 from payload_agent.drivers.settings import DriverOptions, MotionLimits, Supervision
 from payload_agent.drivers.stream import SampleSink, SampleStream
@@ -79,6 +80,9 @@ class Driver(OptionalCapabilities, abc.ABC):
     # the final position check when the YAML sets no driver.target_tolerance_deg
     default_target_tolerance_deg: ClassVar[float] = 0.1
     move_poll_s: float = 0.005  # how often the move loop asks _move_status
+    # the client library's acceleration limit for a move (None: none beyond the robot's), and its name
+    max_accel_rad_s2: ClassVar[float | None] = None
+    client_name: ClassVar[str] = ""
 
     def __init__(self, options: DriverOptions, limits: MotionLimits, supervision: Supervision | None = None):
         self.options = options
@@ -252,26 +256,22 @@ class Driver(OptionalCapabilities, abc.ABC):
         """One PTP joint move, supervised; returns when the controller reports it finished at the target.
 
         ``speed_rad_s`` caps the leading joint's speed, ``accel_rad_s2`` its acceleration.
-        Raises MotionAbortedError on any abnormal end (stop, fault, timeout, target missed) and
-        SupervisionTrip when the stream or the command connection failed (the arm was stopped).
+        Raises SafetyError beyond the robot's speed limit or the client's acceleration limit (nothing sent),
+        MotionAbortedError on any abnormal end (stop, fault, timeout, target missed) and SupervisionTrip when the
+        stream or the command connection failed (the arm was stopped).
         """
-        target = as_joint_vector(target_rad, self.limits.n_joints)
-        if not np.all(np.isfinite(target)):
-            raise MotionAbortedError(f"move target {target.tolist()} is not finite; nothing was sent")
-        for what, v in (("speed", speed_rad_s), ("acceleration", accel_rad_s2), ("timeout", timeout_s)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise MotionAbortedError(f"move {what} {v!r} is not a positive number; nothing was sent")
+        target, speed, accel, timeout = checked_request(target_rad, speed_rad_s, accel_rad_s2, timeout_s, self.limits,
+                                                        self.max_accel_rad_s2, self.client_name)
         if not self._connected:
             raise CommunicationError(f"the {self.name} driver is not connected")
         if self.stream.error is not None:
             raise CommunicationError(f"the sample stream has failed, refusing to move blind: {self.stream.error}")
-        speed, accel = float(speed_rad_s), float(accel_rad_s2)
         self._prepare_move(target, speed, accel)
         self._check_stream_fresh()
         sup = self.supervisor
         sup.arm(target)
         try:
-            self._run_move(target, speed, accel, float(timeout_s))
+            self._run_move(target, speed, accel, timeout)
         except (SupervisionTrip, MotionNotFinished, MotionStopped):
             raise
         except CommunicationError as exc:  # the command connection failed mid-move: the arm may still go
@@ -390,10 +390,3 @@ class Driver(OptionalCapabilities, abc.ABC):
         the pendant's program, and that is not ours to stop. Returns whether a stop was sent.
         """
         return self.supervisor.stop(self._connected)
-
-
-def as_joint_vector(values: Sequence[float], n: int = 6) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
-    if arr.shape != (n,):
-        raise ValueError(f"expected {n} joint values, got shape {arr.shape}")
-    return arr

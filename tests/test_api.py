@@ -1,16 +1,29 @@
-"""The Python API identifies a payload without a subprocess, and fails with the documented errors."""
+"""The Python API identifies a payload without a subprocess, and fails with the documented errors.
+
+``payload_agent.identify`` is a thin wrapper over the session (find and load the robot YAML, run, return the
+result): it is tested here with the in-process driver of tests/inproc_driver.py, whose session costs a third
+of a simulated EC66's over sockets; the protocols themselves are the end-to-end tests' business.
+"""
 
 import pytest
 import yaml
 
 from conftest import ROOT
+from inproc_driver import InProcessDriver
 import payload_agent
+from payload_agent.drivers import registry
 from payload_agent.errors import BaselineError
+
+registry.register("inproc", InProcessDriver)
 
 
 def sim_robot(tmp_path, **sim):
+    """A robot YAML file: the simulated EC66 cell, its controller the in-process one."""
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
-    data["driver"].update(rpc_port=0, monitor_port=0)
+    data["driver"] = {"type": "inproc", "name": f"api-{tmp_path.name}"}
+    data["effort"] = {"unit": "Nm", "gains_nm_per_unit": 1.0}
+    data["procedure"]["inertia"] = False
+    data["safety"]["unattended_without_pose_check"] = True  # it reports no flange pose (the YAML acknowledges)
     data["simulation"].update(sim)
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}
     data.pop("watch", None)

@@ -28,6 +28,7 @@ def sim_robot(tmp_path: Path, name: str = "clisim") -> Path:
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     data = tweak(data, "robot.name", name)
     data = tweak(tweak(data, "simulation.time_scale", 25), "safety.max_stream_gap_ms", 1000)
+    data = tweak(data, "procedure.inertia", False)  # its wrist moves double a session (tests/test_wrist_*)
     path = tmp_path / "robots" / f"{name}.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(data))

@@ -21,7 +21,7 @@ import pytest
 from benchmarks.fault_matrix import load_sim_config
 from payload_agent.drivers.registry import driver_class, make_driver, parse_driver_options, simulator_class
 from payload_agent.errors import (CommunicationError, ConfigError, MotionAbortedError, MotionStopped,
-                                  PayloadAgentError, SupervisionTrip)
+                                  PayloadAgentError, SafetyError, SupervisionTrip)
 from payload_agent.session.connection import motion_limits, supervision
 from payload_agent.session.simulation import SimulatedCell
 
@@ -147,6 +147,10 @@ def test_move_completes_at_target_and_a_later_stop_sends_nothing(rig):
     drv, ctrl, _ = rig
     target = _target(drv, 5.0)
     t0 = time.monotonic()
+    # first a request beyond the robot's speed limit: refused by the base, before anything goes out
+    with pytest.raises(SafetyError, match="robot.max_joint_speed_deg_s"):
+        drv.move_joints(target, 1.5 * drv.limits.max_joint_speed_rad_s, drv.limits.max_joint_accel_rad_s2, 20.0)
+    assert ctrl.first_event_after("move", t0) is None and not drv.motion_commanded
     drv.move_joints(target, 0.5 * drv.limits.max_joint_speed_rad_s, drv.limits.max_joint_accel_rad_s2, 20.0)
     assert np.max(np.abs(np.asarray(drv.wait_sample(2.0, after=time.monotonic()).q) - target)) \
         <= drv.target_tolerance_rad

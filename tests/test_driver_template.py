@@ -17,7 +17,7 @@ import pytest
 from payload_agent.configuration.options import option
 from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MotionLimits, aborted, refused
 from payload_agent.drivers.settings import Supervision
-from payload_agent.errors import MotionAbortedError, RobotNotReadyError, SupervisionTrip
+from payload_agent.errors import MotionAbortedError, RobotNotReadyError, SafetyError, SupervisionTrip
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 LIMITS = MotionLimits(1.0, 5.0)
@@ -160,6 +160,31 @@ def test_motion_not_allowed_refuses_before_anything_is_sent():
     with pytest.raises(RobotNotReadyError, match="the stub says no"):
         _run(drv)
     assert drv.log == []
+
+
+class LimitedClientStub(Stub):
+    """A client library with its own acceleration limit (as ur-rtde's moveJ has)."""
+
+    max_accel_rad_s2 = 3.0
+    client_name = "stubclient"
+
+
+@pytest.mark.parametrize("target, speed, accel, error, words", [
+    (TARGET, 1.5, 2.0, SafetyError, "robot.max_joint_speed_deg_s"),  # the robot's speed limit is 1.0 rad/s
+    (TARGET, 0.5, 4.0, SafetyError, "above stubclient's 3.0 rad/s²"),
+    (np.array([0.2, 0.2, np.nan, 0.2, 0.2, 0.2]), 0.5, 2.0, MotionAbortedError, "not finite"),
+    (TARGET, 0.5, -1.0, MotionAbortedError, "acceleration -1.0 is not a positive number"),
+])
+def test_a_request_beyond_the_limits_or_malformed_is_refused_before_anything_is_sent(target, speed, accel, error,
+                                                                                      words):
+    drv = LimitedClientStub(statuses=[DONE])
+    with drv:
+        drv.wait_sample(2.0)
+        with pytest.raises(error, match=words):
+            drv.move_joints(target, speed, accel, 5.0)
+        assert drv.log == [] and not drv.motion_commanded
+        drv.move_joints(TARGET, 1.0, 3.0, 5.0)  # at the limits exactly: goes
+    assert drv.log == ["move"]
 
 
 def test_the_reply_watchdog_ends_when_the_controller_reports_done():

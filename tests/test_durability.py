@@ -23,6 +23,7 @@ def sim_yaml(tmp_path: Path, time_scale: float | None = 10) -> Path:
     simulate faster."""
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     data["driver"].update(rpc_port=0, monitor_port=0)  # ephemeral ports: no clash with other simulations
+    data["procedure"]["inertia"] = False  # its wrist moves (tests/test_wrist_*) would double the resumed run
     if time_scale is not None:
         data["simulation"]["time_scale"] = time_scale
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}

@@ -32,7 +32,9 @@ def fast_cfg():
     from conftest import ROOT
 
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
-    return parse_config(tweak(data, "procedure.speed_percent", 5))
+    # without the inertia part: its 12 wrist moves come after the same 8 sweeps, are no sweeps for the segmenter
+    # or the three-step solver, and cost half the simulated motion and the plan's wrist search (tests/test_wrist_*)
+    return parse_config(tweak(tweak(data, "procedure.speed_percent", 5), "procedure.inertia", False))
 
 
 def test_segmenter_keeps_only_constant_speed(fast_cfg):

@@ -86,6 +86,33 @@ def synchronised_joint_rates(q_from: Sequence[float], q_to: Sequence[float], lea
     return scale * float(lead_speed_rad_s), scale * float(lead_accel_rad_s2)
 
 
+def capped_lead(q_from: Sequence[float], q_to: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
+                max_speed_rad_s: Sequence[float], max_accel_rad_s2: Sequence[float]) -> tuple[float, float]:
+    """The requested leading-joint speed and acceleration, limited so no joint of the synchronised move from
+    ``q_from`` to ``q_to`` exceeds its own maxima (``lead_joint_caps``)."""
+    caps = lead_joint_caps(q_from, q_to, max_speed_rad_s, max_accel_rad_s2)
+    return min(speed_rad_s, caps.speed_rad_s), min(accel_rad_s2, caps.accel_rad_s2)
+
+
+@dataclass(frozen=True)
+class JointProfiles:
+    """One trapezoid per joint, all arriving together after ``duration_s``."""
+
+    speeds_rad_s: np.ndarray
+    accels_rad_s2: np.ndarray
+    duration_s: float
+
+
+def synchronised_profiles(q_from: Sequence[float], q_to: Sequence[float], speed_rad_s: float, accel_rad_s2: float,
+                          max_speed_rad_s: Sequence[float], max_accel_rad_s2: Sequence[float]) -> JointProfiles:
+    """The per-joint profiles of a synchronised move whose leading joint is asked for ``speed_rad_s`` and
+    ``accel_rad_s2`` (``capped_lead``, then ``synchronised_joint_rates``), and how long it lasts."""
+    v, a = capped_lead(q_from, q_to, speed_rad_s, accel_rad_s2, max_speed_rad_s, max_accel_rad_s2)
+    speeds, accels = synchronised_joint_rates(q_from, q_to, v, a)
+    length = float(np.max(np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))))
+    return JointProfiles(speeds, accels, trapezoid_duration(length, v, a))
+
+
 @dataclass(frozen=True)
 class PathPhase:
     """s(t) = s0 + v0·t + a·t²/2 for t in [t0, t0 + duration)."""
@@ -111,10 +138,7 @@ class JointPath:
         delta = self.target - self.start
         self.length = float(np.max(np.abs(delta)))
         self.direction = delta / self.length if self.length > 0 else np.zeros_like(delta)
-        # the leading joint's caps, limited so no joint exceeds its own
-        caps = lead_joint_caps(self.start, self.target, max_speed, max_accel)
-        v = min(speed, caps.speed_rad_s)
-        a = min(accel, caps.accel_rad_s2)
+        v, a = capped_lead(self.start, self.target, speed, accel, max_speed, max_accel)
         if v <= 0 or a <= 0:
             raise ValueError("speed and acceleration must be positive")
         L = self.length

@@ -1,20 +1,35 @@
-"""What the driver reads from each drive at connect beyond the communication set-up: its rated
-torque or current (the effort scale) and its identity (docs/sources.md, "CANopen CiA 402")."""
+"""What the driver sets and reads on each drive at connect beyond the communication set-up: its mode of
+operation (profile position, the only one the driver commands), its rated torque or current (the effort
+scale) and its identity (docs/sources.md, "CANopen CiA 402")."""
 
 from __future__ import annotations
 
+import time
 from typing import TYPE_CHECKING
 
 from canopen.sdo import SdoAbortedError
 
 from payload_agent.drivers.canopen import objects as obj
-from payload_agent.errors import CommunicationError, ConfigError
+from payload_agent.drivers.canopen.cia402 import MODE_PROFILE_POSITION
+from payload_agent.errors import CommunicationError, ConfigError, RobotNotReadyError
 from payload_agent.types import ControllerInfo
 
 if TYPE_CHECKING:
     from payload_agent.drivers.canopen.driver import CANopenDriver
 
 RATED_MISMATCH = 0.01  # a YAML rated value more than 1 % off the drive's is refused
+
+
+def set_profile_position_mode(drv: "CANopenDriver", j: int) -> None:
+    """0x6060 = profile position, confirmed by 0x6061 within ``enable_timeout_s``: configuration (SDO), so it
+    happens at connect and a move sends no SDO. Writing the mode moves nothing and powers nothing."""
+    drv.sdo_write(j, obj.MODES_OF_OPERATION, MODE_PROFILE_POSITION)
+    deadline = time.monotonic() + drv.options.enable_timeout_s
+    while (mode := drv.sdo_read(j, obj.MODES_DISPLAY)) != MODE_PROFILE_POSITION:
+        if time.monotonic() > deadline:
+            raise RobotNotReadyError(f"{drv.labels[j]} does not switch to profile position mode: 0x6061 shows "
+                                     f"{mode} after 0x6060 = {MODE_PROFILE_POSITION}")
+        time.sleep(0.005)
 
 
 def effort_scale(drv: "CANopenDriver", j: int) -> float:

@@ -3,15 +3,16 @@
 Connect (``_open``): open the bus, put every drive in NMT PRE-OPERATIONAL, check it is a CiA 402
 drive (0x1000), read its identity, write its producer heartbeat (0x1017), its consumer heartbeat
 of the agent and its reaction to losing it (0x1016, 0x6007: ``watch``), its PDO layout
-(``pdo.configure_pdos``), its quick stop deceleration and target window, read its rated torque
-or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
+(``pdo.configure_pdos``), its quick stop deceleration and target window and profile position mode
+(0x6060 = 1, confirmed in 0x6061), read its rated torque or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
 heartbeat), and wait for every drive's first TPDO; then ``watch.SdoWatch`` polls the drives' SDO
 servers until close. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
 
 Motion (``_start_move`` / ``_move_status``, see ``motion``): the first move enables the drives through the CiA 402
-power state machine in profile position mode (0x6060 = 1); each move sends profile velocity
+power state machine (a drive that leaves OPERATION ENABLED later is a monitor fault, refused by
+``_prepare_move``); each move sends profile velocity
 and acceleration/deceleration (0x6081/0x6083/0x6084, RPDO3/RPDO4) scaled so all joints arrive
 together (``model.profile.synchronised_joint_rates``) and every target (0x607A) with the
 new-set-point bit in one synchronous RPDO batch, waits for each drive's set-point acknowledge, completes the
@@ -203,6 +204,7 @@ class CANopenDriver(Driver):
         self.sdo_write(j, obj.QUICK_STOP_DECELERATION, max(1, round(opts.quick_stop_decel_rad_s2 * cpr)))
         self.sdo_write(j, obj.POSITION_WINDOW, max(1, round(opts.position_window_deg * 0.017453292519943295 * cpr)))
         self.effort_per_permille[j] = device.effort_scale(self, j)
+        device.set_profile_position_mode(self, j)
 
     def _wait_first_tpdos(self) -> None:
         deadline = time.monotonic() + FIRST_TPDO_WAIT_S
@@ -232,14 +234,10 @@ class CANopenDriver(Driver):
         if not self.fault_codes or not self.options.clear_faults:
             return
         for j, code in sorted(self.fault_codes.items()):
-            seq0 = list(self.monitor.seq)
-            self._send_command(j, CW_DISABLE_VOLTAGE)  # bit 7 low first: the reset acts on its rising edge
-            self.monitor.wait_for(lambda _, sw: True, seq0, [j], self.options.enable_timeout_s)
-            seq0 = list(self.monitor.seq)
-            self._send_command(j, CW_FAULT_RESET)
-            left = self.monitor.wait_for(lambda _, sw: state_of(sw) not in FAULTY, seq0, [j],
-                                         self.options.enable_timeout_s)
-            if left:
+            # bit 7 low first: the reset acts on its rising edge
+            self.command_drives({j: CW_DISABLE_VOLTAGE}, lambda _, sw: True, self.options.enable_timeout_s)
+            if self.command_drives({j: CW_FAULT_RESET}, lambda _, sw: state_of(sw) not in FAULTY,
+                                   self.options.enable_timeout_s):
                 raise RobotNotReadyError(f"{self.labels[j]} stays in FAULT after a fault reset (error code "
                                          f"{describe_code(code)}): its cause persists; fix it at the drive")
             note = f"{self.labels[j]} was in FAULT at connect (error code {describe_code(code)}); reset it"
@@ -329,6 +327,14 @@ class CANopenDriver(Driver):
     def _send_command(self, j: int, controlword: int) -> None:
         """A controlword in the asynchronous RPDO2: the drive acts on it at once."""
         self.network.send_message(RPDO2_COB + self.options.node_ids[j], RPDO_COMMAND.pack(controlword))
+
+    def command_drives(self, controlwords: dict[int, int], reached, timeout_s: float, poll=None) -> list[int]:
+        """Send each joint its controlword, then wait until ``reached(j, statusword)`` holds on a newer TPDO of
+        each; the joints for which it did not within ``timeout_s`` (``DriveMonitor.wait_for``)."""
+        seq0 = list(self.monitor.seq)
+        for j, controlword in controlwords.items():
+            self._send_command(j, controlword)
+        return self.monitor.wait_for(reached, seq0, list(controlwords), timeout_s, poll)
 
     def _prepare_move(self, target, speed_rad_s: float, accel_rad_s2: float) -> None:
         if self.monitor.fault is not None:

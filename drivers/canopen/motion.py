@@ -25,7 +25,7 @@ from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted
 from payload_agent.drivers.canopen.pdo import (RPDO1_COB, RPDO3_COB, RPDO4_COB, RPDO_DECELERATION, RPDO_PROFILE,
                                                RPDO_SETPOINT)
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
-from payload_agent.model.profile import lead_joint_caps, synchronised_joint_rates, trapezoid_duration
+from payload_agent.model.profile import synchronised_profiles, trapezoid_duration
 
 if TYPE_CHECKING:
     from payload_agent.drivers.canopen.driver import CANopenDriver
@@ -46,25 +46,12 @@ def _poll(drv: "CANopenDriver") -> None:
 
 
 def ensure_enabled(drv: "CANopenDriver") -> None:
-    """Profile position mode and OPERATION ENABLED on every drive (a no-op once done)."""
-    m = drv.monitor
+    """OPERATION ENABLED on every drive, a step of the power state machine at a time (a no-op once done: a
+    drive that leaves it afterwards is a monitor fault, which ``_prepare_move`` refuses). The mode of operation
+    is set at connect (``device.set_profile_position_mode``)."""
     if drv.enabled:
-        off = [j for j, st in enumerate(m.states()) if st != OPERATION_ENABLED]
-        if off:
-            raise MotionAbortedError(f"{drv.labels[off[0]]} is no longer OPERATION ENABLED ({m.states()[off[0]]}); "
-                                     "nothing was sent")
         return
-    timeout = drv.options.enable_timeout_s
-    for j in range(drv.n):
-        drv.sdo_write(j, obj.MODES_OF_OPERATION, MODE_PROFILE_POSITION)
-    for j in range(drv.n):
-        deadline = time.monotonic() + timeout
-        while (mode := drv.sdo_read(j, obj.MODES_DISPLAY)) != MODE_PROFILE_POSITION:
-            if time.monotonic() > deadline:
-                raise RobotNotReadyError(f"{drv.labels[j]} does not switch to profile position mode: 0x6061 shows "
-                                         f"{mode} after 0x6060 = {MODE_PROFILE_POSITION}")
-            _poll(drv)
-            time.sleep(0.005)
+    m, timeout = drv.monitor, drv.options.enable_timeout_s
     for _ in range(6):  # at most 4 transitions from SWITCH ON DISABLED / QUICK STOP ACTIVE
         states = m.states()
         todo = [j for j, st in enumerate(states) if st != OPERATION_ENABLED]
@@ -79,10 +66,8 @@ def ensure_enabled(drv: "CANopenDriver") -> None:
                 raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]}: the power state machine has no "
                                          "command out of it; check the drive's power supply")
         _poll(drv)
-        seq0 = list(m.seq)
-        for j in todo:
-            drv._send_command(j, enable_step(states[j]))
-        stuck = m.wait_for(lambda j, sw: state_of(sw) != states[j], seq0, todo, timeout, lambda: _poll(drv))
+        stuck = drv.command_drives({j: enable_step(states[j]) for j in todo},
+                                   lambda j, sw: state_of(sw) != states[j], timeout, lambda: _poll(drv))
         if stuck:
             j = stuck[0]
             raise RobotNotReadyError(f"{drv.labels[j]} stayed in {states[j]} for {timeout:g} s after controlword "
@@ -135,12 +120,9 @@ def start(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_ra
     driver's docstring): the profiles and every set-point with the new-set-point bit at one SYNC."""
     m, o = drv.monitor, drv.options
     ensure_enabled(drv)
-    q0 = np.asarray(drv.latest_sample.q, float)
-    n = drv.n
-    caps = lead_joint_caps(q0, target, [drv.limits.max_joint_speed_rad_s] * n, [drv.limits.max_joint_accel_rad_s2] * n)
-    lead_v, lead_a = min(speed_rad_s, caps.speed_rad_s), min(accel_rad_s2, caps.accel_rad_s2)
-    speeds, accels = synchronised_joint_rates(q0, target, lead_v, lead_a)
-    duration = trapezoid_duration(float(np.max(np.abs(np.asarray(target) - q0))), lead_v, lead_a)
+    n, lim = drv.n, drv.limits
+    prof = synchronised_profiles(drv.latest_sample.q, target, speed_rad_s, accel_rad_s2, lim.max_joint_speed_rad_s,
+                                 lim.max_joint_accel_rad_s2)
     counts = [round(o.zero_counts[j] + o.direction[j] * float(target[j]) * o.counts_per_rad[j]) for j in range(n)]
     window = o.position_window_deg * DEG
     # a joint moves if its target changed; before its first set-point, if it stands outside the target window
@@ -152,7 +134,8 @@ def start(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_ra
     drv.sdo_watch.confirm_alive(lambda: _poll(drv))  # a drive late on SDO trips here, before any set-point
     _poll(drv)  # nothing is sent once the supervision has stopped the arm
     profile = [frame for j in moving for frame in
-               _profile_frames(drv, j, float(speeds[j]), float(accels[j]), counts[j] - m.position[j], duration)]
+               _profile_frames(drv, j, float(prof.speeds_rad_s[j]), float(prof.accels_rad_s2[j]),
+                               counts[j] - m.position[j], prof.duration_s)]
     mv.seq, mv.phase = list(m.seq), "ack"
     mv.ack_deadline = time.monotonic() + max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
     # profiles first, then the set-points: all act at the same SYNC
@@ -165,8 +148,8 @@ def _setpoints(drv: "CANopenDriver", mv: ProfileMove, controlword: int) -> list[
 
 
 def status(drv: "CANopenDriver", mv: ProfileMove) -> MoveStatus:
-    """One look at the drives' statuswords: the handshake's next step, target reached, or why it failed."""
-    _poll(drv)
+    """One look at the drives' statuswords: the handshake's next step, target reached, or why it failed (the
+    reader thread acts on drive faults, the base's loop on the supervision)."""
     m = drv.monitor
     if mv.phase == "ack":
         late = m.pending(lambda j, sw: bool(sw & SW_SETPOINT_ACK), mv.seq, mv.moving)
@@ -180,15 +163,8 @@ def status(drv: "CANopenDriver", mv: ProfileMove) -> MoveStatus:
     if mv.phase == "reach" and m.pending(lambda j, sw: not sw & SW_SETPOINT_ACK and bool(sw & SW_TARGET_REACHED),
                                          mv.seq, mv.moving):
         return RUNNING
-    o = drv.options
-    for j in mv.moving:
+    for j in mv.moving:  # (the base checks that the arm stands at the target)
         drv.commanded[j] = mv.counts[j]
-    window = o.position_window_deg * DEG
-    off = [j for j in mv.moving if abs(m.position[j] - mv.counts[j]) > max(2.0, window * o.counts_per_rad[j])]
-    if off:
-        j = off[0]
-        return aborted(f"{drv.labels[j]} reported target reached {m.position[j] - mv.counts[j]} counts away "
-                       "from its target")
     return DONE
 
 
@@ -205,10 +181,8 @@ def quick_stop(drv: "CANopenDriver") -> bool:
     _forget_enabled(drv)
     if drv.sync is not None:
         drv.sync.cancel_pending()  # set-points queued for the next SYNC never go out
-    seq0 = list(m.seq)
-    for j in range(drv.n):
-        drv._send_command(j, CW_QUICK_STOP)
-    pending = m.wait_for(lambda j, sw: stopped(state_of(sw)), seq0, list(range(drv.n)), STOP_CONFIRM_S)
+    pending = drv.command_drives(dict.fromkeys(range(drv.n), CW_QUICK_STOP), lambda j, sw: stopped(state_of(sw)),
+                                 STOP_CONFIRM_S)
     for j in list(pending):  # no TPDO confirmed it (stream stalled?): ask over SDO, if the channel is free
         try:
             if stopped(state_of(drv.sdo_read(j, obj.STATUSWORD, lock_timeout=0.05, timeout_s=SDO_CONFIRM_S))):

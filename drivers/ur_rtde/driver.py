@@ -67,7 +67,7 @@ from payload_agent.drivers.ur_rtde.dashboard import dashboard_identify, dashboar
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
 from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, controller_state, corrupt_status, runtime_name,
                                                   safety_stop)
-from payload_agent.errors import CommunicationError, RobotNotReadyError, SafetyError
+from payload_agent.errors import CommunicationError, RobotNotReadyError
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
 RTDE_PORT = 30004
@@ -102,6 +102,8 @@ class URRTDEDriver(URCapabilities, Driver):
     reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
     options: URRTDEOptions
     move_poll_s = 0.002
+    max_accel_rad_s2 = MAX_ACCEL_RAD_S2  # the base refuses more (with the robot's speed limit)
+    client_name = "ur-rtde"
 
     def __init__(self, options: URRTDEOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
@@ -275,11 +277,6 @@ class URRTDEDriver(URCapabilities, Driver):
 
     # -- motion ----------------------------------------------------------------------------------
     def _prepare_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> None:
-        if speed_rad_s > self.limits.max_joint_speed_rad_s + 1e-12:
-            raise SafetyError(f"joint speed {speed_rad_s} rad/s above the robot's {self.limits.max_joint_speed_rad_s} "
-                              "rad/s (robot.max_joint_speed_deg_s)")
-        if accel_rad_s2 > MAX_ACCEL_RAD_S2:
-            raise SafetyError(f"joint acceleration {accel_rad_s2} rad/s² above ur-rtde's {MAX_ACCEL_RAD_S2} rad/s²")
         state = self._state(refresh_remote=False)
         if not state.motion_allowed:
             raise RobotNotReadyError(f"UR controller {self.host}: {state.reason} ({state.detail})")
@@ -295,10 +292,8 @@ class URRTDEDriver(URCapabilities, Driver):
             self.command_ok()
             self._heartbeat_t = time.monotonic()
         self._move = _URMove(op0)
-        if not ok:
-            return refused(lambda: f"UR controller {self.host}: the controller refused the move "
-                                   f"({self._why_not_running()})")
-        return None
+        return None if ok else refused(lambda: f"UR controller {self.host}: the controller refused the move "
+                                               f"({self._why_not_running()})")
 
     def _move_status(self) -> MoveStatus:
         r, mv = self._receive(), self._move

@@ -25,6 +25,7 @@ from payload_agent.drivers.modbus.handshake import KIND_PAYLOAD
 from payload_agent.drivers.modbus.options import resolve_map
 from payload_agent.drivers.modbus.regmap import RegisterMap
 from payload_agent.fakes.base import FAULTS, SimulatedController, require_loopback, sim_robot_kwargs
+from payload_agent.fakes.hosted import HostedController
 from payload_agent.fakes.modbus.image import SAMPLE_SIGNALS, SensorImage
 from payload_agent.fakes.modbus.program import HandshakeProgram
 from payload_agent.fakes.modbus.server import ModbusServerThread
@@ -38,6 +39,11 @@ if TYPE_CHECKING:
 DEFAULT_UPDATE_HZ = 125.0
 
 
+def _float_signals(regmap: RegisterMap) -> bool:
+    """Whether the map carries joint angles or efforts as float32 (where NaN can be injected)."""
+    return any(regmap[n].type == "float32" for n in ("joint_angles", "joint_efforts"))
+
+
 class SimulatedModbusRobot(SimulatedController):
     faults = frozenset(FAULTS)
 
@@ -49,7 +55,7 @@ class SimulatedModbusRobot(SimulatedController):
         self._owns_robot = owns_robot
         self.map = regmap
         self.transport = transport
-        if not any(regmap[n].type == "float32" for n in ("joint_angles", "joint_efforts")):
+        if not _float_signals(regmap):
             self.faults = frozenset(FAULTS) - {"nan_values"}
         self.store = RegisterStore(valid_ranges(list(regmap.entries.values()), regmap.bridge_gaps), unit_id,
                                    any_unit=(transport == "tcp"))
@@ -72,8 +78,10 @@ class SimulatedModbusRobot(SimulatedController):
         self._done = 0
 
     @classmethod
-    def from_config(cls, config: "Config") -> "SimulatedModbusRobot":
-        from payload_agent.errors import ConfigError
+    def from_config(cls, config: "Config", *, in_process: bool = False) -> "SimulatedModbusRobot | HostedController":
+        """The simulated robot of the YAML's ``simulation`` section behind this map. Over RTU it runs in a
+        process of its own (``fakes.hosted``: a pty served beside the agent's threads answered late under
+        load), unless ``in_process`` (which is how that process builds it)."""
         from payload_agent.fakes.arms import SPECS
 
         sim = config.simulation
@@ -81,6 +89,22 @@ class SimulatedModbusRobot(SimulatedController):
             raise ValueError("this config has no simulation section")
         opts = config.driver_options
         regmap = resolve_map(opts)
+        cls._check_config(config, regmap)  # the YAML's mistakes named here, before any child process starts
+        if opts.transport == "rtu" and not in_process:
+            faults = frozenset(FAULTS) - ({"nan_values"} if not _float_signals(regmap) else set())
+            return HostedController(f"{cls.__module__}:{cls.__name__}", config, faults)
+        update = regmap.update_hz or DEFAULT_UPDATE_HZ
+        robot = SimRobot(SPECS[sim.arm](), tick_s=1.0 / update, **sim_robot_kwargs(config))
+        host = opts.host if opts.transport == "tcp" else "127.0.0.1"
+        return cls(robot, regmap, gains=config.effort.gains_nm_per_unit, gain_error=sim.drive_gain_error,
+                   transport=opts.transport, host=host or "127.0.0.1", unit_id=opts.unit_id,
+                   baudrate=opts.baudrate, owns_robot=True)
+
+    @staticmethod
+    def _check_config(config: "Config", regmap: RegisterMap) -> None:
+        from payload_agent.errors import ConfigError
+
+        sim = config.simulation
         if config.effort.unit != regmap.effort_unit:
             raise ConfigError("effort.unit", f"the register map reports joint_efforts in {regmap.effort_unit!r}, "
                                              f"the YAML says {config.effort.unit!r}")
@@ -88,12 +112,6 @@ class SimulatedModbusRobot(SimulatedController):
             raise ConfigError("simulation.time_scale", f"this register map has no timestamp signal, so the agent "
                                                        f"times samples on receipt: the simulation must run in real "
                                                        f"time (time_scale: 1), not {sim.time_scale:g}")
-        update = regmap.update_hz or DEFAULT_UPDATE_HZ
-        robot = SimRobot(SPECS[sim.arm](), tick_s=1.0 / update, **sim_robot_kwargs(config))
-        host = opts.host if opts.transport == "tcp" else "127.0.0.1"
-        return cls(robot, regmap, gains=config.effort.gains_nm_per_unit, gain_error=sim.drive_gain_error,
-                   transport=opts.transport, host=host or "127.0.0.1", unit_id=opts.unit_id,
-                   baudrate=opts.baudrate, owns_robot=True)
 
     @property
     def robot(self) -> SimRobot:
