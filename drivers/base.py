@@ -80,9 +80,6 @@ class Driver(OptionalCapabilities, abc.ABC):
     # the final position check when the YAML sets no driver.target_tolerance_deg
     default_target_tolerance_deg: ClassVar[float] = 0.1
     move_poll_s: float = 0.005  # how often the move loop asks _move_status
-    # the client library's acceleration limit for a move (None: none beyond the robot's), and its name
-    max_accel_rad_s2: ClassVar[float | None] = None
-    client_name: ClassVar[str] = ""
 
     def __init__(self, options: DriverOptions, limits: MotionLimits, supervision: Supervision | None = None):
         self.options = options
@@ -256,12 +253,12 @@ class Driver(OptionalCapabilities, abc.ABC):
         """One PTP joint move, supervised; returns when the controller reports it finished at the target.
 
         ``speed_rad_s`` caps the leading joint's speed, ``accel_rad_s2`` its acceleration.
-        Raises SafetyError beyond the robot's speed limit or the client's acceleration limit (nothing sent),
+        Raises SafetyError beyond the robot's speed limit or the options' ``command_limits`` (nothing sent),
         MotionAbortedError on any abnormal end (stop, fault, timeout, target missed) and SupervisionTrip when the
         stream or the command connection failed (the arm was stopped).
         """
         target, speed, accel, timeout = checked_request(target_rad, speed_rad_s, accel_rad_s2, timeout_s, self.limits,
-                                                        self.max_accel_rad_s2, self.client_name)
+                                                        type(self.options).command_limits)
         if not self._connected:
             raise CommunicationError(f"the {self.name} driver is not connected")
         if self.stream.error is not None:

@@ -10,13 +10,14 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
 from payload_agent.configuration.options import option
 from payload_agent.drivers.base import DONE, RUNNING, Driver, DriverOptions, MotionLimits, aborted, refused
-from payload_agent.drivers.settings import Supervision
+from payload_agent.drivers.settings import CommandLimits, Supervision
 from payload_agent.errors import MotionAbortedError, RobotNotReadyError, SafetyError, SupervisionTrip
 from payload_agent.types import ControllerInfo, ControllerState, Sample
 
@@ -37,7 +38,7 @@ class Stub(Driver):
 
     def __init__(self, start=None, statuses=(), q_at_done=TARGET, supervision=None):
         # generous limits: a loaded machine's pauses must not trip what these tests do not test
-        super().__init__(StubOptions(type="stub"), LIMITS,
+        super().__init__(self.options_class(type="stub"), LIMITS,
                          supervision or Supervision(max_stream_gap_s=1.0, max_reply_wait_s=1.0))
         self.effort_unit, self.nominal_period_s = "Nm", 0.005
         self.q = np.zeros(6)
@@ -162,16 +163,19 @@ def test_motion_not_allowed_refuses_before_anything_is_sent():
     assert drv.log == []
 
 
+class LimitedOptions(StubOptions):
+    command_limits: ClassVar[CommandLimits] = CommandLimits(None, 3.0, "stubclient's move")  # as ur-rtde's moveJ
+
+
 class LimitedClientStub(Stub):
     """A client library with its own acceleration limit (as ur-rtde's moveJ has)."""
 
-    max_accel_rad_s2 = 3.0
-    client_name = "stubclient"
+    options_class = LimitedOptions
 
 
 @pytest.mark.parametrize("target, speed, accel, error, words", [
     (TARGET, 1.5, 2.0, SafetyError, "robot.max_joint_speed_deg_s"),  # the robot's speed limit is 1.0 rad/s
-    (TARGET, 0.5, 4.0, SafetyError, "above stubclient's 3.0 rad/s²"),
+    (TARGET, 0.5, 4.0, SafetyError, "above the 3.0 rad/s² the move command accepts \\(stubclient's move\\)"),
     (np.array([0.2, 0.2, np.nan, 0.2, 0.2, 0.2]), 0.5, 2.0, MotionAbortedError, "not finite"),
     (TARGET, 0.5, -1.0, MotionAbortedError, "acceleration -1.0 is not a positive number"),
 ])

@@ -83,7 +83,6 @@ STOP_REPLY_S = 0.25  # stopJ over the command channel; then the dashboard is tri
 DASHBOARD_STOP_TIMEOUT_S = 0.5
 MAX_ANGLE_RAD = 4 * math.pi  # UR joints turn ±2 turns at most
 MAX_CURRENT_A = 100.0
-MAX_ACCEL_RAD_S2 = 40.0  # ur-rtde's limit for moveJ
 
 
 @dataclasses.dataclass
@@ -102,8 +101,6 @@ class URRTDEDriver(URCapabilities, Driver):
     reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
     options: URRTDEOptions
     move_poll_s = 0.002
-    max_accel_rad_s2 = MAX_ACCEL_RAD_S2  # the base refuses more (with the robot's speed limit)
-    client_name = "ur-rtde"
 
     def __init__(self, options: URRTDEOptions, limits: MotionLimits, supervision: Supervision | None = None):
         super().__init__(options, limits, supervision)
