@@ -191,7 +191,7 @@ def cmd_watch(args, con: Console) -> int:
 def cmd_plan(args, con: Console) -> int:
     import numpy as np
 
-    from payload_agent.motion.planner import expected_durations
+    from payload_agent.motion.planner import expected_durations, turned_to
     from payload_agent.motion.safety import APPROACH_UNKNOWN, SafetyGate
     from payload_agent.output.plan_table import format_plan, plan_json
     from payload_agent.recording.state import RobotState, describe_locations
@@ -221,6 +221,7 @@ def cmd_plan(args, con: Console) -> int:
     data: dict[str, Any] = {"robot": config.robot.name, "config": config.source, "preflight": pre.to_json()}
     verdict = None
     if pre.plan is not None:
+        pre.plan = turned_to(config, pre.plan, start)  # as run will: a joint at ±180° reached the short way
         durations = expected_durations(pre.plan, start)
         con.say(format_plan(pre.plan, durations))
         baseline = status_line(RobotState.for_config(config), config, pre.plan)

@@ -10,7 +10,7 @@ from conftest import tweak
 from payload_agent.model.arm_geometry import ArmGeometry
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import SafetyError
-from payload_agent.motion.planner import make_plan
+from payload_agent.motion.planner import make_plan, turned_to
 from payload_agent.motion.safety import SafetyGate
 
 
@@ -44,7 +44,8 @@ def test_bidirectional_adds_return_sweeps(sim_ec66_data):
 
 def test_gate_accepts_the_shipped_plan(sim_ec66_data):
     cfg = parse_config(sim_ec66_data)
-    verdict = SafetyGate(cfg).check(make_plan(cfg), np.radians(cfg.simulation.start_deg))
+    start = np.radians(cfg.simulation.start_deg)
+    verdict = SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start), start)  # as the run has it
     assert verdict.ok, verdict.describe()
 
 
@@ -84,9 +85,9 @@ class _RecordingDriver:
 
 def test_gate_executes_only_the_next_approved_move(sim_ec66_data):
     cfg = parse_config(sim_ec66_data)
-    plan = make_plan(cfg)
-    gate = SafetyGate(cfg)
     start = np.radians(cfg.simulation.start_deg)
+    plan = turned_to(cfg, make_plan(cfg), start)
+    gate = SafetyGate(cfg)
     driver = _RecordingDriver()
     with pytest.raises(SafetyError, match="no approved plan"):
         gate.execute(driver, plan.moves[0], start)
@@ -97,3 +98,43 @@ def test_gate_executes_only_the_next_approved_move(sim_ec66_data):
         gate.execute(driver, plan.moves[0], start + 0.1)
     gate.execute(driver, plan.moves[0], start)
     assert driver.moves == [plan.moves[0].target_rad]
+
+
+@pytest.mark.parametrize("config", ["sim-ec66", "sim-ur5e"])
+def test_the_wrist_solution_gives_every_orientation_asked_for(config):
+    """Closed-form joints 4-6 for random tool orientations and arm poses, the wrist-singular ones included
+    (tool z along link 3's joint axes lines joints 4 and 6 up on these arms)."""
+    from conftest import ROOT
+    from payload_agent.configuration.config import load_config
+
+    cfg = load_config(ROOT / "configs" / f"{config}.yaml")
+    kin = cfg.robot.kinematics
+    geo = ArmGeometry(kin, 0.0)
+    limits = [(-2 * math.pi, 2 * math.pi)] * 3
+    rng = np.random.default_rng(7)
+    for k in range(40):
+        q2, q3 = rng.uniform(-math.pi, math.pi, 2)
+        if k % 4 == 0:  # singular: the orientation of a wrist with joint 5 at 0 or 180°
+            w = np.array([rng.uniform(-3, 3), math.pi * (k % 8 == 0), rng.uniform(-3, 3)])
+        else:
+            w = rng.uniform(-math.pi, math.pi, 3)
+        R = kin.flange(np.array([0.0, q2, q3, *w]))[:3, :3]
+        got = geo.wrist_for(q2, q3, R, limits, prefer=rng.uniform(-1, 1, 3))
+        assert np.max(np.abs(kin.flange(np.array([0.0, q2, q3, *got]))[:3, :3] - R)) < 1e-5  # the angles are rounded to 1e-4°
+
+
+@pytest.mark.parametrize("j4_start_deg", [90.0, -90.0])
+def test_a_wrist_at_180_degrees_is_reached_the_short_way_and_the_plan_stays_the_same(sim_ec66_data, j4_start_deg):
+    """±180° on a wrist joint is one pose: the run turns the whole plan by whole turns towards where the arm
+    stands (the gate refuses a 270° approach), and the stored baseline still matches (same fingerprint)."""
+    cfg = parse_config(tweak(sim_ec66_data, "procedure.name", "j2_triple"))
+    plan = make_plan(cfg)
+    start = np.radians([0.0, -90.0, 90.0, j4_start_deg, -90.0, 0.0])
+    turned = turned_to(cfg, plan, start)
+    first = np.degrees(turned.moves[0].target_rad)
+    assert max(abs(first[3:] - np.degrees(start[3:]))) <= 180.0 + 1e-6
+    assert turned.fingerprint() == plan.fingerprint()
+    steps = np.degrees(np.diff([m.target_rad for m in turned.moves], axis=0))
+    assert np.allclose(steps, np.degrees(np.diff([m.target_rad for m in plan.moves], axis=0)))  # same moves
+    assert SafetyGate(cfg).check(turned, start).ok, SafetyGate(cfg).check(turned, start).describe()
+    assert make_plan(cfg).fingerprint() == plan.fingerprint()  # the plan itself does not depend on the start

@@ -10,7 +10,7 @@ from conftest import DELETE, ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.configuration.wrist_procedure import parse_wrist_procedure
 from payload_agent.errors import ConfigError
-from payload_agent.motion.planner import make_plan, remaining_plan
+from payload_agent.motion.planner import make_plan, remaining_plan, turned_to
 from payload_agent.motion.safety import SafetyGate
 
 SIM = ROOT / "configs" / "sim-ec66.yaml"
@@ -42,7 +42,7 @@ def test_the_wrist_moves_follow_the_sweeps_and_pass_the_gate_within_their_own_ca
         assert m.speed_rad_s == pytest.approx(0.95 * cfg.robot.max_joint_speed_rad_s)
         assert m.accel_rad_s2 == pytest.approx(cfg.robot.max_joint_accel_rad_s2)
     assert all(np.max(np.abs(np.subtract(b.target_rad, a.target_rad))) > 0 for a, b in zip(plan.moves, plan.moves[1:]))
-    verdict = SafetyGate(cfg).check(plan, start(cfg))
+    verdict = SafetyGate(cfg).check(turned_to(cfg, plan, start(cfg)), start(cfg))  # as the run turns it
     assert verdict.ok, verdict.describe()
     # the plan's fingerprint (what a stored baseline depends on) changes with the inertia part
     assert plan.fingerprint() != make_plan(config()).fingerprint()
@@ -63,12 +63,13 @@ def test_a_wrist_move_faster_than_the_yaml_allows_is_refused_by_name_not_slowed(
 
 def test_a_wrist_move_past_a_joint_limit_is_refused_naming_it(tmp_path):
     data = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
-    data["moves"][1]["range_deg"] = [0, -120]  # joint 5 of pose c stands at -270 deg on the EC66: -390 is past -355
+    # joint 5 of pose c turned 660°: past the EC66's ±355° limits whichever whole turns the plan takes
+    data["moves"][1]["range_deg"] = [-330, 330]
     path = tmp_path / "wrist_far.yaml"
     path.write_text(yaml.safe_dump(data))
     cfg = config(**{"procedure.inertia": str(path), "safety.max_wrist_speed_percent": 100})
     plan = make_plan(cfg)
-    verdict = SafetyGate(cfg).check(plan, start(cfg))
+    verdict = SafetyGate(cfg).check(plan, np.asarray(plan.moves[0].target_rad))
     assert not verdict.ok
     assert any("w2-c-j5 fwd" in p and "joint 5" in p and "outside limits" in p for p in verdict.problems), \
         verdict.problems

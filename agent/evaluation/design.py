@@ -39,7 +39,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
-from payload_agent.motion.planner import Plan, make_plan, move_duration_s
+from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
 SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0)
 TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
@@ -251,7 +251,7 @@ def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None) ->
     """The approach move of the candidate's plan from ``start_q`` (0 when where the robot stands is unknown)."""
     if start_q is None:
         return 0.0
-    m = plan_for(config, c).moves[0]
+    m = turned_to(config, plan_for(config, c), np.asarray(start_q, float)).moves[0]
     return move_duration_s(np.asarray(start_q, float), np.asarray(m.target_rad), m.speed_rad_s, m.accel_rad_s2)
 
 
@@ -276,7 +276,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             # the whole plan, exactly as ``plan`` and ``run`` check it before the first move (the approach too
             # when where the robot stands is known)
             begin = plan.moves[0].target_rad if start is None else start
-            problems = tuple(SafetyGate(cfg).check(plan, np.asarray(begin)).problems)
+            problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
+                                                   np.asarray(begin)).problems)
         noise_cov, sys_cov, n = covariance_parts(cfg, plan, noise, theta)
         out: tuple = (robot_time_s(plan), noise_cov, sys_cov, n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:

@@ -7,10 +7,10 @@ robot's signs are hard-coded: slopes and offsets are measured on the DH model.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from payload_agent.errors import PlanError
 from payload_agent.model.kinematics import Kinematics
@@ -95,31 +95,67 @@ class ArmGeometry:
         Of the wrist solutions, the one that holds the flange highest (clear of the table)
         wins; ties go to the one nearest ``prefer``.
         """
-
-        def residual(w):
-            return (self.kin.flange(self._q(q2, q3, w))[:3, :3] - R_des).ravel()
-
         prefer = np.zeros(3) if prefer is None else np.asarray(prefer, float)
         candidates = []
-        for seed in np.array(np.meshgrid(*[np.linspace(-math.pi, math.pi, 4, endpoint=False)] * 3)).T.reshape(-1, 3):
-            sol = least_squares(residual, seed, xtol=1e-14, ftol=1e-14, gtol=1e-14)
-            if np.max(np.abs(sol.fun)) > 1e-9:
-                continue
-            w = np.array([wrap(v) for v in sol.x])
-            # use the equivalent angle (±2π) nearest the preference, if the limits allow it
-            for i in range(3):
-                for alt in (w[i] - 2 * math.pi, w[i] + 2 * math.pi):
-                    if abs(alt - prefer[i]) < abs(w[i] - prefer[i]):
-                        w[i] = alt
-            if all(lo <= v <= hi for v, (lo, hi) in zip(w, limits)):
-                candidates.append(w)
+        for w in self._wrist_solutions(q2, q3, R_des, prefer[0]):
+            # every equivalent angle (±2π) inside the limits; the ranking below takes the nearest the preference
+            turns = [[v + 2 * math.pi * k for k in (-1, 0, 1) if lo <= v + 2 * math.pi * k <= hi]
+                     for v, (lo, hi) in zip(w, limits)]
+            candidates += [np.array(c) for c in itertools.product(*turns)]
         if not candidates:
             raise PlanError("no wrist angles within the joint limits give the requested tool orientation")
+
         def height(w):
             return round(float(self.kin.flange(self._q(q2, q3, w))[2, 3]), 6)
 
-        best = min(candidates, key=lambda w: (-height(w), float(np.sum((w - prefer) ** 2))))
-        # to 1e-4 degree (2e-6 rad, below any controller's resolution), inside the limits: the solver's last
-        # digits are noise (179.999998 for 180), not geometry
+        # the last key makes a tie (a joint at +180° or -180°, equally far from the preference) a fixed choice, the
+        # larger angle: the plan must not depend on the solver's last digits (a run's start shifts whole turns)
+        best = min(candidates, key=lambda w: (-height(w), round(float(np.sum((w - prefer) ** 2)), 9),
+                                              tuple(-np.round(w, 6))))
+        # to 1e-4 degree (2e-6 rad, below any controller's resolution), inside the limits: the last digits of
+        # the trigonometry are noise (179.999998 for 180), not geometry
         lo, hi = np.array(limits, float).T
         return np.clip(np.radians(np.round(np.degrees(best), 4)), lo, hi)
+
+    def _wrist_solutions(self, q2: float, q3: float, R_des: np.ndarray, q4_free: float) -> list[np.ndarray]:
+        """Every (q4, q5, q6), wrapped to ±π, that gives the flange the rotation R_des: in closed form.
+
+        The wrist's rotation is Rz(θ4) Rx(α4) Rz(θ5) Rx(α5) Rz(θ6) Rx(α6) (standard DH, θ = q + offset), a
+        generalised Euler decomposition: θ5 from one element (two solutions), θ4 and θ6 from the column and
+        row it leaves. Where θ5 lines joints 4 and 6 up (only their sum counts) q4 takes ``q4_free``.
+        """
+        r4, r5, r6 = self.kin.rows[3:6]
+        R3 = self.kin.pose(self._q(q2, q3, (0.0, 0.0, 0.0))).frames[3][:3, :3]
+        M = R3.T @ R_des @ _rx(r6.alpha_rad).T  # = Rz(θ4) Rx(α4) Rz(θ5) Rx(α5) Rz(θ6)
+        s45 = math.sin(r4.alpha_rad) * math.sin(r5.alpha_rad)
+        if abs(s45) < 1e-9:
+            raise PlanError("joints 4-6 of the DH model do not form a wrist (parallel axes): no wrist solution")
+        c5 = (math.cos(r4.alpha_rad) * math.cos(r5.alpha_rad) - M[2, 2]) / s45
+        if abs(c5) > 1 + 1e-9:
+            return []
+        out = []
+        for t5 in {math.acos(max(-1.0, min(1.0, c5))), -math.acos(max(-1.0, min(1.0, c5)))}:
+            inner = _rx(r4.alpha_rad) @ _rz(t5) @ _rx(r5.alpha_rad)  # = Rz(θ4)ᵀ M Rz(θ6)ᵀ
+            col = inner[:, 2]  # M's last column is Rz(θ4) of it
+            if math.hypot(col[0], col[1]) > 1e-9:
+                t4 = math.atan2(M[1, 2], M[0, 2]) - math.atan2(col[1], col[0])
+                N = inner.T @ _rz(t4).T @ M  # = Rz(θ6)
+                t6 = math.atan2(N[1, 0], N[0, 0])
+            else:  # joints 4 and 6 in line: joint 4 (the heavier) stays where preferred, joint 6 takes the rest
+                t4 = q4_free + r4.offset_rad
+                N = inner.T @ _rz(t4).T @ M
+                t6 = math.atan2(N[1, 0], N[0, 0])
+            w = np.array([wrap(t4 - r4.offset_rad), wrap(t5 - r5.offset_rad), wrap(t6 - r6.offset_rad)])
+            if np.max(np.abs(self.kin.flange(self._q(q2, q3, w))[:3, :3] - R_des)) < 1e-9:
+                out.append(w)
+        return out
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -6,6 +6,7 @@ whole before the first move.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -62,8 +63,11 @@ class Plan:
         return [m for m in self.moves if m.kind == "wrist"]
 
     def fingerprint(self) -> str:
-        """Changes whenever any target, speed or sweep changes (a stored baseline depends on it)."""
+        """Changes whenever any target, speed or sweep changes (a stored baseline depends on it); not when a joint's
+        targets all shift by whole turns (``turned_to``): the arm stands the same way, so it weighs the same."""
         data = [m.to_json() for m in self.moves if m.kind != "approach"]
+        for d in data:
+            d["target_deg"] = [round((v + 180.0) % 360.0 - 180.0, 4) + 0.0 for v in d["target_deg"]]
         return hashlib.sha256(json.dumps([self.procedure.fingerprint, data], sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -75,9 +79,6 @@ def move_duration_s(start: np.ndarray, target: np.ndarray, speed: float, accel: 
     if dist < speed * speed / accel:
         return 2.0 * math.sqrt(dist / accel)
     return dist / speed + speed / accel
-
-
-_WRISTS: dict[tuple, dict[str, np.ndarray]] = {}
 
 
 def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
@@ -93,22 +94,18 @@ def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
     margin = config.safety.joint_limit_margin_rad
     wrist_limits = [(a + margin, b - margin) for a, b in robot.joint_limits_rad[3:]]
 
-    # the wrist solutions (the slow part: a numerical solve per pose) depend on the poses, the base angle,
-    # the kinematics and the limits only, not on the sweep range or speeds: kept for the next plan
-    wkey = (proc.fingerprint, tuple(proc.poses), pc.base_deg, repr(robot.dh), tuple(wrist_limits))
+    q2, q3 = geo.joints_for(0.0, 0.0)
+    rotations = {name: geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
+                 for name, pose in proc.poses.items()}
     wrists: dict[str, np.ndarray] = {}
-    if wkey in _WRISTS:
-        wrists = {k: v.copy() for k, v in _WRISTS[wkey].items()}
-    prefer = np.zeros(3)
-    for name, pose in proc.poses.items():
-        if name in wrists:
-            continue
-        q2, q3 = geo.joints_for(0.0, 0.0)
-        R = geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
-        wrists[name] = prefer = geo.wrist_for(q2, q3, R, wrist_limits, prefer)  # next pose: least wrist travel
-    if len(_WRISTS) > 64:
-        _WRISTS.clear()
-    _WRISTS[wkey] = {k: v.copy() for k, v in wrists.items()}
+
+    def chain(prefer: np.ndarray) -> None:  # each pose: the least wrist travel from the one before
+        for name, R in rotations.items():
+            wrists[name] = prefer = geo.wrist_for(q2, q3, R, wrist_limits, prefer)
+
+    chain(np.zeros(3))
+    if len(rotations) > 1:  # again from the second pose: where the first is free (joints 4 and 6 in line) it keeps
+        chain(wrists[list(rotations)[1]])  # the second's joint 4, so the wrist does not turn between them
 
     def target(pose: str, joint: int, elev: float) -> np.ndarray:
         e2, e3 = (elev, elev) if joint == 2 else (math.pi / 2, elev)
@@ -138,7 +135,32 @@ def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
                               SweepKey(sw.pose, sw.joint, "down", pc.speed_percent)))
     if pc.inertia:
         moves.extend(wrist_moves(config, load_wrist_procedure(pc.inertia), geo, wrist_limits, moves[-1].target_rad))
-    return Plan(proc, tuple(moves))
+    return turned_to(config, Plan(proc, tuple(moves)), np.zeros(len(robot.joint_limits_rad)))  # the first pose near 0
+
+
+def turned_to(config: Config, plan: Plan, start_q: np.ndarray | None) -> Plan:
+    """The same plan with each joint's targets shifted by the whole turns that bring its first target nearest
+    where the robot stands, where every target stays within the joint limits less the margin.
+
+    The plan itself must not depend on where a run starts (a stored baseline is matched to it), but a joint at
+    +180° or -180° is the same pose, and which of them the robot reaches first by a short turn does: from J4 at
+    90°, -180° is a 270° approach the safety gate refuses, +180° is 90°.
+    """
+    if start_q is None or not plan.moves:
+        return plan
+    margin = config.safety.joint_limit_margin_rad
+    targets = np.array([m.target_rad for m in plan.moves], float)
+    shift = np.zeros(targets.shape[1])
+    for j, (lo, hi) in enumerate(config.robot.joint_limits_rad):
+        fits = [2 * math.pi * k for k in range(-2, 3)
+                if np.all(targets[:, j] + 2 * math.pi * k >= lo + margin) and np.all(targets[:, j] + 2 * math.pi * k <= hi - margin)]
+        if fits:
+            shift[j] = min(fits, key=lambda d: (abs(targets[0, j] + d - start_q[j]), abs(d)))
+    if not shift.any():
+        return plan
+    moves = tuple(dataclasses.replace(m, target_rad=tuple(float(v) for v in np.asarray(m.target_rad) + shift))
+                  for m in plan.moves)
+    return Plan(plan.procedure, moves)
 
 
 def _nearest_turn(w: np.ndarray, prefer: np.ndarray, limits: list[tuple[float, float]]) -> np.ndarray:

@@ -22,7 +22,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (CommunicationError, DataError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, SafetyError)
-from payload_agent.motion.planner import Plan, expected_durations, remaining_plan
+from payload_agent.motion.planner import Plan, expected_durations, remaining_plan, turned_to
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
 from payload_agent.evaluation.calibration import RUN_CALIBRATION, effective_calibration
@@ -89,6 +89,7 @@ class Session:
         try:
             driver.connect()
             probe = _check_controller(config, mode, ui, driver, plan)
+            plan = turned_to(config, plan, probe.q)  # a joint at ±180° is reached the short way from here
             current = baselines.describe_for(config, plan, probe.info, source_run=Path("."),
                                              joint_temperatures_c=joint_temperatures(driver))
             chosen = mode.select(config, plan, opts, state, current, probe.info, out)

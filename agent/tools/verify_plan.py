@@ -22,7 +22,7 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError, PlanError
-from payload_agent.motion.planner import Move, Plan, make_plan, move_duration_s
+from payload_agent.motion.planner import Move, Plan, make_plan, move_duration_s, turned_to
 from payload_agent.recording.rundata import SweepData
 from payload_agent.tools import verify_stats as vs
 from payload_agent.types import SweepKey
@@ -148,7 +148,7 @@ def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepDa
              if a.pose != b.pose and a.joint == b.joint and math.isclose(_length(a), _length(b))]
     scored = []
     for segs_ in singles + pairs:
-        plan = build_plan(config, segs_)
+        plan = turned_to(config, build_plan(config, segs_), start_q)
         motion = robot_time_s(plan, np.asarray(plan.moves[0].target_rad))
         scored.append((motion, robot_time_s(plan, start_q), segs_, plan))
     # the least robot time from where the arm stands (approach included), then the shorter motion: the arm
