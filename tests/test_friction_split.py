@@ -115,3 +115,17 @@ def test_the_three_step_sigma_carries_its_own_response_to_the_terms(runs):
     widened = syst.apply(plain, systematics.THREE_STEP)
     assert widened.mass_std_kg ** 2 == pytest.approx(plain.mass_std_kg ** 2 + syst.covariance(systematics.THREE_STEP)[0, 0])
     assert widened.mass_std_kg > plain.mass_std_kg
+
+
+def test_a_term_without_a_three_step_response_is_named_not_dropped_silently():
+    from payload_agent.solvers.results import Estimate
+
+    est = Estimate(solver="three-step", mass_kg=2.0, cog_m=(0.04, -0.025, 0.07), residual_rms_nm={}, samples={},
+                   mass_std_kg=0.003, cog_std_m=(0.001, 0.001, 0.001), covariance=np.diag([9e-6, 4e-6, 4e-6, 4e-6]))
+    both = systematics.Term("joint zeros", np.array([1.0]), {ALL: np.ones((4, 1)) * 1e-3,
+                                                              systematics.THREE_STEP: np.ones((4, 1)) * 2e-3}, "zeros")
+    general_only = systematics.Term("wrist torques", np.array([1.0]), {ALL: np.ones((4, 1))}, "wrist")
+    out = systematics.Systematics([both, general_only]).apply(est, systematics.THREE_STEP)
+    assert out.mass_std_kg ** 2 == pytest.approx(9e-6 + 4e-6)  # the zeros' three-step response only
+    assert any("wrist torques term could not be propagated to three-step" in n for n in out.notes)
+    assert "zeros" in out.notes and "wrist" not in out.notes

@@ -147,14 +147,14 @@ class Systematics:
         ALL), or the three-step solver's on them (``THREE_STEP``: each term's three-step sensitivities)."""
         if est.covariance is None or not (self.terms or self.notes):
             return est
-        if which != ALL and any(which not in t.sens for t in self.terms):
-            missing = ", ".join(t.name for t in self.terms if which not in t.sens)
-            return est.with_notes(f"the systematic terms ({missing}) could not be propagated to {which}; "
-                                  f"its σ leaves them out")
         cov = np.asarray(est.covariance, float).copy()
         cov[:4, :4] += self.covariance(which)
         out = compliance.with_covariance(est, cov)
-        return replace(out, notes=list(out.notes) + [t.note for t in self.terms] + list(self.notes))
+        missing = [t.name for t in self.terms if which not in t.sens]
+        lost = [f"the {' and '.join(missing)} term could not be propagated to {which} (not solvable on the shifted "
+                "data); its σ leaves it out"] if missing else []
+        return replace(out, notes=list(out.notes) + [t.note for t in self.terms if which in t.sens] + lost
+                       + list(self.notes))
 
     def describe(self) -> str:
         return " + ".join(t.name for t in self.terms)
@@ -204,18 +204,18 @@ class Context:
                                 for g in gs])
             theta, _ = wls.weighted_lstsq(np.vstack([g.Y for g in gs]), np.concatenate([g.y for g in gs]), w)
             out.append(theta)
-        if self.three_step is not None:
+        if self.three_step is not None:  # NaN where it cannot solve the shifted sweeps: no three-step response then
             th = three_step_response.theta(deltas, self.kin)
-            if th is None:
-                raise DataError("three-step: not solvable on the shifted sweeps of a finite difference")
-            out.append(th)
+            out.append(np.full(4, np.nan) if th is None else th)
         return np.concatenate(out)
 
     def split(self, d: np.ndarray) -> dict[str, np.ndarray]:
         """(P, 4·F [+ 4]) finite-difference rows -> {fit (and THREE_STEP): (4, P)}."""
         out = {which: d[:, 4 * i:4 * i + 4].T for i, which in enumerate(self.fits)}
         if self.three_step is not None:
-            out[THREE_STEP] = d[:, 4 * len(self.fits):4 * len(self.fits) + 4].T
+            block = d[:, 4 * len(self.fits):4 * len(self.fits) + 4].T
+            if np.all(np.isfinite(block)):
+                out[THREE_STEP] = block
         return out
 
     def offset_sens(self, selector: offsets.Selector, labels: Sequence[str]) -> dict[str, np.ndarray]:
@@ -226,8 +226,12 @@ class Context:
                                              selector)
             out[which] = np.column_stack([s.get(lab, np.zeros(4)) for lab in labels]) if labels else np.zeros((4, 0))
         if self.three_step is not None:
-            out[THREE_STEP] = three_step_response.offset_response(self.prepared.deltas, self.kin, self.sweeps,
-                                                                   self.groups[ALL], selector, labels, self.three_step)
+            try:  # not solvable with a step added: no three-step response (its estimate says so)
+                out[THREE_STEP] = three_step_response.offset_response(self.prepared.deltas, self.kin, self.sweeps,
+                                                                       self.groups[ALL], selector, labels,
+                                                                       self.three_step)
+            except DataError:
+                pass
         return out
 
 
