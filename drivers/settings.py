@@ -5,14 +5,29 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from typing import Any
+from typing import Any, ClassVar
 
 from payload_agent.configuration.options import option, parse_options
+
+
+@dataclass(frozen=True)
+class CommandLimits:
+    """What one move command of a driver accepts at most: its client library or controller refuses more.
+
+    Declared per driver family (``DriverOptions.command_limits``), checked by the safety gate on the whole
+    plan before the first move, so a move above them is refused by name there, not by the controller mid-run.
+    None: no limit of the driver's own (the robot YAML's maxima still apply)."""
+
+    max_joint_speed_rad_s: float | None = None
+    max_joint_accel_rad_s2: float | None = None
+    source: str = ""  # where the limit is documented (docs/sources.md)
 
 
 @dataclass(frozen=True, kw_only=True)
 class DriverOptions:
     """Options every driver has; each driver subclasses this with its own fields."""
+
+    command_limits: ClassVar[CommandLimits] = CommandLimits()  # the driver family's own move-command limits
 
     @classmethod
     def parse(cls, data: Any, key_path: str = "driver", source: str | None = None) -> "DriverOptions":

@@ -54,3 +54,34 @@ def test_the_yaml_takes_a_tensor_and_refuses_one_no_body_has(tmp_path):
         with pytest.raises(ConfigError, match=words) as err:
             load_config(_sim_config(tmp_path, bad))
         assert err.value.key_path.endswith("simulation.payload.inertia_com_kgm2")
+
+
+def test_the_shipped_sim_ur5e_tool_has_a_tensor_and_its_inertia_is_identified_not_refused():
+    """configs/sim-ur5e.yaml as shipped: the inertia part on and a tool with a full tensor, whose wrist moves (its
+    own noise and friction, recorded on the in-process simulated arm at the UR's 500 Hz) carry the inertia."""
+    from payload_agent.evaluation.wrist_inertia import identify_inertia
+    from payload_agent.fakes.base import sim_robot_kwargs
+    from payload_agent.fakes.offline import record_wrist_moves
+    from payload_agent.fakes.sim_robot import SimRobot
+    from payload_agent.motion.planner import Plan, make_plan
+
+    cfg = load_config(ROOT / "configs" / "sim-ur5e.yaml")
+    truth = np.asarray(cfg.simulation.payload.inertia_com_kgm2)
+    assert cfg.procedure.inertia and truth.shape == (3, 3)
+    plan = make_plan(cfg)
+    last = plan.moves.index(plan.sweeps[-1])
+    wrist = Plan(plan.procedure, plan.moves[last + 1:])
+    start = np.asarray(plan.moves[last].target_rad)
+    m, c = cfg.simulation.payload.mass_kg, np.asarray(cfg.simulation.payload.cog_mm) / 1000.0
+    phases = {}
+    for name, payload, seed in (("empty", None, 11), ("loaded", PayloadTruth.from_tensor(m, c, truth), 12)):
+        kw = sim_robot_kwargs(cfg)
+        kw.update(q0_rad=start, seed=seed, payload=payload)
+        phases[name] = record_wrist_moves(SimRobot(SPECS[cfg.simulation.arm](), tick_s=0.002, **kw), wrist)[0]
+    static = np.array([m, *(m * c)]), np.diag([0.005 * m, *(0.001 * m,) * 3]) ** 2  # what the sweeps give
+    res = identify_inertia(phases["loaded"], phases["empty"], cfg.robot.kinematics, *static)
+    err = res.estimate_kgm2 - truth
+    print(f"sim-ur5e inertia: error {np.round(err, 4).tolist()}, σ {np.round(res.std_kgm2, 4).tolist()}")
+    assert res.refused is None, res.refused
+    assert np.all(np.abs(err) <= 3.0 * res.std_kgm2)
+    assert np.max(np.abs(err)) < 0.35 * np.max(np.linalg.eigvalsh(truth))

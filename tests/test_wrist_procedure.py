@@ -33,7 +33,8 @@ def test_the_wrist_moves_follow_the_sweeps_and_pass_the_gate_within_their_own_ca
     cfg = config(**{"procedure.inertia": True, "safety.max_wrist_speed_percent": 100})
     plan = make_plan(cfg)
     wrist = plan.wrist_moves
-    assert len(wrist) == 12 and len({m.wrist for m in wrist}) == 12  # six moves, there and back
+    n = 2 * len(yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())["moves"])
+    assert len(wrist) == n and len({m.wrist for m in wrist}) == n  # each move there and back
     assert plan.moves.index(wrist[0]) > plan.moves.index(plan.sweeps[-1])
     for m in wrist:  # one wrist joint turns, at the procedure's speed and acceleration
         prev = np.asarray(plan.moves[plan.moves.index(m) - 1].target_rad)
@@ -96,3 +97,43 @@ def test_a_wrist_procedure_file_is_checked_key_by_key():
         parse_wrist_procedure(bad)
     with pytest.raises(ConfigError, match="speed_pecent"):
         parse_wrist_procedure(dict(base, speed_pecent=50))
+
+
+UR = ROOT / "configs" / "sim-ur5e.yaml"
+
+
+def ur_config(tmp_path, speed_percent: float, accel_deg_s2: float | None = None):
+    """The simulated UR5e with the wrist moves at ``speed_percent`` of its 180 deg/s (cap 100 %)."""
+    wrist = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
+    wrist["speed_percent"] = speed_percent
+    path = tmp_path / "wrist_fast.yaml"
+    path.write_text(yaml.safe_dump(wrist))
+    data = tweak(tweak(yaml.safe_load(UR.read_text()), "procedure.inertia", str(path)),
+                 "safety.max_wrist_speed_percent", 100)
+    if accel_deg_s2 is not None:
+        data = tweak(data, "robot.max_joint_accel_deg_s2", accel_deg_s2)
+    return parse_config(data, source="sim-ur5e.yaml")
+
+
+def test_a_move_faster_than_ur_rtde_moveJ_accepts_is_refused_by_the_plan_naming_move_and_limit(tmp_path):
+    # 100 % of the UR5e's 180 deg/s is pi rad/s: within the YAML's caps, above the 3.14 rad/s ur-rtde's moveJ takes
+    cfg = ur_config(tmp_path, 100)
+    verdict = SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg))
+    assert not verdict.ok
+    wrist = [p for p in verdict.problems if "3.14 rad/s" in p]
+    assert wrist and all("ur_rtde driver's move command" in p and "UR_JOINT_VELOCITY_MAX" in p for p in wrist)
+    assert len(wrist) == len(make_plan(cfg).wrist_moves) and "move 13 (w1-c-j6 fwd)" in wrist[0]
+    assert not [p for p in verdict.problems if p not in wrist and "approach" not in p]  # nothing else is wrong
+    # the shipped 95 % passes the same check
+    cfg = ur_config(tmp_path, 95)
+    assert SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg)).ok
+
+
+def test_an_acceleration_above_ur_rtde_moveJ_limit_is_refused_and_other_drivers_have_none(tmp_path):
+    cfg = ur_config(tmp_path, 50, accel_deg_s2=3000)  # 52 rad/s² where ur-rtde's moveJ takes at most 40
+    verdict = SafetyGate(cfg).check(turned_to(cfg, make_plan(cfg), start(cfg)), start(cfg))
+    assert any("w1-c-j6 fwd" in p and "40 rad/s²" in p and "UR_JOINT_ACCELERATION_MAX" in p for p in verdict.problems)
+    # the Elite EC driver declares no command limit of its own: the same speeds in rad/s pass its gate
+    ec = config(**{"procedure.inertia": True, "safety.max_wrist_speed_percent": 100})
+    assert type(ec.driver_options).command_limits.max_joint_speed_rad_s is None
+    assert SafetyGate(ec).check(turned_to(ec, make_plan(ec), start(ec)), start(ec)).ok

@@ -86,6 +86,7 @@ class SafetyGate:
                                 f"{s.approach_speed_percent:g} %")
             if m.accel_rad_s2 <= 0 or m.accel_rad_s2 > robot.max_joint_accel_rad_s2 * (1 + 1e-9):
                 problems.append(f"{where}: acceleration outside (0, max_joint_accel]")
+            problems.extend(self._driver_limit_problems(where, m))
             if prev is None:
                 prev = tgt
                 continue
@@ -112,6 +113,21 @@ class SafetyGate:
             f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
         ]
         return Verdict(not problems, problems, checks if not problems else [])
+
+    def _driver_limit_problems(self, where: str, m: Move) -> list[str]:
+        """A move above what the driver's move command accepts (``DriverOptions.command_limits``)."""
+        opts = self.config.driver_options
+        lim = type(opts).command_limits if opts is not None else None
+        out = []
+        driver = self.config.driver_type
+        if lim is not None and lim.max_joint_speed_rad_s is not None and m.speed_rad_s > lim.max_joint_speed_rad_s:
+            out.append(f"{where}: joint speed {m.speed_rad_s:.4f} rad/s ({math.degrees(m.speed_rad_s):.1f}°/s) above the "
+                       f"{lim.max_joint_speed_rad_s:g} rad/s the {driver} driver's move command accepts ({lim.source}); "
+                       "lower the move's speed percent")
+        if lim is not None and lim.max_joint_accel_rad_s2 is not None and m.accel_rad_s2 > lim.max_joint_accel_rad_s2:
+            out.append(f"{where}: joint acceleration {m.accel_rad_s2:.3f} rad/s² above the {lim.max_joint_accel_rad_s2:g} "
+                       f"rad/s² the {driver} driver's move command accepts ({lim.source})")
+        return out
 
     def approve(self, plan: Plan, start_q: np.ndarray | None) -> Verdict:
         verdict = self.check(plan, start_q)

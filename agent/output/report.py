@@ -10,6 +10,9 @@ A run with a result shows:
   kg and mm; ``payload_agent.output.pendant``), and whether they were written and read back;
 - the estimate of every solver with its 95 % interval, and the simulator's truth for
   simulated runs;
+- the inertia, where the run has the inertia part (``report_inertia``): the tensor about the centre
+  of mass with σ and 95 % intervals, the UR 6-vector, the principal moments with A/B/C, or why it
+  was not given;
 - the quality checks, failed ones first, each with its unit, and by how much it failed;
 - per sweep, the effort of the joints that carry the payload versus the moving joint's
   angle, empty and loaded, with the fitted model ``empty + Y(q)·θ̂`` (θ̂ of the general
@@ -34,6 +37,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError, UnsupportedCapability
 from payload_agent.output import report_html as H
 from payload_agent.output import report_plots as P
+from payload_agent.output.report_inertia import inertia_html
 from payload_agent.output.pendant import driver_type_of, pendant_values, write_back_text
 from payload_agent.recording.rundata import SweepData, load_manifest, load_phase
 from payload_agent.types import SweepKey
@@ -172,6 +176,7 @@ def _result_page(run_dir: Path, manifest: dict, result: dict, config: Config, hi
         + (f'; analysed by <code>solve</code> with baseline {H.e(result["solve"].get("baseline_dir") or "(own)")}'
            if isinstance(result.get("solve"), dict) else "") + '</div>', "</header>"]
     parts += _estimates_html(result, manifest, quality)
+    parts += inertia_html(result, manifest)
     parts += H.checks_html(quality)
     all_notes = list(result.get("notes") or []) + notes
     ests = result.get("estimates") or {}

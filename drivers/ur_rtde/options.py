@@ -18,11 +18,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import ClassVar
+
 from payload_agent.drivers.base import DriverOptions, option
+from payload_agent.drivers.settings import CommandLimits
 
 
 @dataclass(frozen=True, kw_only=True)
 class URRTDEOptions(DriverOptions):
+    # ur-rtde's RTDEControlInterface::moveJ refuses a speed above UR_JOINT_VELOCITY_MAX or an acceleration above
+    # UR_JOINT_ACCELERATION_MAX (docs/sources.md, "UR / ur_rtde")
+    command_limits: ClassVar[CommandLimits] = CommandLimits(3.14, 40.0, "ur-rtde's moveJ: UR_JOINT_VELOCITY_MAX, "
+                                                                        "UR_JOINT_ACCELERATION_MAX")
     host: str = option(help="the controller's IP address or host name")
     frequency_hz: float | None = option(None, gt=0.0, max=500.0,
                                         help="RTDE rate; default 500 Hz on e-Series, 125 Hz on CB3")
