@@ -107,17 +107,17 @@ def solve_all(model: FittedModel, options: AnalysisOptions, gains: Gains, syst: 
         except DataError as exc:
             failed.append(f"{name} not computed: {exc}")
     done[0] = (options.solver, main.with_notes(*failed))
-    out = [_with_systematics(SOLVERS[name].carries_systematics, est, syst) for name, est in done]
+    out = [_with_systematics(SOLVERS[name].systematics_key, est, syst) for name, est in done]
     return out[0], out[1:]
 
 
-def _with_systematics(carries: bool, est: Estimate, syst: systematics.Systematics) -> Estimate:
-    """An estimate widened by the systematic terms (evaluated on the fitted model) if its solver carries them."""
-    if not carries:
+def _with_systematics(key: str | None, est: Estimate, syst: systematics.Systematics) -> Estimate:
+    """An estimate widened by the systematic terms, with the sensitivities of its solver (``Solver.systematics_key``)."""
+    if key is None:
         if syst.terms:
-            return est.with_notes(f"the systematic terms ({syst.describe()}) are in the general solver's σ only")
+            return est.with_notes(f"the systematic terms ({syst.describe()}) are not in this solver's σ")
         return est
-    return syst.apply(est)
+    return syst.apply(est, key)
 
 
 __all__ = ["AnalysisOptions", "Gains", "analyse", "solve_all"]

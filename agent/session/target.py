@@ -122,7 +122,7 @@ def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
 def baseline_friction_nm(empty) -> tuple[float, ...] | None:
     """Each joint's friction level in the baseline's sweeps (largest over its poses), for the
     residual-friction term of the prediction (``systematics.planned_covariance``)."""
-    from payload_agent.evaluation.systematics.offsets import friction_gaps
+    from payload_agent.evaluation.systematics.friction import friction_gaps
 
     level = [0.0] * 6
     for (_, j), gap in friction_gaps(empty).items():

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from payload_agent.solvers import general, three_step
+from payload_agent.solvers.fitted import ALL
 from payload_agent.solvers.results import Estimate
 
 
@@ -21,10 +22,12 @@ class Solver:
 
     name: str
     solve: Callable[..., Estimate]  # the common signature above
-    carries_systematics: bool  # its covariance is the fitted model's, so the systematic terms add to it
+    # the key of the systematic terms' sensitivities its estimate takes (``evaluation.systematics``): the
+    # general fit's (``fitted.ALL``), or its own (the three-step: its name); None: none
+    systematics_key: str | None
 
 
 SOLVERS: dict[str, Solver] = {
-    general.NAME: Solver(general.NAME, general.solve, carries_systematics=True),
-    three_step.NAME: Solver(three_step.NAME, three_step.solve, carries_systematics=False),
+    general.NAME: Solver(general.NAME, general.solve, systematics_key=ALL),
+    three_step.NAME: Solver(three_step.NAME, three_step.solve, systematics_key=three_step.NAME),
 }

@@ -22,16 +22,17 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      per joint, by finite differences of the whole analysis (``compliance.sensitivities``);
    - joint zeros: ``zero_offset_uncertainty_deg`` per joint, likewise;
    - residual friction: the two-direction average cancels friction odd in speed; a Coulomb
-     direction asymmetry a_j leaves a_j·F even in speed, which cancels against the baseline only if
-     the friction level F did not change. The net change ΔF is MEASURED per sweep (half the up − down
-     effort gap in the loaded run minus the same in the empty run, ``offsets.friction_gaps``; it
-     includes warm-up, drift and load-dependent friction alike), the asymmetry is DECLARED
-     (``robot.friction_asymmetry_percent``, a standard deviation). The net change does not bound the
-     part the asymmetry acts on: the Coulomb level can fall with warm-up while load-dependent friction
-     rises with the tool's weight, and the net shows nearly nothing (seen in the benchmark). So a
-     declared relative change of the baseline's friction level (``robot.friction_change_percent``)
-     enters beside the measured one. Parameters: per joint a_j·ΔF_j (measured, on every sweep of joint
-     j) and a_j·δ_j (δ_j ~ friction_change × the baseline's level), per sweep ΔF's measurement noise;
+     direction asymmetry a_j leaves a_j·s·C_j even in speed, which cancels against the baseline only if
+     the friction level s did not change. The change of the part the asymmetry acts on is MEASURED per
+     joint (``systematics.friction``: along each sweep the legs' half gap is split into a constant part,
+     Coulomb + viscous at the sweep speed, and a part growing with the load torque; the constant part's
+     change between the empty and the loaded run, pooled over the joint's sweeps). The net change of the
+     whole gap is no measure of it: the tool's load raises the load-dependent part, which is symmetric
+     and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
+     the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
+     prior the measurement is combined with. The asymmetry itself stays DECLARED
+     (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
+     payload's torque. One parameter per joint, a_j·Δ_j, of standard deviation σ_a·√(E[Δ_j²]);
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load), sized from the data
      (``systematics.gain_scatter``);
@@ -39,7 +40,9 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      dependent gear ripple), one per (pose, wrist joint), sized from the data
      (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
 3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
-   per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison.
+   per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison. The
+   three-step solver's estimate gets the same terms through its own sensitivities (``THREE_STEP``, by
+   finite differences of its inputs: ``systematics.three_step_response``).
 
 To add an error source, append a function ``(Context) -> list[Term]`` to ``TERMS``.
 """
@@ -57,7 +60,8 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.evaluation.systematics import compliance, gain_scatter, offsets
+from payload_agent.evaluation.systematics import compliance, friction, gain_scatter, offsets, three_step_response
+from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
 from payload_agent.solvers import general, wls
 from payload_agent.solvers.fitted import ALL, FittedModel  # ALL: the combined fit's key (others: poses)
 from payload_agent.solvers.results import Estimate
@@ -138,14 +142,19 @@ class Systematics:
         blocks = [t.sens.get(which, np.zeros((4, len(t.std)))) for t in self.terms]
         return np.hstack(blocks), np.concatenate([t.std for t in self.terms])
 
-    def apply(self, est: Estimate) -> Estimate:
-        """``est`` (a general fit on the prepared deltas) with every term in its covariance and notes."""
+    def apply(self, est: Estimate, which: str = ALL) -> Estimate:
+        """``est`` with every term in its covariance and notes: a general fit on the prepared deltas (``which``
+        ALL), or the three-step solver's on them (``THREE_STEP``: each term's three-step sensitivities)."""
         if est.covariance is None or not (self.terms or self.notes):
             return est
         cov = np.asarray(est.covariance, float).copy()
-        cov[:4, :4] += self.covariance(ALL)
+        cov[:4, :4] += self.covariance(which)
         out = compliance.with_covariance(est, cov)
-        return replace(out, notes=list(out.notes) + [t.note for t in self.terms] + list(self.notes))
+        missing = [t.name for t in self.terms if which not in t.sens]
+        lost = [f"the {' and '.join(missing)} term could not be propagated to {which} (not solvable on the shifted "
+                "data); its σ leaves it out"] if missing else []
+        return replace(out, notes=list(out.notes) + [t.note for t in self.terms if which in t.sens] + lost
+                       + list(self.notes))
 
     def describe(self) -> str:
         return " + ".join(t.name for t in self.terms)
@@ -166,6 +175,7 @@ class Context:
     fits: dict[str, wls.FitResult]
 
     model: FittedModel | None = None
+    three_step: np.ndarray | None = None  # the three-step solver's θ on the same deltas (None: not solvable)
 
     @classmethod
     def build(cls, prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
@@ -177,10 +187,12 @@ class Context:
         if ALL not in fits:
             raise DataError("systematics: the combined fit is impossible")
         groups = {which: model.groups_of(which) for which in (ALL, *model.poses)}
-        return cls(prepared, kin, decl, gain_rel_std, list(model.sweeps), groups, fits, model)
+        return cls(prepared, kin, decl, gain_rel_std, list(model.sweeps), groups, fits, model,
+                   three_step_response.theta(prepared.deltas, kin))
 
     def thetas(self, deltas: Deltas) -> np.ndarray:
-        """θ of every base fit (ALL, then the poses) on other deltas, with the base fits' weights: (4·F,)."""
+        """θ of every base fit (ALL, then the poses) on other deltas, with the base fits' weights, then the
+        three-step solver's θ if it solved the run: (4·F [+ 4],)."""
         sweeps = general.select_sweeps(deltas)
         pose_of = {d.key.name: d.key.pose for d in sweeps}
         groups = general.build_groups(sweeps, self.kin)
@@ -192,11 +204,19 @@ class Context:
                                 for g in gs])
             theta, _ = wls.weighted_lstsq(np.vstack([g.Y for g in gs]), np.concatenate([g.y for g in gs]), w)
             out.append(theta)
+        if self.three_step is not None:  # NaN where it cannot solve the shifted sweeps: no three-step response then
+            th = three_step_response.theta(deltas, self.kin)
+            out.append(np.full(4, np.nan) if th is None else th)
         return np.concatenate(out)
 
     def split(self, d: np.ndarray) -> dict[str, np.ndarray]:
-        """(P, 4·F) finite-difference rows -> {fit: (4, P)}."""
-        return {which: d[:, 4 * i:4 * i + 4].T for i, which in enumerate(self.fits)}
+        """(P, 4·F [+ 4]) finite-difference rows -> {fit (and THREE_STEP): (4, P)}."""
+        out = {which: d[:, 4 * i:4 * i + 4].T for i, which in enumerate(self.fits)}
+        if self.three_step is not None:
+            block = d[:, 4 * len(self.fits):4 * len(self.fits) + 4].T
+            if np.all(np.isfinite(block)):
+                out[THREE_STEP] = block
+        return out
 
     def offset_sens(self, selector: offsets.Selector, labels: Sequence[str]) -> dict[str, np.ndarray]:
         """{fit: (4, P)} of constant torques on the rows ``selector`` names ``labels[p]``."""
@@ -205,6 +225,13 @@ class Context:
             s = offsets.offset_sensitivities(self.sweeps, self.groups[which], res.weights, res.normal_inverse,
                                              selector)
             out[which] = np.column_stack([s.get(lab, np.zeros(4)) for lab in labels]) if labels else np.zeros((4, 0))
+        if self.three_step is not None:
+            try:  # not solvable with a step added: no three-step response (its estimate says so)
+                out[THREE_STEP] = three_step_response.offset_response(self.prepared.deltas, self.kin, self.sweeps,
+                                                                       self.groups[ALL], selector, labels,
+                                                                       self.three_step)
+            except DataError:
+                pass
         return out
 
 
@@ -236,43 +263,42 @@ def joint_terms(ctx: Context) -> list[Term]:
 
 
 def friction_terms(ctx: Context) -> list[Term]:
-    """Coulomb direction asymmetry (declared) × the friction change between the runs (measured per sweep)."""
+    """Coulomb direction asymmetry (declared) × the change of the constant friction part between the runs
+    (measured per joint from the legs' gaps, ``systematics.friction``; the declared change is its prior)."""
     asym = float(ctx.decl.friction_asymmetry_std)
     if asym <= 0:
         return []
     p = ctx.prepared
-    loaded = offsets.friction_gaps(p.loaded, p.commands)
-    empty = offsets.friction_gaps(p.empty, p.commands)
-    combined = [d for d in ctx.sweeps if d.key.direction == "both"]
-    pairs = [(d.key.pose, d.moving) for d in combined if (d.key.pose, d.moving) in loaded
-             and (d.key.pose, d.moving) in empty]
+    loaded = friction.friction_gaps(p.loaded, p.commands)
+    empty = friction.friction_gaps(p.empty, p.commands)
+    pairs = sorted({(d.key.pose, d.moving) for d in ctx.sweeps if d.key.direction == "both"}
+                   & set(loaded) & set(empty))
     if not pairs:
         return []
-    change = {pj: loaded[pj].level_nm - empty[pj].level_nm for pj in pairs}
-    level = {pj: abs(empty[pj].level_nm) for pj in pairs}  # the baseline's friction level
-    noise = {pj: float(np.hypot(loaded[pj].std_nm, empty[pj].std_nm)) for pj in pairs}
     rel = float(ctx.decl.friction_change_std)
     joints = sorted({j for _, j in pairs})
-    labels = [f"{pose}/j{j + 1}" for pose, j in pairs]
+    change = {}
+    for j in joints:
+        mine = [pj for pj in pairs if pj[1] == j]
+        level = max(abs(empty[pj].level_nm) for pj in mine)  # the baseline's friction level: the prior's scale
+        change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level)
 
-    def per_sweep(g: wls.Group, d: DeltaSweep) -> str | None:
-        return f"{d.key.pose}/j{g.joint + 1}" if g.joint == d.moving and d.key.direction == "both" else None
+    def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:
+        ok = g.joint == d.moving and d.key.direction == "both" and g.joint in change
+        return str(g.joint) if ok else None
 
-    sweep_sens = ctx.offset_sens(per_sweep, labels)
-    sens = {}
-    for which, S in sweep_sens.items():
-        # a_j acts through a_j·ΔF (measured) and a_j·δ_j (declared) on every sweep of joint j; then each
-        # sweep's own ΔF noise
-        A = np.column_stack([sum(change[pj] * S[:, i] for i, pj in enumerate(pairs) if pj[1] == j) for j in joints])
-        B = np.column_stack([sum(level[pj] * S[:, i] for i, pj in enumerate(pairs) if pj[1] == j) for j in joints])
-        sens[which] = np.hstack([A, B, S])
-    std = np.concatenate([np.full(len(joints), asym), np.full(len(joints), asym * rel),
-                          [asym * noise[pj] for pj in pairs]])
-    worst = max(pairs, key=lambda pj: abs(change[pj]))
-    return [Term("residual friction", std, sens,
-                 f"friction direction asymmetry (±{100 * asym:.3g} %) × the friction change between the runs "
-                 f"(measured: up to {change[worst]:+.3f} N·m on joint {worst[1] + 1} in pose {worst[0]}; declared: "
-                 f"±{100 * rel:.3g} % of the baseline's level) in σ")]
+    labels = [str(j) for j in joints]
+    std = np.array([asym * change[j].rms_nm for j in joints])
+    measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
+                if change[j].measured]
+    prior = [f"j{j + 1}" for j in joints if not change[j].measured]
+    how = ("measured " + ", ".join(measured) + " N·m") if measured else ""
+    if prior:
+        how += ("; " if how else "") + (f"declared ±{100 * rel:.3g} % of the baseline's level where the sweeps' load "
+                                        f"torque varies too little to tell ({', '.join(prior)})")
+    return [Term("residual friction", std, ctx.offset_sens(per_joint, labels),
+                 f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
+                 f"the change of the constant friction part between the runs ({how}) in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
@@ -294,7 +320,12 @@ def gain_scatter_terms(ctx: Context) -> list[Term]:
     sized from the data (``systematics.gain_scatter``)."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
                             {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model)
-    return [] if out is None else [Term("torque-gain scatter", *out)]
+    if out is None:
+        return []
+    std, sens, text = out
+    if ctx.three_step is not None:  # it acts on still joints, whose rows the three steps do not read
+        sens = dict(sens, **{THREE_STEP: np.zeros((4, len(std)))})
+    return [Term("torque-gain scatter", std, sens, text)]
 
 
 TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms, gain_scatter_terms]
@@ -329,7 +360,8 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
     a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:
     the joint zeros (θ̂ = (YᵀWY)⁻¹YᵀW·Y(q + z)θ, by a finite step) and the residual friction with the
     declared change only (``friction_change_std`` × ``friction_level_nm`` per moving joint, e.g. what the
-    stored baseline shows; no measured change before the run). Not predictable: the stiffness term
+    stored baseline shows): the run measures the change and reports the posterior, whose expectation
+    before the run is this prior. Not predictable: the stiffness term
     (it needs the arm's own torques) and the wrist torques (sized from the data); both are small against
     these on a declared arm (docs/benchmarks.md).
     """
@@ -355,5 +387,5 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
     return cov
 
 
-__all__ = ["ALL", "RIGID", "Prepared", "Term", "Systematics", "Context", "TERMS", "prepare", "evaluate",
+__all__ = ["ALL", "THREE_STEP", "RIGID", "Prepared", "Term", "Systematics", "Context", "TERMS", "prepare", "evaluate",
            "deltas_of", "joint_terms", "friction_terms", "wrist_terms", "gain_scatter_terms", "planned_covariance"]

@@ -25,14 +25,13 @@ from __future__ import annotations
 import math
 
 from dataclasses import dataclass, replace
-from typing import Callable, Iterable, Mapping
+from typing import Callable, Iterable
 
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general
 from payload_agent.solvers.fitted import FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
@@ -137,59 +136,7 @@ def _fit_offsets(sweeps: list[DeltaSweep], groups: list[Group], selectors: tuple
     return OffsetFit(fit(aug, None if gain_rel_std is None else list(gain_rel_std)), labels, aug)
 
 
-# -- the friction residual as an uncertainty instead of an estimate -------------------------------------
-
-@dataclass(frozen=True)
-class FrictionGap:
-    """One sweep's odd friction level: half the up − down effort gap at matching angles (N·m), its noise."""
-
-    level_nm: float  # in the direction of motion of the "up" leg: positive when friction opposes motion
-    std_nm: float  # standard uncertainty of the median gap (noise, autocorrelation-corrected)
-
-
-def friction_gaps(sweeps: Mapping[SweepKey, SweepData], commands: Mapping | None = None
-                  ) -> dict[tuple[str, int], FrictionGap]:
-    """Per (pose, moving joint 0-based): the friction level a run shows, half its up − down effort gap.
-
-    At the same angle of the moving joint, gravity is the same in both legs and friction odd in
-    speed flips: (τ_up − τ_down)/2 is its level at the sweep speed (Coulomb + viscous·speed +
-    load-dependent), signed so that friction opposing the motion is positive whichever way "up"
-    turns the joint. Median over the legs' common constant-speed angles; ``commands`` (the plan's,
-    ``segmenter.sweep_commands``) place the windows as the subtraction does.
-    """
-    from payload_agent.analysis.delta import window_of
-    from payload_agent.solvers.wls import autocorrelation_time
-
-    commands = commands or {}
-    out: dict[tuple[str, int], FrictionGap] = {}
-    for key, up in sweeps.items():
-        if key.direction != "up":
-            continue
-        dkey = SweepKey(key.pose, key.joint, "down", key.speed_percent)
-        down = sweeps.get(dkey)
-        if down is None:
-            continue
-        j = key.joint - 1
-        try:
-            wu, wd = window_of(up, commands.get(key)), window_of(down, commands.get(dkey))
-        except DataError:
-            continue
-        xu, tu = up.q[wu.slice, j], up.effort_nm[wu.slice, j]
-        xd, td = down.q[wd.slice, j], down.effort_nm[wd.slice, j]
-        order = np.argsort(xd)
-        inside = (xu >= xd[order][0]) & (xu <= xd[order][-1])
-        if inside.sum() < 10:
-            continue
-        d = tu[inside] - np.interp(xu[inside], xd[order], td[order])
-        sign = 1.0 if xu[-1] >= xu[0] else -1.0  # the up leg's direction of motion
-        med = float(np.median(d))
-        tau = autocorrelation_time(d - med)[0]
-        std = 0.5 * 1.2533 * float(np.std(d)) * np.sqrt(max(tau, 1.0) / len(d))  # median of ~normal noise
-        gap = FrictionGap(0.5 * sign * med, std)
-        if (key.pose, j) not in out or abs(gap.level_nm) > abs(out[(key.pose, j)].level_nm):
-            out[(key.pose, j)] = gap
-    return out
-
+# -- how θ responds to constant torques ------------------------------------------------------------------
 
 def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.ndarray, inv: np.ndarray,
                          selector: Selector) -> dict[str, np.ndarray]:
@@ -257,4 +204,4 @@ def spread_beyond_noise(b: np.ndarray, cov: np.ndarray) -> float:
 
 
 __all__ = ["WRIST_JOINTS", "Selector", "moving_joint", "wrist_joint", "OffsetFit", "plain_groups", "augment",
-           "fit_offsets", "FrictionGap", "friction_gaps", "offset_sensitivities", "wrist_offset_size"]
+           "fit_offsets", "offset_sensitivities", "wrist_offset_size"]

@@ -1,0 +1,157 @@
+"""What a run's two legs show about friction: its level, split into a constant and a load-dependent part.
+
+At the same angle of the moving joint, gravity is the same in the up and the down leg while friction
+odd in speed flips, so half the up − down effort gap is the friction level there. On an arm whose
+friction is τ_f = s·[C + V·|q̇| + L·|τ_load|] (Coulomb, viscous, a Coulomb part growing with the load
+torque, all scaled by a level s that drifts and changes with temperature) the gap along a constant-speed
+sweep is
+
+    gap(q) = s·(C + V·|q̇|) + s·L·|τ_load(q)|,
+
+affine in |τ_load|, which the two legs' mean gives (the gravity torque at that angle). A regression of the
+gap on [1, |mean|] along each sweep separates the constant part c₀ = s·(C + V·|q̇|) from the load-dependent
+one. Why it matters (``systematics.friction_terms``): a Coulomb direction asymmetry a leaves a·s·C in the
+two-direction average, which cancels against the empty run only if s did not change; the residual is
+a·Δc₀ (a·Δs·C, plus a·Δs·V·|q̇| as a margin). The net change of the whole gap between the runs is no
+measure of it: the loaded run's larger load torque raises the load-dependent part (symmetric, it cancels
+in the average) and can hide a Coulomb drop behind it, or show a change where there is none.
+
+Where a sweep's load torque varies too little to separate the two parts (a short sweep near the
+horizontal), c₀'s uncertainty is large; ``coulomb_change`` then falls back on the declared prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from payload_agent.errors import DataError
+from payload_agent.recording.rundata import SweepData
+from payload_agent.types import SweepKey
+
+MIN_SAMPLES = 10
+
+
+@dataclass(frozen=True)
+class FrictionGap:
+    """One sweep's friction as its two legs show it (N·m), each part with its standard uncertainty."""
+
+    level_nm: float  # median half-gap, in the up leg's direction of motion: positive when friction opposes motion
+    std_nm: float  # of the median (noise, autocorrelation-corrected)
+    constant_nm: float  # c₀: the part independent of the load torque (Coulomb + viscous at the sweep speed)
+    constant_std_nm: float  # inf when the sweep's load torque varies too little to separate it
+    load_slope: float  # s·L: the gap's growth per N·m of load torque
+
+
+def _legs(up: SweepData, down: SweepData, j: int, commands: Mapping, key: SweepKey, dkey: SweepKey
+          ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(half-gap, mean of the legs, the up leg's direction) at the up leg's constant-speed angles inside the down leg's."""
+    from payload_agent.analysis.delta import window_of
+
+    try:
+        wu, wd = window_of(up, commands.get(key)), window_of(down, commands.get(dkey))
+    except DataError:
+        return None
+    xu, tu = up.q[wu.slice, j], up.effort_nm[wu.slice, j]
+    xd, td = down.q[wd.slice, j], down.effort_nm[wd.slice, j]
+    order = np.argsort(xd)
+    inside = (xu >= xd[order][0]) & (xu <= xd[order][-1])
+    if inside.sum() < MIN_SAMPLES:
+        return None
+    td_at = np.interp(xu[inside], xd[order], td[order])
+    sign = 1.0 if xu[-1] >= xu[0] else -1.0
+    return 0.5 * sign * (tu[inside] - td_at), 0.5 * (tu[inside] + td_at), sign
+
+
+def _split(gap: np.ndarray, mean: np.ndarray) -> tuple[float, float, float]:
+    """(c₀, its std, slope) of gap = c₀ + slope·|mean| (least squares, autocorrelation-corrected)."""
+    from payload_agent.solvers.wls import autocorrelation_time
+
+    A = np.column_stack([np.ones(len(gap)), np.abs(mean)])
+    AtA = A.T @ A
+    if np.linalg.cond(AtA) > 1e12:
+        return float(np.median(gap)), float("inf"), 0.0
+    coef = np.linalg.solve(AtA, A.T @ gap)
+    r = gap - A @ coef
+    tau = autocorrelation_time(r)[0]
+    var = float(r @ r) / max(len(r) - 2, 1) * max(tau, 1.0)
+    return float(coef[0]), float(np.sqrt(var * np.linalg.inv(AtA)[0, 0])), float(coef[1])
+
+
+def friction_gaps(sweeps: Mapping[SweepKey, SweepData], commands: Mapping | None = None
+                  ) -> dict[tuple[str, int], FrictionGap]:
+    """Per (pose, moving joint 0-based): the friction one run shows (of the joint's sweeps in that pose, the one
+    with the largest level). ``commands`` (the plan's, ``segmenter.sweep_commands``) place the constant-speed
+    windows as the subtraction does."""
+    from payload_agent.solvers.wls import autocorrelation_time
+
+    commands = commands or {}
+    out: dict[tuple[str, int], FrictionGap] = {}
+    for key, up in sweeps.items():
+        if key.direction != "up":
+            continue
+        dkey = SweepKey(key.pose, key.joint, "down", key.speed_percent)
+        if dkey not in sweeps:
+            continue
+        j = key.joint - 1
+        legs = _legs(up, sweeps[dkey], j, commands, key, dkey)
+        if legs is None:
+            continue
+        gap, mean, _ = legs
+        med = float(np.median(gap))
+        tau = autocorrelation_time(gap - med)[0]
+        std = 1.2533 * float(np.std(gap)) * np.sqrt(max(tau, 1.0) / len(gap))  # median of ~normal noise
+        c0, c0_std, slope = _split(gap, mean)
+        found = FrictionGap(med, std, c0, c0_std, slope)
+        if (key.pose, j) not in out or abs(found.level_nm) > abs(out[(key.pose, j)].level_nm):
+            out[(key.pose, j)] = found
+    return out
+
+
+@dataclass(frozen=True)
+class CoulombChange:
+    """One joint's change of the constant friction part between the empty and the loaded run (N·m)."""
+
+    measured_nm: float  # pooled over the joint's sweeps (inverse-variance); 0 with no usable sweep
+    measured_std_nm: float  # inf: the data cannot tell
+    prior_std_nm: float  # the declared change (``robot.friction_change_percent`` × the baseline's level)
+    mean_nm: float  # the measurement and the prior combined (normal-normal)
+    std_nm: float
+
+    @property
+    def rms_nm(self) -> float:
+        """√E[Δ²]: what a direction asymmetry multiplies."""
+        return float(np.hypot(self.mean_nm, self.std_nm))
+
+    @property
+    def measured(self) -> bool:
+        """True when the data, not the prior, decide (the measurement at least as precise as the prior)."""
+        return bool(np.isfinite(self.measured_std_nm)
+                    and (self.prior_std_nm <= 0.0 or self.measured_std_nm <= self.prior_std_nm))
+
+
+def coulomb_change(loaded: list[FrictionGap], empty: list[FrictionGap], prior_std_nm: float) -> CoulombChange:
+    """The constant part's change of one joint from its sweeps' gaps in both runs (``loaded[i]`` and ``empty[i]``
+    the same sweep), combined with the declared prior N(0, prior_std_nm²)."""
+    d = np.array([lo.constant_nm - em.constant_nm for lo, em in zip(loaded, empty)], float)
+    v = np.array([lo.constant_std_nm ** 2 + em.constant_std_nm ** 2 for lo, em in zip(loaded, empty)], float)
+    ok = np.isfinite(v) & (v > 0)
+    if ok.any():
+        w = 1.0 / v[ok]
+        meas, meas_var = float(np.sum(w * d[ok]) / np.sum(w)), float(1.0 / np.sum(w))
+    else:
+        meas, meas_var = 0.0, float("inf")
+    prior_var = float(prior_std_nm) ** 2
+    if prior_var <= 0.0:
+        mean, var = (meas, meas_var) if np.isfinite(meas_var) else (0.0, 0.0)
+    elif not np.isfinite(meas_var):
+        mean, var = 0.0, prior_var
+    else:
+        var = 1.0 / (1.0 / meas_var + 1.0 / prior_var)
+        mean = var * meas / meas_var
+    return CoulombChange(meas, float(np.sqrt(meas_var)), float(prior_std_nm), float(mean), float(np.sqrt(var)))
+
+
+__all__ = ["FrictionGap", "friction_gaps", "CoulombChange", "coulomb_change"]

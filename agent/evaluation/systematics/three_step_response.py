@@ -1,0 +1,74 @@
+"""How the three-step solver's estimate responds to each systematic term, by finite differences of its inputs.
+
+The general fit's response to a term (``Term.sens[ALL]``) does not describe the three-step solver's: that
+one uses four sweeps' moving-joint rows only (joint 2 in pose b, joint 3 in poses b and d), pairs the
+joint-2 and joint-3 sweeps at equal link elevation and divides by the mass found first. A constant torque
+on the joint-2 sweep goes straight into the mass there, while the general fit spreads it over every row.
+So each term gets the three-step's own ∂θ/∂p (θ = [m, m·c]), under the key ``THREE_STEP`` of ``Term.sens``:
+
+- terms that change the data through the whole analysis (joint stiffness, joint zeros) already re-run it
+  on shifted sweeps (``compliance.sensitivities``); the context adds the three-step's θ to what that
+  re-run returns (``theta``);
+- constant torques on named rows (residual friction, wrist torques) are added to those rows of the
+  deltas, one label at a time, and the three steps re-run (``offset_response``);
+- the torque-gain scatter acts on still joints only, whose rows the three steps do not read: zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.errors import DataError
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.solvers import three_step
+from payload_agent.solvers.wls import Group
+from payload_agent.types import SweepKey
+
+THREE_STEP = three_step.NAME  # the key of the three-step's sensitivities in ``Term.sens``
+STEP_NM = 1e-3  # the finite step of a constant torque (the three steps are linear in Δτ but for 1/m)
+READS_JOINTS = (1, 2)  # 0-based: the only rows the three steps read (joint 2 and joint 3)
+
+
+def theta(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics) -> np.ndarray | None:
+    """θ = [m, m·c] of the three-step solver on these deltas, None where it cannot solve them."""
+    try:
+        est = three_step.solve(dict(deltas), kin)
+    except DataError:
+        return None
+    return np.array([est.mass_kg, *(est.mass_kg * np.asarray(est.cog_m))])
+
+
+def offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
+                    groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
+                    labels: Sequence[str], theta0: np.ndarray) -> np.ndarray:
+    """(4, P): ∂θ/∂b_k of the three-step solver for a constant torque b_k on the rows ``selector`` names
+    ``labels[k]`` (``groups`` of ``sweeps``: the general fit's, which name the rows)."""
+    by_name = {d.key.name: d for d in sweeps}
+    rows: dict[str, list[tuple[SweepKey, int]]] = {lab: [] for lab in labels}
+    for g in groups:
+        d = by_name[g.sweep]
+        name = selector(g, d)
+        if name in rows and g.joint in READS_JOINTS:
+            rows[name].append((d.key, g.joint))
+    out = np.zeros((4, len(labels)))
+    for k, lab in enumerate(labels):
+        if not rows[lab]:
+            continue
+        shifted = dict(deltas)
+        for key, j in rows[lab]:
+            d = shifted[key]
+            dtau = np.array(d.dtau, float)
+            dtau[:, j] += STEP_NM
+            shifted[key] = replace(d, dtau=dtau)
+        th = theta(shifted, kin)
+        if th is None:
+            raise DataError(f"three-step: not solvable with a {STEP_NM} N·m step on {lab}")
+        out[:, k] = (th - theta0) / STEP_NM
+    return out
+
+
+__all__ = ["THREE_STEP", "STEP_NM", "theta", "offset_response"]
