@@ -66,8 +66,10 @@ def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
     print(f"\nsim-ur5e ({result['solver']}): mass error {1000 * err_mass:+.1f} g, "
           f"CoG error {np.round(err_cog, 2).tolist()} mm")
     assert result["solver"] == sim_ur5e_data["procedure"]["solver"]
-    assert abs(err_mass) < 0.03, result
-    assert np.max(np.abs(err_cog)) < 5.0, result
+    # within 30 g and 5 mm (seeded runs with sim-ur5e's real-arm effort noise, 1.4-2.1 N·m on joints 1-3: -7 to
+    # +12 g), and within what the run itself claims
+    assert abs(err_mass) < 0.03 and abs(err_mass) < 4 * result["mass_std_kg"], result
+    assert np.max(np.abs(err_cog)) < 5.0 and np.all(np.abs(err_cog) < 4 * np.asarray(result["cog_std_mm"])), result
     run_dir = next((tmp_path / "runs").iterdir())
     manifest = load_manifest(run_dir)
     assert manifest["effort_unit"] == "A"
