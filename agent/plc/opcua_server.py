@@ -1,7 +1,7 @@
 """`payload-agent serve` over OPC UA (asyncua): per robot its flange load, tool library, last result and state,
 and the Identify / Verify / Apply jobs with the PLCopen handshake (``plc.jobs``).
 
-Address space, under Objects/PayloadAgent/<robot>/ (namespace ``NAMESPACE``; docs/plc.md lists every node),
+Address space, under Objects/PayloadAgent/<robot>/ (namespace ``NAMESPACE``; docs/production.md "The PLC in charge" lists every node),
 built on the official OPC 10000-100 (DI) and OPC 40010-1 (Robotics) nodesets (``opcua_model``):
 
 - ``FlangeLoad``: a Robotics ``LoadType`` instance: the payload this agent last wrote or verified,

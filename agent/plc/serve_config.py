@@ -7,7 +7,7 @@
     users:                       # user names for OPC UA sessions; passwords as hashes (serve_config.hash_password)
       - {name: plc, password: "pbkdf2_sha256$200000$<salt hex>$<hash hex>", role: operator}   # may start jobs
       - {name: scada, password: "pbkdf2_sha256$...", role: reader}                            # read only
-    modbus:                      # optional: the same handshake over Modbus TCP registers (docs/plc.md)
+    modbus:                      # optional: the same handshake over Modbus TCP registers (docs/production.md, "The PLC in charge")
       host: 127.0.0.1
       port: 5020
       unit: 1
