@@ -19,7 +19,7 @@ def add_parser(add: Callable[..., argparse.ArgumentParser], robot_arg: Callable[
                      "moves the robot when the PLC asks")
     robot_arg(p)
     p.add_argument("--config", required=True, metavar="SERVE_YAML",
-                   help="endpoint, users (password hashes, roles) and the optional modbus section (docs/production.md, "The PLC in charge")")
+                   help="endpoint, users (password hashes, roles) and the optional modbus section (docs/production.md, 'The PLC in charge')")
 
 
 def cmd_serve(args, con) -> int:
