@@ -38,7 +38,7 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      (``systematics.gain_scatter``);
    - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
      dependent gear ripple), one per (pose, wrist joint), estimated with θ; their measured effect on θ,
-     shrunk to its maximum-likelihood size, is the term (``offsets.wrist_torque_effect``); a strong one
+     shrunk to the size the data show beyond noise, is the term (``offsets.wrist_torque_effect``); a strong one
      fails the gate's cable check instead;
 3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
    per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison. The

@@ -182,9 +182,10 @@ def wrist_torque_effect(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, A: 
 
     The fit with one offset per (pose, wrist joint) estimates them, b̂ with covariance C; θ of the plain fit
     moves by β = A·b (``A``: ``offset_sensitivities`` of the combined fit, (4, k) over ``labels``), estimated
-    by β̂ = A·b̂ with covariance D = A·C·Aᵀ. What goes into σ is the maximum-likelihood size of that effect:
-    β̂ ~ N(0, D + λ·vvᵀ) is most likely at v ∝ β̂, λ·vvᵀ = s²·β̂β̂ᵀ with s² = max(q − 1, 0)/q,
-    q = β̂ᵀ·D⁻¹·β̂. It replaced an isotropic size (b ~ N(0, σ_w²·I), ``wrist_offset_size``), which misses a
+    by β̂ = A·b̂ with covariance D = A·C·Aᵀ. What goes into σ is that effect shrunk to the size the data show
+    beyond their noise: s²·β̂β̂ᵀ with s² = max(q − r, 0)/q, q = β̂ᵀ·D⁻¹·β̂, r = rank D (E[q] = r + βᵀD⁻¹β, so
+    q − r is the unbiased size; the maximum likelihood's q − 1 put 2–3 g into σ of clean runs whose noise
+    was 1.5 g). It replaced an isotropic size (b ~ N(0, σ_w²·I), ``wrist_offset_size``), which misses a
     cable: its torques come from one spring wound one way, so they share a sign and add up in θ along the
     direction the sweeps determine worst (the offsets' common part is nearly confounded with m·c); in the
     benchmark's weak-cable ablation (issue 22) the isotropic size put 0–1 g into σ against errors of 3–8 g.
