@@ -64,3 +64,39 @@ def test_spread_beyond_noise_is_zero_for_pure_noise_and_the_size_of_a_real_sprea
     assert np.median(noise_only) == 0.0
     real = [offsets.spread_beyond_noise(rng.normal(0.0, np.sqrt(sd ** 2 + 0.05 ** 2)), cov) for _ in range(300)]
     assert np.sqrt(np.mean(np.square(real))) == pytest.approx(0.05, rel=0.15)
+
+
+# a weak tool cable: one spring wound one way, so its torques share a sign (N·m; cf. benchmarks/hard.py:
+# 0.01–0.02 N·m/rad over the 90–180° the wrist turns from where the tool was mounted)
+CABLE_NM = {"b": (0.03, 0.025, 0.05), "d": (0.03, 0.0, 0.02)}
+
+
+def _with(loaded, torques):
+    out = {}
+    for key, s in loaded.items():
+        e = np.array(s.effort_nm, float)
+        e[:, 3:] += torques.get(key.pose, 0.0)
+        out[key] = dataclasses.replace(s, effort_nm=e)
+    return out
+
+
+def test_the_wrist_torque_term_is_the_size_of_what_a_weak_cable_does_to_the_mass(run):
+    """The term is the torques' measured effect on θ: it covers the shift the cable causes (the isotropic size it
+    replaced, b ~ N(0, σ_w²·I), put 0.9 g of this 6.1 g shift into σ), and is absent on the same run without it."""
+    from payload_agent.evaluation import systematics
+    from payload_agent.solvers import general
+
+    kin, loaded, empty = run
+
+    def mass_and_term(lo):
+        prep = systematics.prepare(lo, empty, systematics.RIGID)
+        model = general.fit_model(prep.deltas, kin)
+        syst = systematics.evaluate(prep, kin, systematics.RIGID, terms=[systematics.wrist_terms], model=model)
+        return model.fit().theta[0], float(np.sqrt(syst.covariance()[0, 0]))
+
+    m_clean, term_clean = mass_and_term(loaded)
+    m_cable, term_cable = mass_and_term(_with(loaded, CABLE_NM))
+    shift = abs(m_cable - m_clean)  # the same noise in both: what the cable alone did
+    assert shift > 0.004  # the effect is real: several grams on a 2 kg tool
+    assert 0.7 * shift < term_cable < 2.0 * shift
+    assert term_clean < 0.3 * term_cable

@@ -37,8 +37,9 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      from one standing angle to the next (gear ripple growing with load), sized from the data
      (``systematics.gain_scatter``);
    - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
-     dependent gear ripple), one per (pose, wrist joint), sized from the data
-     (``offsets.wrist_offset_size``); a strong one fails the gate's cable check instead;
+     dependent gear ripple), one per (pose, wrist joint), estimated with θ; their measured effect on θ,
+     shrunk to the size the data show beyond noise, is the term (``offsets.wrist_torque_effect``); a strong one
+     fails the gate's cable check instead;
 3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
    per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison. The
    three-step solver's estimate gets the same terms through its own sensitivities (``THREE_STEP``, by
@@ -302,17 +303,24 @@ def friction_terms(ctx: Context) -> list[Term]:
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
-    """Constant torques on the still wrist, one per (pose, wrist joint), of the size the data show."""
-    try:
-        sigma_w = offsets.wrist_offset_size(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std, ctx.model)
-    except (DataError, np.linalg.LinAlgError):
-        return []
-    if sigma_w <= 0:
-        return []
+    """Constant torques on the still wrist, one per (pose, wrist joint): their effect on θ as the data show it
+    (``offsets.wrist_torque_effect``), one parameter along the measured offsets."""
     by_name = {d.key.name: d for d in ctx.sweeps}
     labels = sorted({offsets.wrist_joint(g, by_name[g.sweep]) for g in ctx.groups[ALL]} - {None})
-    return [Term("wrist torques", np.full(len(labels), sigma_w), ctx.offset_sens(offsets.wrist_joint, labels),
-                 f"constant wrist torques of {1000 * sigma_w:.0f} mN·m rms (from the data) in σ")]
+    if not labels:
+        return []
+    sens = ctx.offset_sens(offsets.wrist_joint, labels)
+    try:
+        b, s, q = offsets.wrist_torque_effect(ctx.prepared.deltas, ctx.kin, sens[ALL], labels, ctx.gain_rel_std,
+                                              ctx.model)
+    except (DataError, np.linalg.LinAlgError):
+        return []
+    if s <= 0:
+        return []
+    along = {which: A @ b[:, None] for which, A in sens.items()}
+    return [Term("wrist torques", np.array([s]), along,
+                 f"constant wrist torques (up to {1000 * float(np.max(np.abs(b))):.0f} mN·m, from the data; their "
+                 f"effect on the result {s:.2f} × as measured, q = {q:.1f}) in σ")]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
