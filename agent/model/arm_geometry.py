@@ -139,12 +139,10 @@ class ArmGeometry:
             col = inner[:, 2]  # M's last column is Rz(θ4) of it
             if math.hypot(col[0], col[1]) > 1e-9:
                 t4 = math.atan2(M[1, 2], M[0, 2]) - math.atan2(col[1], col[0])
-                N = inner.T @ _rz(t4).T @ M  # = Rz(θ6)
-                t6 = math.atan2(N[1, 0], N[0, 0])
             else:  # joints 4 and 6 in line: joint 4 (the heavier) stays where preferred, joint 6 takes the rest
                 t4 = q4_free + r4.offset_rad
-                N = inner.T @ _rz(t4).T @ M
-                t6 = math.atan2(N[1, 0], N[0, 0])
+            N = inner.T @ _rz(t4).T @ M  # = Rz(θ6)
+            t6 = math.atan2(N[1, 0], N[0, 0])
             w = np.array([wrap(t4 - r4.offset_rad), wrap(t5 - r5.offset_rad), wrap(t6 - r6.offset_rad)])
             if np.max(np.abs(self.kin.flange(self._q(q2, q3, w))[:3, :3] - R_des)) < 1e-9:
                 out.append(w)
