@@ -5,6 +5,7 @@ run faster than real time) from a process of its own, as a real device would (``
 identification runs end to end through the runner.
 """
 
+import dataclasses
 import json
 import math
 import threading
@@ -17,7 +18,10 @@ import yaml
 from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers.base import MotionLimits, Supervision
+from payload_agent.drivers.modbus.bus import ModbusBus, ModbusTimeout
 from payload_agent.drivers.modbus.driver import ModbusDriver
+from payload_agent.drivers.modbus.options import endpoint, resolve_map
+from payload_agent.drivers.modbus.registers import group_reads
 from payload_agent.errors import CommunicationError, SupervisionTrip
 from payload_agent.session.options import QUIET, SimulatedCellUse
 from payload_agent.session.runner import RunOptions, run_identification
@@ -72,7 +76,6 @@ def test_rtu_move_stream_and_stop_on_a_cut_line():
 
 def test_rtu_unit_id_mismatch_gets_no_reply():
     fake, options = _rtu()
-    import dataclasses
     drv = ModbusDriver(dataclasses.replace(options, unit_id=3, timeout_s=0.1), MotionLimits(math.pi, math.pi))
     try:
         with pytest.raises(CommunicationError, match=r"no reply .* \(Modbus RTU 115200 baud, unit 3\)"):
@@ -82,22 +85,48 @@ def test_rtu_unit_id_mismatch_gets_no_reply():
         fake.close()
 
 
+def test_rtu_a_late_reply_in_the_way_of_a_read_is_drained_and_the_read_asked_again():
+    """RTU has no transaction id: the late answer to a read that timed out can arrive while the next read waits,
+    and looks like that read's answer. The bus recognises it (another register count), drains the line and asks
+    again, once: a read changes nothing on the device (a busy host made the move's first read fail this way)."""
+    fake, options = _rtu()
+    regmap = resolve_map(options)
+    [joints] = group_reads([regmap[n] for n in ("joint_angles", "joint_efforts", "timestamp")], regmap.bridge_gaps)
+    [status] = group_reads([regmap[n] for n in ("status", "ack_seq", "error_code")], regmap.bridge_gaps)
+    assert joints.count != status.count
+    bus = ModbusBus(endpoint(dataclasses.replace(options, timeout_s=0.3)))
+    try:
+        bus.open()
+        assert len(bus.read(joints)) == joints.count
+        fake.inject_fault("slow_reply", delay_s=0.45)
+        with pytest.raises(ModbusTimeout):
+            bus.read(status)  # answered at 0.45 s, after the client gave up on it at 0.3 s
+        fake.inject_fault("slow_reply", delay_s=0.25)
+        # sent at about 0.3 s and answered at about 0.55 s: the late status answer arrives in between
+        assert len(bus.read(joints)) == joints.count
+    finally:
+        bus.close()
+        fake.close()
+
+
 def test_identification_over_rtu(tmp_path):
     data = yaml.safe_load((ROOT / "configs" / "sim-ur5e-modbus.yaml").read_text())
     data = tweak(data, "driver", {"type": "modbus", "transport": "rtu", "serial_port": "/dev/ttyUSB0",
                                   "baudrate": 460800, "preset": "generic_float32",
-                                  "timeout_s": 1.0})  # a pty on a loaded machine answers late, not never
+                                  # a device that may answer seconds late (see below): waited for, not given up on
+                                  "timeout_s": 3.0, "heartbeat_timeout_s": 3.0, "ack_timeout_s": 5.0})
     data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
     data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
     data = tweak(data, "procedure.bidirectional", False)  # 4 sweeps a run: a shorter test
-    # a test of the identification, not of the watchdog (1000 ms is the largest limit the YAML takes). The
-    # simulated device runs in a process of its own (fakes.hosted), as a real one would: served by a thread of
-    # this process, its pty left requests unanswered for over a second with both cores busy
-    data = tweak(data, "safety.max_stream_gap_ms", 1000)
     data = tweak(data, "simulation.noise_nm", 0.5)
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
     truth = data["simulation"]["payload"]
     cfg = parse_config(data, source="test")
+    # A test of the identification over RTU, not of the watchdog (the cut-line test above is that). With both
+    # cores busy the simulated device's process, idle and woken by a request on its pty, was seen answering up
+    # to 1.9 s late, and a real arm is rightly stopped after the YAML's largest gap limit (1000 ms). Here, past
+    # the YAML's validation, the watchdog allows 4 s of silence, and as long for the controller's "finished".
+    cfg = dataclasses.replace(cfg, safety=dataclasses.replace(cfg.safety, max_stream_gap_s=4.0))
     opts = RunOptions(assume_yes=True, apply=True, result_path=tmp_path / "r.json", report=False, retry_sweeps=4)
     cell = SimulatedCell(cfg).start()
     try:

@@ -35,8 +35,9 @@ def supervision(config: Config) -> Supervision:
     gap = config.safety.max_stream_gap_s
     if gap is None:
         return Supervision(None, config.safety.stop_ack_timeout_s)
-    # a YAML that allows longer stream gaps (a busy host) allows replies as late during a move
-    return Supervision(gap, config.safety.stop_ack_timeout_s, max_reply_wait_s=max(gap, Supervision.max_reply_wait_s))
+    # a YAML that allows longer stream gaps (a busy host) allows replies, and the controller's "finished", as late
+    return Supervision(gap, config.safety.stop_ack_timeout_s, max_reply_wait_s=max(gap, Supervision.max_reply_wait_s),
+                       finish_grace_s=max(gap, Supervision.finish_grace_s))
 
 
 def build_driver(config: Config, options: DriverOptions | None = None) -> Driver:

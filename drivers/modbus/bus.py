@@ -120,6 +120,12 @@ class ModbusBus:
         what = f"read of {block.describe()} ({', '.join(e.name for e in block.entries)})"
         fn = {"holding": "read_holding_registers", "input": "read_input_registers", "coil": "read_coils",
               "discrete_input": "read_discrete_inputs"}[block.table]
+        try:
+            return self._read_once(block, what, fn)
+        except StaleReply:  # RTU: the late answer to an earlier request was in the way (drained before the
+            return self._read_once(block, what, fn)  # next request); a read changes nothing, so ask it once more
+
+    def _read_once(self, block: Block, what: str, fn: str) -> list[int] | list[bool]:
         resp = self._execute(what, fn, block.address, count=block.count, device_id=self.endpoint.device_id)
         if block.table in ("coil", "discrete_input"):
             words = list(resp.bits)
