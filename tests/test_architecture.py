@@ -153,8 +153,8 @@ def test_the_configuration_knows_every_simulated_arm():
     assert set(SIMULATED_ARMS) == set(SPECS)
 
 
-DRIVER_HOOKS = {"_open", "_close", "_read_sample", "_prepare_move", "_start_move", "_move_status", "_stop_command",
-                "_stop_fresh", "_command_alive"}
+DRIVER_HOOKS = {"_open", "_close", "_read_sample", "_prepare_move", "_activate", "_start_move", "_move_status",
+                "_stop_command", "_stop_fresh", "_command_alive"}
 
 
 def base_privates() -> set[str]:
@@ -187,7 +187,7 @@ def test_drivers_use_only_the_public_side_of_the_base_class():
 MOVE_HOOKS = ("_prepare_move", "_start_move", "_move_status")
 MOVE_CODE_MAX_LINES = 60
 # families whose move code is still over the limit (issue 20): their count may only go down
-MOVE_CODE_OVER = {"canopen": 105, "elite_ec": 65, "ur_rtde": 68}
+MOVE_CODE_OVER = {"elite_ec": 65, "ur_rtde": 68}
 
 
 def family_imports(tree: ast.AST, package: str, stems: set[str]) -> tuple[dict[str, str], dict[str, tuple[str, str]]]:
