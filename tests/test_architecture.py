@@ -186,8 +186,6 @@ def test_drivers_use_only_the_public_side_of_the_base_class():
 
 MOVE_HOOKS = ("_prepare_move", "_start_move", "_move_status")
 MOVE_CODE_MAX_LINES = 60
-# families whose move code is still over the limit (issue 20): their count may only go down
-MOVE_CODE_OVER = {"ur_rtde": 68}
 
 
 def family_imports(tree: ast.AST, package: str, stems: set[str]) -> tuple[dict[str, str], dict[str, tuple[str, str]]]:
@@ -304,17 +302,13 @@ def test_move_code_measure_follows_helpers_imported_from_sibling_modules(tmp_pat
     assert names == ["helpers.deeper", "helpers.only_for_moves", "helpers.status_text", "self._move_status",
                      "self._start_move"]
     assert lines == 4 + 2 + 2 + 2  # the two hooks, then the three helpers (less the docstring)
-    # in the real families: Elite's abort text and UR's corrupt-status check live in states.py
+    # in a real family: Elite's abort text lives in states.py
     assert "states.abort_text" in move_code(ROOT / "drivers" / "elite_ec")[1]
-    assert "states.corrupt_status" in move_code(ROOT / "drivers" / "ur_rtde")[1]
 
 
 def test_every_drivers_move_code_is_small():
     """The base owns the move loop; a family's move code is only its protocol: under 60 lines."""
     sizes = {f.name: move_code(f) for f in sorted((ROOT / "drivers").iterdir()) if (f / "driver.py").exists()}
     assert {"elite_ec", "ur_rtde", "modbus", "canopen"} <= set(sizes)
-    over = {name: (n, names) for name, (n, names) in sizes.items()
-            if n > max(MOVE_CODE_MAX_LINES, MOVE_CODE_OVER.get(name, 0))}
-    assert not over, f"move code over {MOVE_CODE_MAX_LINES} lines: {over}"
-    done = [name for name, limit in MOVE_CODE_OVER.items() if sizes[name][0] <= MOVE_CODE_MAX_LINES]
-    assert not done, f"{done} now under {MOVE_CODE_MAX_LINES} lines: remove from MOVE_CODE_OVER"
+    over = {name: (n, names) for name, (n, names) in sizes.items() if n >= MOVE_CODE_MAX_LINES}
+    assert not over, f"move code not under {MOVE_CODE_MAX_LINES} lines: {over}"
