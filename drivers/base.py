@@ -13,17 +13,17 @@ The base class owns everything every protocol needs, the way python-can's ``BusA
 - the **supervisor** (``supervisor.Supervisor``): a watchdog that stops the arm when the stream
   stalls or fails, the command connection dies or the controller stops answering, and the
   bookkeeping of the move this session commanded (``motion_commanded``, ``stop()``);
-- the **move loop** (``move_joints``): checks the request and the stream, lets the driver
-  prepare (``_prepare_move``: the motion-allowed check by default; nothing is sent), arms the
-  supervision, sends the move (``_start_move``, the one place a move command goes out), polls
-  ``_move_status`` until it answers done or aborted or the move's time is up, stops the arm on
-  any abnormal end (abort, timeout, Ctrl-C, an exception), and checks that the arm stands at the
-  target within ``target_tolerance_rad`` once the controller reports the move finished.
+- the **move loop** (``move_joints``): checks the request and the stream, lets the driver prepare
+  (``_prepare_move``: the motion-allowed check by default; nothing is sent), arms the supervision,
+  activates the controller when needed (``_activate``: after connect and after a move that ended
+  abnormally; never from ``connect()``), sends the move (``_start_move``, the one place a move
+  command goes out), polls ``_move_status`` until it answers done or aborted or the move's time is
+  up, stops the arm on any abnormal end (abort, timeout, Ctrl-C, an exception), and checks that the
+  arm stands at the target within ``target_tolerance_rad`` once the controller reports it finished.
 
-A driver fills the hooks: ``_open``/``_close``, ``_read_sample``, ``_start_move`` and
-``_move_status`` (optionally ``_prepare_move``), ``_stop_command`` and ``_stop_fresh``, and
-``identify``/``state``. Its options are a typed dataclass (``options_class``) read by the
-project's YAML validator, so ``plan`` checks them without connecting.
+A driver fills the hooks (docs/drivers.md): ``_open``/``_close``, ``_read_sample``, ``_start_move``,
+``_move_status``, ``_stop_command``/``_stop_fresh``, ``identify``/``state``, optionally ``_prepare_move``
+and ``_activate``; its options are a typed dataclass (``options_class``), so ``plan`` checks them offline.
 """
 
 from __future__ import annotations
@@ -87,6 +87,7 @@ class Driver(OptionalCapabilities, abc.ABC):
         self.effort_unit: str = ""
         self.nominal_period_s: float = 0.008
         self._connected = False
+        self._active = False  # _activate() succeeded and every move since ended normally
         self.stream = SampleStream(self._read_sample, limits.n_joints, self.name, lambda: self.gap_limit_s,
                                    self._stream_failed)
         self.supervisor = Supervisor(supervision or Supervision(),
@@ -154,6 +155,11 @@ class Driver(OptionalCapabilities, abc.ABC):
         if not st.motion_allowed:
             raise RobotNotReadyError(st.reason)
 
+    def _activate(self) -> None:
+        """Make the controller able to take moves (CiA 402 drives to OPERATION ENABLED), moving nothing. Called
+        under the armed supervision before the first move after ``connect()`` and after a move that ended
+        abnormally; never by ``connect()``: doctor and plan --connect never energise drives. Raise to refuse."""
+
     @abc.abstractmethod
     def _start_move(self, target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
         """Send one PTP move (the supervision is armed). Return refused(reason) when the controller took nothing
@@ -186,6 +192,7 @@ class Driver(OptionalCapabilities, abc.ABC):
         if self._connected:
             return
         self._open()
+        self._active = False
         self._connected = True
         self.stream.start()
         self.supervisor.start()
@@ -267,8 +274,9 @@ class Driver(OptionalCapabilities, abc.ABC):
         self._check_stream_fresh()
         sup = self.supervisor
         sup.arm(target)
+        active, self._active = self._active, False  # again True only when this move ends normally
         try:
-            self._run_move(target, speed, accel, timeout)
+            self._run_move(target, speed, accel, timeout, active)
         except (SupervisionTrip, MotionNotFinished, MotionStopped):
             raise
         except CommunicationError as exc:  # the command connection failed mid-move: the arm may still go
@@ -285,6 +293,7 @@ class Driver(OptionalCapabilities, abc.ABC):
             sup.disarm()
         if sup.tripped:
             raise sup.error()
+        self._active = True
 
     def _check_stream_fresh(self) -> None:
         latest = self.stream.latest
@@ -294,8 +303,10 @@ class Driver(OptionalCapabilities, abc.ABC):
                                      + ("none yet" if age is None else f"the newest is {1000 * age:.0f} ms old")
                                      + "; refusing to move blind")
 
-    def _run_move(self, target: np.ndarray, speed: float, accel: float, timeout_s: float) -> None:
+    def _run_move(self, target: np.ndarray, speed: float, accel: float, timeout_s: float, active: bool) -> None:
         deadline = time.monotonic() + timeout_s
+        if not active:
+            self._activate()
         started = self._start_move(target, speed, accel)
         if started is not None and started.state == "refused":
             self._confirm_refusal(started)

@@ -87,6 +87,39 @@ def self_stops_after(fake, t):
             and "heartbeat of node 127 lost" in e.detail and "quick stop (0x6007 = 3)" in e.detail}
 
 
+POWER_COMMANDS = {0x06, 0x07, 0x0F}  # shutdown, switch on, enable operation (CiA 402 transitions 2, 3, 4)
+
+
+def test_connecting_and_reading_never_energise_the_drives_the_first_move_does(rig):
+    """The power state machine runs at the template's activation (the first move), never at connect: a
+    session that only reads (doctor, plan --connect, watch) leaves every power stage off."""
+    drv, fake = rig
+    drv.identify(), drv.state()
+    drv.start_stream(lambda s: None)
+    drv.wait_sample(10.0)
+    assert all(d.state == "SWITCH ON DISABLED" and not d.history for d in fake.drives)
+    drv.move_joints(TARGET, SPEED, ACCEL, 30.0)
+    for d in fake.drives:
+        assert d.state == "OPERATION ENABLED"
+        assert [cw for cw, _ in d.history if cw in POWER_COMMANDS][:3] == [0x06, 0x07, 0x0F]
+
+
+def test_doctor_leaves_the_drives_unpowered(tmp_path, monkeypatch):
+    from payload_agent.session.doctor import run_doctor
+    from payload_agent.session.simulation import SimulatedCell
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
+    cfg = config()
+    cell = SimulatedCell(cfg).start()
+    try:
+        report = run_doctor(cfg, cell=cell, stream_window_s=0.5)
+        drives = [(d.state, list(d.history)) for d in cell.controller.drives]
+    finally:
+        cell.close()
+    assert next(c for c in report.checks if c.name == "state").status == "ok", report.checks
+    assert drives and all(state == "SWITCH ON DISABLED" and not history for state, history in drives), drives
+
+
 def test_connect_configures_pdos_and_streams_one_sample_per_sync(rig):
     drv, fake = rig
     info = drv.identify()

@@ -30,7 +30,8 @@ from payload_agent.drivers.base import MotionLimits
 from payload_agent.drivers.stream import check_sample as _check_sample
 from payload_agent.drivers.ur_rtde.driver import URRTDEDriver
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
-from payload_agent.drivers.ur_rtde.states import controller_state, safety_stop
+from payload_agent.drivers.ur_rtde.states import (KNOWN_SAFETY_BITS, RUNTIME_NAMES, URStatus, controller_state,
+                                                  safety_stop)
 from payload_agent.errors import CommunicationError
 from payload_agent.fakes import ur_rtde_protocol as rp
 from payload_agent.types import ControllerState, FlangePose, PayloadSetting, Sample
@@ -164,6 +165,9 @@ def test_samples_are_finite_or_a_communication_error(pkgs):
 
 @FUZZ
 @given(packages)
+# finite but absurd: the pose and the TCP offset (its reverse) made "invalid value encountered in matmul"
+@example(Package(1.0, [0.0] * 6, [0.0] * 6, tcp=[3.0, -1.0, 0.0, 1e308, 1.7e308, 1.0]))
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # absurd numbers are refused, never computed with
 def test_state_temperatures_payload_and_pose_are_values_or_a_communication_error(pkg):
     drv = ur_driver()
     drv._recv = pkg
@@ -196,6 +200,33 @@ def test_mode_and_safety_words_always_decode(robot_mode, safety_mode, bits, runt
     assert isinstance(state, ControllerState)
     assert state.motion_allowed == (state.reason == "")
     assert isinstance(safety_stop(bits, safety_mode), str)
+
+
+class _Package:
+    """The four status getters of ur-rtde's RTDEReceiveInterface, answering one package's fields."""
+
+    def __init__(self, robot_mode, safety_mode, bits, runtime):
+        self.getRobotMode, self.getSafetyMode = lambda: robot_mode, lambda: safety_mode
+        self.getSafetyStatusBits, self.getRuntimeState = lambda: bits, lambda: runtime
+
+
+@FUZZ
+@given(ints, ints, st.integers(0, 2 ** 64 - 1), ints)
+@example(7, 1, 0, 2)  # RUNNING, NORMAL, no safety bit, PLAYING
+@example(7, 3, 1 << 2, 1)  # a protective stop is a state, not corruption
+@example(7, 1, 1 << 11, 2)  # a safety status bit UR does not define
+def test_status_fields_no_controller_sends_are_a_broken_stream_never_a_state(robot_mode, safety_mode, bits, runtime):
+    """state() and the move's status read the fields once (URStatus.read): values outside UR's tables raise
+    CommunicationError naming the field, so corrupt data is never reported as a safety stop."""
+    known = -1 <= robot_mode <= 8 and 1 <= safety_mode <= 13 and not bits & ~KNOWN_SAFETY_BITS \
+        and runtime in RUNTIME_NAMES
+    try:
+        st_ = URStatus.read(_Package(robot_mode, safety_mode, bits, runtime), "192.0.2.7")
+    except CommunicationError as exc:
+        assert not known and "192.0.2.7" in str(exc) and "corrupt" in str(exc)
+    else:
+        assert known and (st_.robot_mode, st_.safety_mode, st_.bits, st_.runtime) == (robot_mode, safety_mode, bits,
+                                                                                       runtime)
 
 
 # -- the simulated controller's RTDE server ----------------------------------------------------------------

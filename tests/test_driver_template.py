@@ -201,3 +201,45 @@ def test_the_reply_watchdog_ends_when_the_controller_reports_done():
     _run(drv)
     timer.join()
     assert drv.log == ["move"] and drv.last_stop_report is None
+
+
+class ActivatingStub(Stub):
+    """A controller that must be activated (drives powered) before it takes a move; logs when it is."""
+
+    def _activate(self) -> None:
+        assert self.supervising  # under the armed supervision: a fault while powering up stops the arm
+        self.log.append("activate")
+
+
+def test_activation_runs_before_the_first_move_and_after_an_abnormal_end_never_at_connect():
+    drv = ActivatingStub(statuses=[DONE, DONE])
+    with drv:
+        drv.wait_sample(2.0)
+        drv.state(), drv.identify()
+        assert drv.log == []  # connecting and reading (doctor, plan --connect) power nothing
+        drv.move_joints(TARGET, 0.5, 2.0, 5.0)
+        drv.q = np.zeros(6)
+        drv.move_joints(TARGET, 0.5, 2.0, 5.0)
+        assert drv.log == ["activate", "move", "move"]  # once: the first move ended normally
+        drv.statuses = [aborted("a protective stop")]
+        with pytest.raises(MotionAbortedError, match="protective stop"):
+            drv.move_joints(np.zeros(6), 0.5, 2.0, 5.0)
+        drv.statuses = [DONE]
+        drv.q_at_done = np.zeros(6)
+        drv.move_joints(np.zeros(6), 0.5, 2.0, 5.0)
+        assert drv.log == ["activate", "move", "move", "move", "stop", "activate", "move"]
+    drv.statuses, drv.q_at_done = [DONE], TARGET
+    _run(drv)  # a new connection activates again
+    assert drv.log[-2:] == ["activate", "move"]
+
+
+def test_a_failed_activation_stops_the_arm_and_sends_no_move():
+    class Failing(ActivatingStub):
+        def _activate(self) -> None:
+            super()._activate()
+            raise RobotNotReadyError("joint 2 stayed in SWITCHED ON")
+
+    drv = Failing(statuses=[DONE])
+    with pytest.raises(RobotNotReadyError, match="joint 2 stayed"):
+        _run(drv)
+    assert drv.log == ["activate", "stop"]

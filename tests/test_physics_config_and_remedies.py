@@ -136,7 +136,13 @@ def test_tool_cable_check_fails_on_a_strong_cable_and_names_it(runs):
     clean, _ = add_combined(subtract_all(*runs["rigid"]))
     good = cable_check.check(clean, kin)
     assert good["passed"], good
-    # the same wrist offsets, as a σ term sized from the data: large with the cable, ~nothing without
-    with_cable = offsets.wrist_offset_size(combined, kin)
-    without = offsets.wrist_offset_size(clean, kin)
-    assert with_cable > 0.1 and without < 0.01
+    # the same wrist offsets, as the mass σ the analysis adds for them (systematics.wrist_terms): tens of grams
+    # with the cable, under a gram without
+    def wrist_sigma_kg(loaded, empty):
+        prep = systematics.prepare(loaded, empty, systematics.RIGID)
+        syst = systematics.evaluate(prep, kin, systematics.RIGID, terms=[systematics.wrist_terms])
+        assert [t.name for t in syst.terms] in ([], ["wrist torques"])
+        return float(np.sqrt(syst.covariance()[0, 0])) if syst.terms else 0.0
+
+    with_cable, without = wrist_sigma_kg(*runs["cable"]), wrist_sigma_kg(*runs["rigid"])
+    assert with_cable > 0.02 and without < 0.001, (with_cable, without)

@@ -5,7 +5,8 @@ arrive together; the leading joint (largest travel) follows a trapezoidal speed
 profile within the speed and acceleration caps.
 
 This is the one place that math lives. Drivers use it to turn a leading-joint speed
-into the percentage a controller's PTP command takes (``percent_for_lead``) and to
+into the percentage a controller's PTP command takes (``percent_for_lead``), into one
+trapezoid per joint in whole position units (``synchronised_profiles``, ``whole_unit_rates``) and to
 predict durations (``trapezoid_duration``); simulated controllers use it the other way
 (``lead_from_percent``) and to run the motion (``JointPath``).
 """
@@ -111,6 +112,21 @@ def synchronised_profiles(q_from: Sequence[float], q_to: Sequence[float], speed_
     speeds, accels = synchronised_joint_rates(q_from, q_to, v, a)
     length = float(np.max(np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))))
     return JointProfiles(speeds, accels, trapezoid_duration(length, v, a))
+
+
+def whole_unit_rates(speed: float, accel: float, travel: float, duration_s: float) -> tuple[int, int]:
+    """One joint's speed and acceleration of a synchronised move in whole position units (counts/s,
+    counts/s², as a drive's profile objects take them), for its ``travel`` in the same units.
+
+    The synchronised values rounded up, so the joint never arrives late; a travel so short that even
+    1 unit/s or 1 unit/s² would make it late gets the triangle over its travel that lasts the leading
+    joint's ``duration_s``.
+    """
+    d, t = abs(float(travel)), max(float(duration_s), 1e-3)
+    v, a = max(1, math.ceil(speed)), max(1, math.ceil(accel))
+    if trapezoid_duration(d, v, a) > 1.01 * t:  # (rounding of the travel itself makes ~1e-7 s of difference)
+        v, a = max(v, math.ceil(2 * d / t)), max(a, math.ceil(4 * d / (t * t)))
+    return v, a
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,9 @@ servers until close. A drive found in FAULT is reported by ``state()`` (motion r
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
 
-Motion (``_start_move`` / ``_move_status``, see ``motion``): the first move enables the drives through the CiA 402
-power state machine (a drive that leaves OPERATION ENABLED later is a monitor fault, refused by
+Motion (``_start_move`` / ``_move_status``, see ``motion``): the template's ``_activate`` (before the first move,
+and again after a move that ended abnormally; never at connect) enables the drives through the CiA 402 power
+state machine (``power``; a drive that leaves OPERATION ENABLED later is a monitor fault, refused by
 ``_prepare_move``); each move sends profile velocity
 and acceleration/deceleration (0x6081/0x6083/0x6084, RPDO3/RPDO4) scaled so all joints arrive
 together (``model.profile.synchronised_joint_rates``) and every target (0x607A) with the
@@ -39,7 +40,7 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from payload_agent.drivers.base import Driver, MotionLimits, MoveStatus, Supervision
-from payload_agent.drivers.canopen import device, motion
+from payload_agent.drivers.canopen import device, motion, power
 from payload_agent.drivers.canopen import objects as obj
 from payload_agent.drivers.canopen.bus import SyncProducer, another_master, open_bus
 from payload_agent.drivers.canopen.cia402 import (CW_DISABLE_VOLTAGE, CW_FAULT_RESET, FAULTY, OPERATION_ENABLED,
@@ -83,12 +84,10 @@ class CANopenDriver(Driver):
         self._move = motion.ProfileMove([], [])
         self.tpdo = TpdoCollector(self.n)
         self.effort_per_permille = [1.0] * self.n
-        self.enabled = False
         self._took_bus = False  # this session has sent NMT/SDO commands: it releases the drives at close
         self.fault_codes: dict[int, int] = {}  # joint -> 0x603F of drives found in FAULT at connect
         self.cleared_faults: list[str] = []  # notes for state().detail: faults reset at connect, missing objects
         self.sdo_watch: SdoWatch | None = None
-        self.profile_cache: dict[tuple[int, int], int] = {}
         self.commanded: list[int | None] = [None] * self.n  # each drive's last set-point (counts) since enabled
         self._sdo_locks = [threading.Lock() for _ in range(self.n)]
         self._info: ControllerInfo | None = None
@@ -138,9 +137,7 @@ class CANopenDriver(Driver):
         self.monitor = DriveMonitor(opts)
         self.monitor.sdo_reply_limit_s = self.supervision.max_reply_wait_s
         self.tpdo = TpdoCollector(self.n)
-        self.enabled = False
         self._took_bus = False
-        self.profile_cache.clear()
         self.commanded = [None] * self.n
         self.network = canopen.Network(open_bus(opts))
         self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
@@ -202,7 +199,7 @@ class CANopenDriver(Driver):
                                      f"RPDO3: 0x6081 + 0x6083; RPDO4: 0x6084): SDO abort {exc}") from exc
         cpr = opts.counts_per_rad[j]
         self.sdo_write(j, obj.QUICK_STOP_DECELERATION, max(1, round(opts.quick_stop_decel_rad_s2 * cpr)))
-        self.sdo_write(j, obj.POSITION_WINDOW, max(1, round(opts.position_window_deg * 0.017453292519943295 * cpr)))
+        self.sdo_write(j, obj.POSITION_WINDOW, opts.window_counts(j))
         self.effort_per_permille[j] = device.effort_scale(self, j)
         device.set_profile_position_mode(self, j)
 
@@ -249,7 +246,6 @@ class CANopenDriver(Driver):
         if self.sdo_watch is not None:
             self.sdo_watch.stop()
             self.sdo_watch = None
-        self.enabled = False
         self.monitor.expect_enabled = [False] * self.n
         took, self._took_bus = self._took_bus, False
         if not took:  # refused before commanding anything: leave the drives and the other master alone
@@ -313,7 +309,7 @@ class CANopenDriver(Driver):
                 raise CommunicationError(self.tpdo.error)
             return None
         o = self.options
-        q = tuple(o.direction[j] * (f.position - o.zero_counts[j]) / o.counts_per_rad[j] for j, f in enumerate(frames))
+        q = tuple(o.to_angle_rad(j, f.position) for j, f in enumerate(frames))
         effort = tuple(o.direction[j] * f.effort * self.effort_per_permille[j] for j, f in enumerate(frames))
         return Sample(min(f.timestamp for f in frames), max(f.t_recv for f in frames), q, effort)
 
@@ -336,14 +332,22 @@ class CANopenDriver(Driver):
             self._send_command(j, controlword)
         return self.monitor.wait_for(reached, seq0, list(controlwords), timeout_s, poll)
 
+    def check_drives(self) -> None:
+        """While enabling or moving: act on a drive fault (``poll_faults``), then raise if the supervision has
+        stopped the arm."""
+        self.poll_faults()
+        self.check_supervision()
+
+    def _activate(self) -> None:
+        power.enable_all(self)
+
     def _prepare_move(self, target, speed_rad_s: float, accel_rad_s2: float) -> None:
         if self.monitor.fault is not None:
             raise MotionAbortedError(f"refusing to move, a drive fault is pending: {self.monitor.fault}; "
                                      "nothing was sent")
 
     def _start_move(self, target, speed_rad_s: float, accel_rad_s2: float) -> MoveStatus | None:
-        self._move = motion.start(self, target, speed_rad_s, accel_rad_s2)
-        return None
+        self._move = motion.start(self, target, speed_rad_s, accel_rad_s2)  # None: the drives take every set-point
 
     def _move_status(self) -> MoveStatus:
         return motion.status(self, self._move)

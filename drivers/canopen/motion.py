@@ -1,4 +1,4 @@
-"""Profile position moves of the CANopen driver, the power state machine before them, and the quick stop.
+"""Profile position moves of the CANopen driver and the quick stop (the power state machine before them: ``power``).
 
 Every step waits on the drives' statuswords as their TPDOs bring them (``DriveMonitor.wait_for``),
 never on SDO polling, and polls the supervision while it waits. A move uses no SDO: its profile
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
 from typing import TYPE_CHECKING
 
@@ -18,14 +17,13 @@ import numpy as np
 
 from payload_agent.drivers.canopen import objects as obj
 from payload_agent.drivers.canopen.bus import quick_stop_on_new_bus
-from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SETPOINT, CW_QUICK_STOP, FAULTY,
-                                                  MODE_PROFILE_POSITION, OPERATION_ENABLED, SW_SETPOINT_ACK,
-                                                  SW_TARGET_REACHED, describe_code, enable_step, state_of, stopped)
+from payload_agent.drivers.canopen.cia402 import (CW_ENABLE_OPERATION, CW_NEW_SETPOINT, CW_QUICK_STOP,
+                                                  SW_SETPOINT_ACK, SW_TARGET_REACHED, state_of, stopped)
 from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted
 from payload_agent.drivers.canopen.pdo import (RPDO1_COB, RPDO3_COB, RPDO4_COB, RPDO_DECELERATION, RPDO_PROFILE,
                                                RPDO_SETPOINT)
-from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError
-from payload_agent.model.profile import synchronised_profiles, trapezoid_duration
+from payload_agent.errors import CommunicationError
+from payload_agent.model.profile import synchronised_profiles, whole_unit_rates
 
 if TYPE_CHECKING:
     from payload_agent.drivers.canopen.driver import CANopenDriver
@@ -36,71 +34,15 @@ STOP_CONFIRM_S = 0.25  # statuswords confirming a quick stop: TPDOs first, then 
 SDO_CONFIRM_S = 0.1  # ... each drive's SDO reply (a drive off the bus never answers)
 FRESH_STOP_WAIT_S = 0.3
 MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
-DEG = math.pi / 180.0
-
-
-def _poll(drv: "CANopenDriver") -> None:
-    """Between every step of a move: act on a drive fault, and stop if the supervision has tripped."""
-    drv.poll_faults()
-    drv.check_supervision()
-
-
-def ensure_enabled(drv: "CANopenDriver") -> None:
-    """OPERATION ENABLED on every drive, a step of the power state machine at a time (a no-op once done: a
-    drive that leaves it afterwards is a monitor fault, which ``_prepare_move`` refuses). The mode of operation
-    is set at connect (``device.set_profile_position_mode``)."""
-    if drv.enabled:
-        return
-    m, timeout = drv.monitor, drv.options.enable_timeout_s
-    for _ in range(6):  # at most 4 transitions from SWITCH ON DISABLED / QUICK STOP ACTIVE
-        states = m.states()
-        todo = [j for j, st in enumerate(states) if st != OPERATION_ENABLED]
-        if not todo:
-            break
-        for j in todo:
-            if states[j] in FAULTY:
-                code = m.last_emcy_code(j)
-                raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]} (error code "
-                                         f"{describe_code(code) if code else 'not reported'}); it cannot be enabled")
-            if enable_step(states[j]) is None:
-                raise RobotNotReadyError(f"{drv.labels[j]} is in {states[j]}: the power state machine has no "
-                                         "command out of it; check the drive's power supply")
-        _poll(drv)
-        stuck = drv.command_drives({j: enable_step(states[j]) for j in todo},
-                                   lambda j, sw: state_of(sw) != states[j], timeout, lambda: _poll(drv))
-        if stuck:
-            j = stuck[0]
-            raise RobotNotReadyError(f"{drv.labels[j]} stayed in {states[j]} for {timeout:g} s after controlword "
-                                     f"0x{enable_step(states[j]):04X}")
-    else:
-        raise RobotNotReadyError("the drives did not reach OPERATION ENABLED: "
-                                 + ", ".join(f"{lbl}: {st}" for lbl, st in zip(drv.labels, m.states())))
-    m.expect_enabled = [True] * drv.n
-    drv.enabled = True
 
 
 def _profile_frames(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float, travel_counts: int,
                     duration_s: float) -> list[tuple[int, bytes]]:
     """RPDO3 (profile velocity, acceleration) and RPDO4 (deceleration = acceleration) of joint ``j``, in
-    position units; only those whose values the drive does not hold already.
-
-    The synchronised values rounded up to whole counts, so no joint arrives late; a joint whose
-    travel is so small that even 1 count/s or 1 count/s² would make it late gets the triangle
-    over its travel that lasts the leading joint's ``duration_s``.
-    """
-    cpr = drv.options.counts_per_rad[j]
-    d, t = abs(travel_counts), max(duration_s, 1e-3)
-    v, a = max(1, math.ceil(speed_rad_s * cpr)), max(1, math.ceil(accel_rad_s2 * cpr))
-    if trapezoid_duration(d, v, a) > 1.01 * t:  # (rounding of the travel itself makes ~1e-7 s of difference)
-        v, a = max(v, math.ceil(2 * d / t)), max(a, math.ceil(4 * d / (t * t)))
-    nid, frames = drv.options.node_ids[j], []
-    if drv.profile_cache.get((j, RPDO3_COB)) != (v, a):
-        frames.append((RPDO3_COB + nid, RPDO_PROFILE.pack(v, a)))
-        drv.profile_cache[(j, RPDO3_COB)] = (v, a)
-    if drv.profile_cache.get((j, RPDO4_COB)) != a:
-        frames.append((RPDO4_COB + nid, RPDO_DECELERATION.pack(a)))
-        drv.profile_cache[(j, RPDO4_COB)] = a
-    return frames
+    whole counts (``model.profile.whole_unit_rates``: rounded up, so no joint arrives late)."""
+    cpr, nid = drv.options.counts_per_rad[j], drv.options.node_ids[j]
+    v, a = whole_unit_rates(speed_rad_s * cpr, accel_rad_s2 * cpr, travel_counts, duration_s)
+    return [(RPDO3_COB + nid, RPDO_PROFILE.pack(v, a)), (RPDO4_COB + nid, RPDO_DECELERATION.pack(a))]
 
 
 @dataclasses.dataclass
@@ -116,23 +58,20 @@ class ProfileMove:
 
 
 def start(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> ProfileMove:
-    """Enable the drives if needed and send one synchronised PTP move in profile position mode (see the
-    driver's docstring): the profiles and every set-point with the new-set-point bit at one SYNC."""
-    m, o = drv.monitor, drv.options
-    ensure_enabled(drv)
-    n, lim = drv.n, drv.limits
+    """Send one synchronised PTP move in profile position mode to the enabled drives (see the driver's
+    docstring): the profiles and every set-point with the new-set-point bit at one SYNC."""
+    m, o, lim = drv.monitor, drv.options, drv.limits
     prof = synchronised_profiles(drv.latest_sample.q, target, speed_rad_s, accel_rad_s2, lim.max_joint_speed_rad_s,
                                  lim.max_joint_accel_rad_s2)
-    counts = [round(o.zero_counts[j] + o.direction[j] * float(target[j]) * o.counts_per_rad[j]) for j in range(n)]
-    window = o.position_window_deg * DEG
+    counts = [o.to_counts(j, target[j]) for j in range(drv.n)]
     # a joint moves if its target changed; before its first set-point, if it stands outside the target window
-    moving = [j for j in range(n) if (counts[j] != drv.commanded[j] if drv.commanded[j] is not None
-                                      else abs(counts[j] - m.position[j]) > window * o.counts_per_rad[j])]
+    moving = [j for j in range(drv.n) if (counts[j] != drv.commanded[j] if drv.commanded[j] is not None
+                                          else abs(counts[j] - m.position[j]) > o.window_counts(j))]
     mv = ProfileMove(moving, counts)
     if not moving:
         return mv
-    drv.sdo_watch.confirm_alive(lambda: _poll(drv))  # a drive late on SDO trips here, before any set-point
-    _poll(drv)  # nothing is sent once the supervision has stopped the arm
+    drv.sdo_watch.confirm_alive(drv.check_drives)  # a drive late on SDO trips here, before any set-point
+    drv.check_drives()  # nothing is sent once the supervision has stopped the arm
     profile = [frame for j in moving for frame in
                _profile_frames(drv, j, float(prof.speeds_rad_s[j]), float(prof.accels_rad_s2[j]),
                                counts[j] - m.position[j], prof.duration_s)]
@@ -170,9 +109,7 @@ def status(drv: "CANopenDriver", mv: ProfileMove) -> MoveStatus:
 
 def _forget_enabled(drv: "CANopenDriver") -> None:
     drv.monitor.expect_enabled = [False] * drv.n  # our own stop is not a fault
-    drv.enabled = False
     drv.commanded = [None] * drv.n  # stopped short of their targets
-    drv.profile_cache.clear()  # profile RPDOs queued for the next SYNC may never have gone out
 
 
 def quick_stop(drv: "CANopenDriver") -> bool:

@@ -30,6 +30,8 @@ error names its key (``driver.node_ids[3]: node id 3 is already joint 3's``).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,6 +94,18 @@ class CANopenOptions(DriverOptions):
     def joint_label(self, j: int) -> str:
         """How messages name a drive: "joint 3 (node 3)" (0-based ``j``)."""
         return f"joint {j + 1} (node {self.node_ids[j]})"
+
+    def to_counts(self, j: int, angle_rad: float) -> int:
+        """Joint ``j``'s angle as its drive's position (0x607A / 0x6064, counts)."""
+        return round(self.zero_counts[j] + self.direction[j] * float(angle_rad) * self.counts_per_rad[j])
+
+    def to_angle_rad(self, j: int, counts: int) -> float:
+        """Drive ``j``'s position (counts) as the joint's angle: the inverse of ``to_counts``."""
+        return self.direction[j] * (counts - self.zero_counts[j]) / self.counts_per_rad[j]
+
+    def window_counts(self, j: int) -> int:
+        """The target reached window (0x6067) of drive ``j`` in counts, at least 1."""
+        return max(1, round(math.radians(self.position_window_deg) * self.counts_per_rad[j]))
 
 
 def known_interfaces() -> tuple[str, ...]:

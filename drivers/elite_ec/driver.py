@@ -228,8 +228,8 @@ class EliteECDriver(Driver):
         except EliteRPCError as e:
             return refused(f"the controller refused the joint move: {e.rpc_message} (JSON-RPC error {e.code})")
         if ok is not True:  # an answer no controller should give: it may have taken the move (the base stops it)
-            raise MotionAbortedError(f"the controller refused the joint move (moveByJoint returned {ok!r}); "
-                                     f"robot state: {self._describe_state()}")
+            raise MotionAbortedError(f"the controller answered moveByJoint with {ok!r} instead of true, which no "
+                                     "Elite controller sends; the arm was stopped in case it took the move")
         return None
 
     def _move_status(self) -> MoveStatus:
@@ -239,33 +239,17 @@ class EliteECDriver(Driver):
         if rstate == STATE_RUNNING:
             mv.seen_running = True
             return RUNNING
+        # why, from the controller's state, is read after the stop went out (a round trip must not delay it)
         if rstate != STATE_STOP:
-            return aborted(self._abort_text(rstate))
+            return aborted(lambda: abort_text(rstate, self.state().estop))
         err = float(np.max(np.abs(self._joint_pos_rad() - mv.target)))
         if err <= self.target_tolerance_rad:
             return DONE
         if not mv.seen_running and time.monotonic() - mv.t_start <= START_GRACE_S:
             return RUNNING  # a real controller takes a moment to report "running" after moveByJoint
-        mode = self._int("getRobotMode")
-        if mode != MODE_REMOTE:  # the pendant took control back: the controller stopped the arm
-            return aborted(f"the joint move was cut short: {refusal(mode, True, False, 0)}")
-        return aborted(f"the joint move ended {math.degrees(err):.3f} deg away from the target (tolerance "
-                       f"{math.degrees(self.target_tolerance_rad):g} deg): it was stopped or cut short")
-
-    def _describe_state(self) -> str:
-        try:
-            return STATE_NAMES.get(self._int("getRobotState"), "unknown")
-        except Exception:
-            return "unknown"
-
-    def _abort_text(self, rstate: int) -> str:
-        if rstate == STATE_ERROR:  # the controller shows "e-stop" (2) only briefly before "error" (4)
-            try:
-                if self._int("get_estop_status"):
-                    rstate = STATE_ESTOP
-            except Exception:
-                pass
-        return abort_text(rstate)
+        return aborted(lambda: f"the joint move was cut short {math.degrees(err):.3f} deg from the target "
+                               f"(tolerance {math.degrees(self.target_tolerance_rad):g} deg): "
+                               + (self.state().reason or "it was stopped"))  # the pendant took control back, ...
 
     def _joint_pos_rad(self) -> np.ndarray:
         return np.radians(np.asarray(_numbers(self.call("get_joint_pos"), "get_joint_pos",

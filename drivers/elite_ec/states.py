@@ -36,8 +36,11 @@ def refusal(mode: int, servo: bool, estop: bool, rstate: int) -> str:
     return ""
 
 
-def abort_text(rstate: int) -> str:
-    """Why a running move ended (robot state ``rstate``), with what to do."""
+def abort_text(rstate: int, estop: bool) -> str:
+    """Why a running move ended (robot state ``rstate``; ``estop``: the emergency stop is pressed), with what to
+    do. The controller shows "emergency stop" (2) only briefly before "error/alarm" (4)."""
+    if estop and rstate == STATE_ERROR:
+        rstate = STATE_ESTOP
     why = STATE_NAMES.get(rstate, f"state {rstate}")
     hint = {STATE_ESTOP: "release the emergency stop, clear the alarm and switch the servos on",
             STATE_COLLISION: "check for an obstacle, then clear the collision alarm",

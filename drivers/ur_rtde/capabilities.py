@@ -15,11 +15,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S
-
-READBACK_WAIT_S = 2.0  # the RTDE payload fields show a new setting within a few cycles
 from payload_agent.drivers.ur_rtde.states import DIGITAL_INPUT_NAMES
 from payload_agent.errors import CommunicationError, MotionAbortedError, RobotNotReadyError, UnsupportedCapability
 from payload_agent.types import ControllerState, FlangePose, PayloadSetting
+
+READBACK_WAIT_S = 2.0  # the RTDE payload fields show a new setting within a few cycles
+# a pose no UR arm reports, generously (the largest UR reaches 1.75 m; a rotation vector's angle is at most π,
+# wound once more at most): corrupt data that parsed into finite numbers, refused before any arithmetic
+MAX_POSE_M = 100.0
+MAX_ROTATION_RAD = 4 * math.pi
 
 
 class URCapabilities:
@@ -50,12 +54,11 @@ class URCapabilities:
             offset = self._control.request("getTCPOffset", timeout_s=COMMAND_TIMEOUT_S)
         pose = self._receive().getActualTCPPose()
         for what, v in (("getTCPOffset", offset), ("actual_TCP_pose", pose)):
-            if v is None or len(v) != 6 or not all(math.isfinite(x) for x in v):
-                raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not 6 finite numbers")
+            if not _plausible_pose(v):
+                raise CommunicationError(f"UR controller {self.host}: {what} returned {v!r}, not a pose any UR arm "
+                                         f"reports (6 finite numbers, positions within ±{MAX_POSE_M:g} m, a rotation "
+                                         f"vector of at most {MAX_ROTATION_RAD:.3g} rad)")
         flange = _pose_matrix(pose) @ np.linalg.inv(_pose_matrix(offset))
-        if not np.all(np.isfinite(flange)):  # finite but absurd numbers (1e200 m) overflow the product
-            raise CommunicationError(f"UR controller {self.host}: actual_TCP_pose {pose!r} with getTCPOffset "
-                                     f"{offset!r} is not a pose any UR arm reports")
         return FlangePose(position_m=tuple(float(x) for x in flange[:3, 3]),
                           rotation=tuple(tuple(float(x) for x in row) for row in flange[:3, :3]))
 
@@ -200,6 +203,13 @@ def ur_six_to_tensor(six: Sequence[float]) -> tuple[tuple[float, float, float], 
     """UR's [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] -> the symmetric 3x3 tensor (rows)."""
     xx, yy, zz, xy, xz, yz = (float(v) for v in six)
     return ((xx, xy, xz), (xy, yy, yz), (xz, yz, zz))
+
+
+def _plausible_pose(v: Sequence[float] | None) -> bool:
+    """[x, y, z, rx, ry, rz] as a UR controller can report it: finite, within ``MAX_POSE_M`` and
+    ``MAX_ROTATION_RAD``; absurd finite numbers (1e200 m) would overflow the transforms into NaN."""
+    return (v is not None and len(v) == 6 and all(math.isfinite(x) for x in v)
+            and max(abs(x) for x in v[:3]) <= MAX_POSE_M and math.hypot(*v[3:]) <= MAX_ROTATION_RAD)
 
 
 def _pose_matrix(pose: Sequence[float]) -> np.ndarray:

@@ -65,7 +65,7 @@ from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S, ControlChannel
 from payload_agent.drivers.ur_rtde.dashboard import dashboard_identify, dashboard_query, dashboard_stop
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
-from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, controller_state, corrupt_status, runtime_name,
+from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, URStatus, controller_state, runtime_name,
                                                   safety_stop)
 from payload_agent.errors import CommunicationError, RobotNotReadyError
 from payload_agent.types import ControllerInfo, ControllerState, Sample
@@ -212,8 +212,8 @@ class URRTDEDriver(URCapabilities, Driver):
             except CommunicationError:
                 pass  # keep the last known answer
         moving = bool(np.any(np.abs(np.asarray(r.getActualQd())) > 1e-3))
-        return controller_state(r.getRobotMode(), r.getSafetyMode(), r.getSafetyStatusBits(), r.getRuntimeState(),
-                                moving, self._remote)
+        st = URStatus.read(r, self.host)
+        return controller_state(st.robot_mode, st.safety_mode, st.bits, st.runtime, moving, self._remote)
 
     # -- sample stream ---------------------------------------------------------------------------
     def _read_sample(self, timeout_s: float) -> Sample | None:
@@ -294,10 +294,11 @@ class URRTDEDriver(URCapabilities, Driver):
 
     def _move_status(self) -> MoveStatus:
         r, mv = self._receive(), self._move
-        runtime = r.getRuntimeState()  # one reading with the safety state, checked for corruption together
-        problem = self._safety_problem(r, runtime)
-        if problem is not None:
-            return problem
+        st = URStatus.read(r, self.host)  # raises for corrupt data: a broken stream, not a safety stop
+        fault = safety_stop(st.bits, st.safety_mode)
+        if fault:  # the script has ended too: only the dashboard's stop can still go
+            self._script_dead = True
+            return aborted(f"UR controller {self.host} stopped the move: {fault}")
         op_id, running = self._control.request("progress", timeout_s=POLL_TIMEOUT_S)
         if not r.isConnected() or not self._control.connected:
             raise CommunicationError(f"lost the RTDE connection to {self.host} during the move")
@@ -305,7 +306,7 @@ class URRTDEDriver(URCapabilities, Driver):
             self._control.request("isSteady", timeout_s=POLL_TIMEOUT_S, what="isSteady (heartbeat)")
             self._heartbeat_t = time.monotonic()
             self.command_ok()
-        if runtime != RUNTIME_PLAYING:
+        if st.runtime != RUNTIME_PLAYING:
             self._script_dead = True
             return aborted(lambda: f"UR controller {self.host}: the control script stopped during the move "
                                    f"({self._why_not_running()})")
@@ -320,19 +321,6 @@ class URRTDEDriver(URCapabilities, Driver):
             return DONE
         return aborted("the controller reported the move finished but the arm is still moving") \
             if now > mv.settle_until else RUNNING
-
-    def _safety_problem(self, r, runtime: int) -> MoveStatus | None:
-        """A safety stop (the script ended too: only the dashboard's stop can still go) or a corrupt status."""
-        bits, safety_mode = r.getSafetyStatusBits(), r.getSafetyMode()
-        corrupt = corrupt_status(r.getRobotMode(), safety_mode, bits, runtime)
-        if corrupt:  # garbage that parsed: not a safety stop, a broken stream
-            raise CommunicationError(f"the RTDE stream from {self.host} sent {corrupt}, which no UR controller "
-                                     "sends: the data is corrupt")
-        fault = safety_stop(bits, safety_mode)
-        if not fault:
-            return None
-        self._script_dead = True
-        return aborted(f"UR controller {self.host} stopped the move: {fault}")
 
     def _why_not_running(self) -> str:
         try:

@@ -5,6 +5,10 @@ Codes: ur_rtde 1.6 headers and UR's RTDE guide (docs/sources.md, "UR / ur_rtde")
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+from payload_agent.errors import CommunicationError
 from payload_agent.types import ControllerState
 
 ROBOT_MODE_RUNNING = 7
@@ -37,6 +41,27 @@ def corrupt_status(robot_mode: int, safety_mode: int, bits: int, runtime: int) -
     if runtime not in RUNTIME_NAMES:
         return f"runtime_state {runtime}"
     return ""
+
+
+@dataclass(frozen=True)
+class URStatus:
+    """The controller's status fields as one RTDE package of the receive interface brings them."""
+
+    robot_mode: int
+    safety_mode: int
+    bits: int  # safety_status_bits
+    runtime: int  # runtime_state
+
+    @classmethod
+    def read(cls, r: Any, host: str) -> "URStatus":
+        """Read them from ur-rtde's ``RTDEReceiveInterface`` ``r``; CommunicationError when they hold values no UR
+        controller sends (corrupt RTDE data parses into numbers: not a safety stop, a broken stream)."""
+        st = cls(r.getRobotMode(), r.getSafetyMode(), r.getSafetyStatusBits(), r.getRuntimeState())
+        corrupt = corrupt_status(st.robot_mode, st.safety_mode, st.bits, st.runtime)
+        if corrupt:
+            raise CommunicationError(f"the RTDE stream from {host} sent {corrupt}, which no UR controller sends: "
+                                     "the data is corrupt")
+        return st
 
 
 _POWER_HINT = "power the arm on and release the brakes (teach pendant, or the dashboard's 'power on' and " \

@@ -50,14 +50,12 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.evaluation.systematics import offsets
 from payload_agent.solvers import general
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
 from payload_agent.types import SweepKey
 
 SAME_ANGLE_RAD = 2e-3  # two still groups of one joint within this share a cluster (compensation moves q by τ/k)
-SELECTORS: tuple = ()  # nuisance offsets fitted beside the gain columns (see ``measure``)
 LR_CRITICAL = 5.412  # 1 % level of the boundary likelihood-ratio test (½χ²₀ + ½χ²₁: the 98 % χ²₁ quantile)
 MIN_CLUSTER_PEAK_NM = 1e-6  # a cluster whose modelled torque stays below this carries no gain information
 
@@ -157,11 +155,9 @@ def sensitivities(sweeps: list[DeltaSweep], groups: list[Group], res: FitResult,
 
 def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
             gain_rel_std: Iterable[float] | None = None, tol_rad: float = SAME_ANGLE_RAD,
-            selectors: Sequence[offsets.Selector] = (), model: FittedModel | None = None) -> GainScatter:
+            model: FittedModel | None = None) -> GainScatter:
     """The gain scatter between standing angles in these deltas (see the module docstring).
 
-    ``selectors``: nuisance offsets (``systematics.offsets``) fitted beside the gain columns, so that a constant
-    torque (e.g. on the still wrist: ``offsets.wrist_joint``) is not taken for a gain error.
     ``model``: the analysis' fitted model of these deltas (its combined fit is the plain fit here).
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
@@ -183,8 +179,6 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
         if name in labels:
             extra[:, labels.index(name)] = g.Y @ theta
         aug.append(replace(g, Y=np.hstack([g.Y, extra])))
-    if selectors:
-        aug, _ = offsets.augment(sweeps, aug, *selectors)
     res = fit(aug, gain)
     k = slice(4, 4 + len(labels))
     eps, eps_cov = res.theta[k], res.cov[k, k]
@@ -208,7 +202,7 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     comparison between fits counts only the part that moves them apart. None: no scatter beyond noise.
     ``model``: the analysis' fitted model of these deltas (made here if None).
     """
-    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS, model=model)
+    gs = measure(deltas, kin, gain_rel_std, model=model)
     if gs.tau <= 0.0:
         return None
     theta = fits[combined][1].theta[:4]
@@ -217,5 +211,5 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     return np.full(len(gs.labels), gs.tau), sens, note(gs)
 
 
-__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "measure",
+__all__ = ["GainScatter", "SAME_ANGLE_RAD", "clusters", "sensitivities", "measure",
            "note", "term"]

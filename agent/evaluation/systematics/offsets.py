@@ -154,27 +154,6 @@ def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.nd
     return s
 
 
-def wrist_offset_size(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                      gain_rel_std: Iterable[float] | None = None, model: FittedModel | None = None) -> float:
-    """How big constant wrist torques the model lacks are on this arm with this tool (N·m), from the data.
-
-    A small tool cable, or gear ripple that grows with load on a wrist joint standing still, puts a
-    constant torque on joints 4–6 during a sweep. The fit with one offset per (pose, wrist joint)
-    estimates them, b̂ with covariance C; their spread beyond noise is the maximum-likelihood σ_w of
-    b̂ ~ N(0, C + σ_w²·I) (``spread_beyond_noise``). Zero when the data show no such torque; large ones
-    fail ``cable_check``. ``model``: the analysis' fitted model of these deltas (its offset fit is shared
-    with ``cable_check``).
-    """
-    gain = None if gain_rel_std is None else list(gain_rel_std)
-    sweeps, groups = plain_groups(deltas, kin, model)
-    base_names = set(augment(sweeps, groups, moving_joint)[1])
-    both = fit_offsets(deltas, kin, moving_joint, wrist_joint, gain_rel_std=gain, model=model)
-    idx = [i for i, n in enumerate(both.labels) if n not in base_names]
-    if not idx:
-        return 0.0
-    return spread_beyond_noise(both.offsets_nm[idx], both.offsets_cov[np.ix_(idx, idx)])
-
-
 def wrist_torque_effect(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, A: np.ndarray,
                         labels: list[str], gain_rel_std: Iterable[float] | None = None,
                         model: FittedModel | None = None) -> tuple[np.ndarray, float, float]:
@@ -185,7 +164,7 @@ def wrist_torque_effect(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, A: 
     by β̂ = A·b̂ with covariance D = A·C·Aᵀ. What goes into σ is that effect shrunk to the size the data show
     beyond their noise: s²·β̂β̂ᵀ with s² = max(q − r, 0)/q, q = β̂ᵀ·D⁻¹·β̂, r = rank D (E[q] = r + βᵀD⁻¹β, so
     q − r is the unbiased size; the maximum likelihood's q − 1 put 2–3 g into σ of clean runs whose noise
-    was 1.5 g). It replaced an isotropic size (b ~ N(0, σ_w²·I), ``wrist_offset_size``), which misses a
+    was 1.5 g). It replaced an isotropic size (b ~ N(0, σ_w²·I), the maximum-likelihood σ_w), which misses a
     cable: its torques come from one spring wound one way, so they share a sign and add up in θ along the
     direction the sweeps determine worst (the offsets' common part is nearly confounded with m·c); in the
     benchmark's weak-cable ablation (issue 22) the isotropic size put 0–1 g into σ against errors of 3–8 g.
@@ -202,33 +181,5 @@ def wrist_torque_effect(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, A: 
     return b, s, q
 
 
-def spread_beyond_noise(b: np.ndarray, cov: np.ndarray) -> float:
-    """σ of the effects b whose estimates b̂ carry noise of covariance ``cov``: the maximum-likelihood σ of
-    b̂ ~ N(0, cov + σ²·I), 0 when the scatter of b̂ is what the noise alone gives.
-
-    It replaced the method of moments σ² = (Σ b̂² − tr C)/k, which weighs a poorly determined offset as much as
-    a well determined one: on a simulated EC66 without any wrist torque (χ² of the offsets 6.2 for k = 6)
-    that put 28 mN·m, 2.6 g of mass σ, into a run whose other terms gave 2.0 g (issue 22)."""
-    from scipy.optimize import minimize_scalar
-
-    b, cov = np.asarray(b, float), np.asarray(cov, float)
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
-    z2 = (vecs.T @ b) ** 2
-    vals = np.maximum(vals, 1e-30)
-
-    def nll(log_s2: float) -> float:
-        v = vals + np.exp(log_s2)
-        return float(np.sum(np.log(v) + z2 / v))
-
-    if float(np.sum(z2 / vals ** 2) - np.sum(1.0 / vals)) <= 0.0:  # the likelihood falls from σ² = 0 on
-        return 0.0
-    hi = math.log(max(float(np.max(z2)), float(np.max(vals))) * 10.0)
-    lo = math.log(float(np.min(vals)) * 1e-4)
-    res = minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
-    s2 = math.exp(res.x)
-    v0 = float(np.sum(np.log(vals) + z2 / vals))
-    return float(math.sqrt(s2)) if nll(res.x) < v0 and s2 > math.exp(lo) * 10 else 0.0
-
-
 __all__ = ["WRIST_JOINTS", "Selector", "moving_joint", "wrist_joint", "OffsetFit", "plain_groups", "augment",
-           "fit_offsets", "offset_sensitivities", "wrist_offset_size", "wrist_torque_effect"]
+           "fit_offsets", "offset_sensitivities", "wrist_torque_effect"]
