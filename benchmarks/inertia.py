@@ -84,7 +84,9 @@ def robot_for(cfg, robot: str, scenario: str, seed: int, payload, start):
     rng = np.random.default_rng([seed, 21])
     spec = SPECS[cfg.simulation.arm]().with_dh_errors(rng, DH_ERROR_M)
     kw = sim_robot_kwargs(cfg)
-    kw.update(payload=payload, q0_rad=start, seed=int(rng.integers(2**31)) + (1 if payload is not None else 0))
+    base = int(rng.integers(2**31))
+    # the empty and the loaded run: one arm (its gears' ripple phases), two recordings (their noise)
+    kw.update(payload=payload, q0_rad=start, seed=base + (1 if payload is not None else 0), ripple_seed=base)
     if scenario == "hard":
         tool_fx, _, _ = hard.draw(hard.HARD, seed)
         kw["effects"] = tool_fx

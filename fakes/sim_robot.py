@@ -63,10 +63,13 @@ class SimRobot:
                  time_scale: float = 1.0, friction: FrictionParams | None = None,
                  noise_nm: float | Sequence[float] = 0.0, seed: int | None = None,
                  payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0,
-                 effects: PhysicsEffects | None = None, noise_rest_nm: float | Sequence[float] | None = None):
+                 effects: PhysicsEffects | None = None, noise_rest_nm: float | Sequence[float] | None = None,
+                 ripple_seed: int | None = None):
         """``noise_nm``: each joint's effort noise (standard deviation) while it moves; ``noise_rest_nm``: while
         it stands (None: the same). A real drive's torque fluctuates more in motion (gear mesh, control activity)
-        than at rest: measured 2-5x on a UR10e (docs/sources.md, "Effort noise of the simulated UR5e")."""
+        than at rest: measured 2-5x on a UR10e (docs/sources.md, "Effort noise of the simulated UR5e").
+        ``ripple_seed``: fixes the gears' ripple phases (None: ``seed``), so two instances standing for the same
+        arm (an empty and a loaded run recorded apart) share its gears while their noise differs."""
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)
@@ -83,7 +86,7 @@ class SimRobot:
         # angle noise and timestamp jitter draw from their own stream: switching them on leaves the
         # effort noise of a seeded robot unchanged
         self._sensor_rng = np.random.default_rng(None if seed is None else [int(seed), 10])
-        self._ripple_phases = ripple_phases(seed)
+        self._ripple_phases = ripple_phases(seed if ripple_seed is None else ripple_seed)
         self._temperature_c = np.full(6, self.effects.temperature_ref_c)
         self._tau_gear = np.zeros(6)  # last tick's torque through the gears (start of the elastic fixed point)
         self._cable_rest: np.ndarray | None = None

@@ -3,7 +3,8 @@
 Pure: it takes the wrist moves of both phases (``recording.rundata.load_wrist_moves``), the
 kinematics and the static result's m, m·c and their covariance, and returns what a user reads:
 
-1. the fit (``solvers.inertia_fit``): six inertia parameters on loaded − empty, m and m·c held;
+1. the fit (``solvers.inertia_fit``): six inertia parameters on loaded − empty, m and m·c updated from the
+   static result where the wrist moves agree with it, else held;
 2. the tensor about the centre of mass with the 6×6 covariance of its elements (delta method);
 3. when the estimate is not physically possible, its projection onto the consistent set in the
    covariance metric (``solvers.inertia_consistency``), and the result says so;
@@ -36,6 +37,8 @@ class InertiaResult:
     moves: tuple[str, ...]
     condition_number: float
     samples: int
+    static_held: str | None = None  # why m, m·c were held at the sweeps' result (None: updated by the wrist moves)
+    static_nis: float = float("nan")  # the wrist moves' m, m·c against the sweeps' (normalised innovation squared)
 
     @property
     def inertia_com_kgm2(self) -> np.ndarray | None:
@@ -50,6 +53,8 @@ class InertiaResult:
         if self.inconsistent_data:
             out.append(f"inertia: the wrist moves alone gave a tensor that is {self.inconsistent_data}; the one given "
                        "is the nearest physically possible tensor (in the estimate's covariance metric)")
+        if self.static_held and self.samples:
+            out.append(f"inertia: {self.static_held}")
         if self.refused:
             out.append(f"inertia not given: {self.refused}")
         return out
@@ -64,7 +69,10 @@ class InertiaResult:
                         "estimate_kgm2": self.estimate_kgm2.tolist() if known else None,
                         "std_kgm2": self.std_kgm2.tolist() if known else None, "wrist_moves": list(self.moves),
                         "condition_number": self.condition_number, "samples": self.samples,
-                        "method": "wrist moves, m and m·c held at the static result (docs/analysis.md, Inertia)"},
+                        "first_moments": "held at the sweeps' result" if self.static_held else
+                        "updated by the wrist moves, the sweeps' result as prior",
+                        "first_moments_nis": None if np.isnan(self.static_nis) else self.static_nis,
+                        "method": "wrist moves, m and m·c from the sweeps (docs/analysis.md, Inertia)"},
         }
 
 
@@ -88,7 +96,7 @@ def identify_inertia(loaded: Mapping[str, WristRecord], empty: Mapping[str, Wris
     std = to_tensor(np.sqrt(np.maximum(np.diag(cov6), 0.0)))
     tensor, problem = project_consistent(raw, cov6)
     return InertiaResult(tensor, std, support_problem(tensor, std), problem, fit.moves, fit.condition_number,
-                         fit.samples)
+                         fit.samples, fit.static_held, fit.static_nis)
 
 
 def identify_or_none(loaded: Mapping[str, WristRecord], empty: Mapping[str, WristRecord], kin: Kinematics,
