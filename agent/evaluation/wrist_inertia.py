@@ -8,9 +8,9 @@ kinematics and the static result's m, m·c and their covariance, and returns wha
 2. the tensor about the centre of mass with the 6×6 covariance of its elements (delta method);
 3. when the estimate is not physically possible, its projection onto the consistent set in the
    covariance metric (``solvers.inertia_consistency``), and the result says so;
-4. the quality check: the inertia is refused (mass and CoM still given) when a diagonal element's
-   σ exceeds ``INERTIA_MAX_REL_STD`` of the largest principal moment: a light, compact tool whose
-   inertial torques drown in the noise.
+4. the quality check (``inertia_support``): the inertia is refused (mass and CoM still given) when any
+   element's σ exceeds ``INERTIA_MAX_REL_STD`` of the largest principal moment: a light, compact tool
+   whose inertial torques drown in the noise.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Mapping
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.evaluation.recorded_motion import INERTIA_MAX_REL_STD
+from payload_agent.evaluation.inertia_support import uncertainty_problem
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import WristRecord
 from payload_agent.solvers.inertia_consistency import project_consistent, to_tensor
@@ -77,14 +77,8 @@ class InertiaResult:
 
 
 def support_problem(inertia: np.ndarray, std: np.ndarray) -> str | None:
-    """Why the data do not support this (consistent) tensor, or None."""
-    largest = float(np.max(np.linalg.eigvalsh(inertia)))
-    worst = float(np.max(np.diag(std)))
-    if worst > INERTIA_MAX_REL_STD * largest:
-        return (f"a diagonal element is known only to ±{worst:.2g} kg·m² (1σ), more than {100 * INERTIA_MAX_REL_STD:.0f} % "
-                f"of the largest principal moment ({largest:.2g} kg·m²): the tool's inertial torques are too small "
-                "for these wrist moves")
-    return None
+    """Why the data do not support this (consistent) tensor, or None (``inertia_support``)."""
+    return uncertainty_problem(inertia, std)
 
 
 def identify_inertia(loaded: Mapping[str, WristRecord], empty: Mapping[str, WristRecord], kin: Kinematics,
