@@ -4,8 +4,8 @@
 
 Each case records the wrist moves of ``procedures/wrist_inertia.yaml`` (the plan of the sim YAML
 with ``procedure.inertia: true``) on an in-process simulated arm (``fakes.offline``), once with the
-empty flange and once with the tool, and runs the agent's own inertia analysis
-(``evaluation.wrist_inertia``). Scenarios:
+empty flange and once with the tool (one arm: both runs share its gears' ripple phases and DH errors,
+not their sensor noise), and runs the agent's own inertia analysis (``evaluation.wrist_inertia``). Scenarios:
 
 - realistic, after calibration: the sim YAML's sensor noise (effort and angle), friction with a
   load-dependent part, DH lengths off by ±0.5 mm; drive gains exact (what ``calibrate`` buys);
