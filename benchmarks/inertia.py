@@ -4,8 +4,8 @@
 
 Each case records the wrist moves of ``procedures/wrist_inertia.yaml`` (the plan of the sim YAML
 with ``procedure.inertia: true``) on an in-process simulated arm (``fakes.offline``), once with the
-empty flange and once with the tool, and runs the agent's own inertia analysis
-(``evaluation.wrist_inertia``). Scenarios:
+empty flange and once with the tool (one arm: both runs share its gears' ripple phases and DH errors,
+not their sensor noise), and runs the agent's own inertia analysis (``evaluation.wrist_inertia``). Scenarios:
 
 - realistic, after calibration: the sim YAML's sensor noise (effort and angle), friction with a
   load-dependent part, DH lengths off by ±0.5 mm; drive gains exact (what ``calibrate`` buys);
@@ -84,7 +84,9 @@ def robot_for(cfg, robot: str, scenario: str, seed: int, payload, start):
     rng = np.random.default_rng([seed, 21])
     spec = SPECS[cfg.simulation.arm]().with_dh_errors(rng, DH_ERROR_M)
     kw = sim_robot_kwargs(cfg)
-    kw.update(payload=payload, q0_rad=start, seed=int(rng.integers(2**31)) + (1 if payload is not None else 0))
+    base = int(rng.integers(2**31))
+    # the empty and the loaded run: one arm (its gears' ripple phases), two recordings (their noise)
+    kw.update(payload=payload, q0_rad=start, seed=base + (1 if payload is not None else 0), ripple_seed=base)
     if scenario == "hard":
         tool_fx, _, _ = hard.draw(hard.HARD, seed)
         kw["effects"] = tool_fx

@@ -53,13 +53,23 @@ class SimState:
 
 StateCallback = Callable[[SimState], None]
 
+# Effort noise per joint goes from its at-rest level (joint standing) to its in-motion level over this speed,
+# linearly: the threshold below which benchmarks/effort_noise.py counts a real joint as not moving.
+NOISE_RAMP_RAD_S = 0.05
+
 
 class SimRobot:
     def __init__(self, spec: ArmSpec, *, q0_rad: Sequence[float], tick_s: float = 0.008,
                  time_scale: float = 1.0, friction: FrictionParams | None = None,
                  noise_nm: float | Sequence[float] = 0.0, seed: int | None = None,
                  payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0,
-                 effects: PhysicsEffects | None = None):
+                 effects: PhysicsEffects | None = None, noise_rest_nm: float | Sequence[float] | None = None,
+                 ripple_seed: int | None = None):
+        """``noise_nm``: each joint's effort noise (standard deviation) while it moves; ``noise_rest_nm``: while
+        it stands (None: the same). A real drive's torque fluctuates more in motion (gear mesh, control activity)
+        than at rest: measured 2-5x on a UR10e (docs/sources.md, "Effort noise of the simulated UR5e").
+        ``ripple_seed``: fixes the gears' ripple phases (None: ``seed``), so two instances standing for the same
+        arm (an empty and a loaded run recorded apart) share its gears while their noise differs."""
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)
@@ -70,11 +80,13 @@ class SimRobot:
             friction = dataclasses.replace(friction, asymmetry=np.asarray(self.effects.coulomb_asymmetry))
         self.friction = friction
         self.noise_nm = np.broadcast_to(np.asarray(noise_nm, float), (6,)).copy()
+        self.noise_rest_nm = (self.noise_nm.copy() if noise_rest_nm is None
+                              else np.broadcast_to(np.asarray(noise_rest_nm, float), (6,)).copy())
         self.rng = np.random.default_rng(seed)
         # angle noise and timestamp jitter draw from their own stream: switching them on leaves the
         # effort noise of a seeded robot unchanged
         self._sensor_rng = np.random.default_rng(None if seed is None else [int(seed), 10])
-        self._ripple_phases = ripple_phases(seed)
+        self._ripple_phases = ripple_phases(seed if ripple_seed is None else ripple_seed)
         self._temperature_c = np.full(6, self.effects.temperature_ref_c)
         self._tau_gear = np.zeros(6)  # last tick's torque through the gears (start of the elastic fixed point)
         self._cable_rest: np.ndarray | None = None
@@ -169,12 +181,19 @@ class SimRobot:
         tau = tau_gear
         if fx.ripple.active:
             tau = tau + fx.ripple.torque(q, tau_gear, self._ripple_phases)
-        tau = fx.quantise(tau + self.rng.normal(0.0, 1.0, 6) * self.noise_nm)
+        tau = fx.quantise(tau + self.rng.normal(0.0, 1.0, 6) * self.noise_level_nm(qd))
         q_rep = q + fx.angle_noise(self._sensor_rng)
         t_rep = t + fx.jitter(self._sensor_rng, self.tick_s)
         return SimState(t_rep, q_rep, qd.copy(), qdd.copy(), tau, self._path is not None, self._estop,
                         self._protective, self._servo, self._move_id, t_true=t, q_true=q.copy(),
                         q_link=q_link.copy(), temperature_c=temps)
+
+    def noise_level_nm(self, qd: np.ndarray) -> np.ndarray:
+        """Each joint's effort noise σ at joint speeds ``qd``: the at-rest level standing, the in-motion level
+        from ``NOISE_RAMP_RAD_S`` on, linear between (one random draw per tick either way, so a seeded robot
+        without an at-rest level draws exactly as before)."""
+        ramp = np.minimum(np.abs(np.asarray(qd, float)) / NOISE_RAMP_RAD_S, 1.0)
+        return self.noise_rest_nm + (self.noise_nm - self.noise_rest_nm) * ramp
 
     def _cable_rest_for(self, q_link: np.ndarray) -> np.ndarray:
         """The wrist angles where the tool cable is relaxed: given, or where the tool was mounted

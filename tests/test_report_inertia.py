@@ -85,7 +85,7 @@ def test_a_refused_inertia_says_so_and_why_and_shows_no_controller_form(refused)
     out, reason = refused
     text = _text(out.read_text(encoding="utf-8"))
     assert "Inertia not given" in text and _text(reason) in text
-    assert "more than 25 % of the largest principal moment" in text
+    assert "more than 20 % of the largest principal moment" in text
     assert "not supported, not to be used" in text and "set_target_payload / setTargetPayload" not in text
 
 

@@ -80,6 +80,8 @@ def test_a_wrist_move_past_a_joint_limit_is_refused_naming_it(tmp_path):
     ("procedure.inertia", "wrist_nosuch", "no wrist procedure 'wrist_nosuch'"),
     ("procedure.inertia", 3, "expected true, false or a wrist procedure name"),
     ("safety.max_wrist_speed_percent", 130, "max_wrist_speed_percent"),
+    ("safety.max_wrist_accel_deg_s2", 0, "max_wrist_accel_deg_s2"),
+    ("safety.max_wrist_accel_deg_s2", "fast", "max_wrist_accel_deg_s2"),
 ])
 def test_bad_inertia_keys_are_refused_with_their_key_path(path, value, words):
     with pytest.raises(ConfigError) as err:
@@ -102,8 +104,9 @@ def test_a_wrist_procedure_file_is_checked_key_by_key():
 UR = ROOT / "configs" / "sim-ur5e.yaml"
 
 
-def ur_config(tmp_path, speed_percent: float, accel_deg_s2: float | None = None):
-    """The simulated UR5e with the wrist moves at ``speed_percent`` of its 180 deg/s (cap 100 %)."""
+def ur_config(tmp_path, speed_percent: float, accel_deg_s2: float | None = None, **changes):
+    """The simulated UR5e with the wrist moves at ``speed_percent`` of its 180 deg/s (cap 100 %) and, if given,
+    ``accel_deg_s2`` (safety.max_wrist_accel_deg_s2: their 100 %), then ``changes``."""
     wrist = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
     wrist["speed_percent"] = speed_percent
     path = tmp_path / "wrist_fast.yaml"
@@ -111,7 +114,9 @@ def ur_config(tmp_path, speed_percent: float, accel_deg_s2: float | None = None)
     data = tweak(tweak(yaml.safe_load(UR.read_text()), "procedure.inertia", str(path)),
                  "safety.max_wrist_speed_percent", 100)
     if accel_deg_s2 is not None:
-        data = tweak(data, "robot.max_joint_accel_deg_s2", accel_deg_s2)
+        data = tweak(data, "safety.max_wrist_accel_deg_s2", accel_deg_s2)
+    for path, value in changes.items():
+        data = tweak(data, path, value)
     return parse_config(data, source="sim-ur5e.yaml")
 
 
@@ -137,3 +142,25 @@ def test_an_acceleration_above_ur_rtde_moveJ_limit_is_refused_and_other_drivers_
     ec = config(**{"procedure.inertia": True, "safety.max_wrist_speed_percent": 100})
     assert type(ec.driver_options).command_limits.max_joint_speed_rad_s is None
     assert SafetyGate(ec).check(turned_to(ec, make_plan(ec), start(ec)), start(ec)).ok
+
+
+def test_the_wrist_moves_take_the_yaml_wrist_acceleration_and_a_lower_cap_refuses_them_by_name(tmp_path):
+    # the shipped sim-ur5e: safety.max_wrist_accel_deg_s2 286.5 (5 rad/s²) for the wrist moves only
+    cfg = ur_config(tmp_path, 95)
+    plan = turned_to(cfg, make_plan(cfg), start(cfg))
+    assert plan.wrist_moves and all(m.accel_rad_s2 == pytest.approx(5.0, rel=1e-3) for m in plan.wrist_moves)
+    rest = [m for m in plan.moves if m.kind != "wrist"]
+    assert all(m.accel_rad_s2 <= cfg.robot.max_joint_accel_rad_s2 * (1 + 1e-9) for m in rest)
+    assert SafetyGate(cfg).check(plan, start(cfg)).ok
+    # the same plan under a YAML that allows the wrist less (edited between planning and running, say)
+    low = ur_config(tmp_path, 95, 200)
+    verdict = SafetyGate(low).check(plan, start(cfg))
+    assert not verdict.ok
+    named = [p for p in verdict.problems if "safety.max_wrist_accel_deg_s2" in p]
+    assert len(named) == len(plan.wrist_moves) and "w1-c-j6 fwd" in named[0] and "286.5°/s²" in named[0], named
+    assert len(verdict.problems) == len(named), verdict.problems  # nothing else is wrong
+    # without the key the robot's acceleration is the wrist moves' 100 % and cap, and the refusal says so
+    plain = ur_config(tmp_path, 95, **{"safety.max_wrist_accel_deg_s2": DELETE})
+    assert make_plan(plain).wrist_moves[0].accel_rad_s2 == pytest.approx(plain.robot.max_joint_accel_rad_s2)
+    verdict = SafetyGate(plain).check(plan, start(cfg))
+    assert any("w1-c-j6 fwd" in p and "robot.max_joint_accel_deg_s2" in p for p in verdict.problems), verdict.problems

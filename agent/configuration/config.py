@@ -121,6 +121,8 @@ class SafetyConfig:
     # a driver without a reported pose: an unattended run needs this explicit acknowledgement
     unattended_without_pose_check: bool = False
     max_wrist_speed_percent: float | None = None  # wrist moves of the inertia part (None: max_speed_percent)
+    # the inertia part's wrist moves accelerate at most this (their 100 %; None: robot.max_joint_accel_deg_s2)
+    max_wrist_accel_rad_s2: float | None = None
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,14 @@ class Config:
     def driver_type(self) -> str:
         return str(self.driver["type"])
 
+    @property
+    def wrist_accel_rad_s2(self) -> float:
+        """The inertia part's wrist moves' 100 % acceleration and cap: ``safety.max_wrist_accel_deg_s2``, else the
+        robot's ``max_joint_accel_deg_s2`` (a robot that takes more on its wrist than the planning value for the
+        whole arm, with a source: the inertia fit's information grows with the acceleration squared)."""
+        cap = self.safety.max_wrist_accel_rad_s2
+        return self.robot.max_joint_accel_rad_s2 if cap is None else cap
+
     def fingerprint(self, *sections: str) -> str:
         """Stable hash of the named raw sections (what a stored baseline depends on)."""
         return self.fingerprint_of({s: self.raw.get(s) for s in sections})
@@ -170,7 +180,7 @@ PROCEDURE_KEYS = ("name", "speed_percent", "travel_speed_percent", "accel_percen
                   "bidirectional", "solver", "inertia")
 SAFETY_KEYS = ("joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm", "reach_box_mm",
                "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s", "pose_tolerance_mm",
-               "max_wrist_speed_percent",
+               "max_wrist_speed_percent", "max_wrist_accel_deg_s2",
                "pose_tolerance_deg", "unattended_without_pose_check")
 STORAGE_KEYS = ("runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c")
 # driver keys that were removed, and what replaces them (a stale YAML gets told, not ignored)
@@ -358,12 +368,14 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
     pose_deg = node.number("pose_tolerance_deg", 1.0, gt=0, max=10)
     no_pose_ok = node.boolean("unattended_without_pose_check", False)
     wrist = node.number("max_wrist_speed_percent", max_speed, gt=0, max=100)  # the inertia part's fast wrist moves
+    wrist_accel = (math.radians(node.number("max_wrist_accel_deg_s2", gt=0, max=10000))
+                   if node.has("max_wrist_accel_deg_s2") else None)
     node.reject_unknown()
     if approach > max_speed:
         raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
     return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout,
                         None if gap_ms is None else gap_ms / 1000.0, ack_s, pose_mm / 1000.0, math.radians(pose_deg),
-                        no_pose_ok, wrist)
+                        no_pose_ok, wrist, wrist_accel)
 
 
 def _storage(node: Node | None, base_dir: Path | None, robot_name: str) -> StorageConfig:

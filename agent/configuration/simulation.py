@@ -97,6 +97,8 @@ class SimulationConfig:
     angle_noise_rad: tuple[float, ...] = ZEROS  # reported joint angles: Gaussian noise per joint
     time_jitter_s: float = 0.0  # reported sample timestamps: Gaussian jitter (standard deviation)
     effects: SimEffects = field(default_factory=SimEffects)
+    # effort noise of a standing joint (None: noise_nm, the in-motion level, whether it moves or stands)
+    noise_rest_nm: tuple[float, ...] | None = None
 
 
 def _inertia(payload: Node) -> tuple[tuple[float, float, float], ...]:
@@ -128,6 +130,7 @@ def parse_simulation(node: Node) -> SimulationConfig:
                          _inertia(p) if p.has("inertia_com_kgm2") else None)
     p.reject_unknown(["mass_kg", "cog_mm", "inertia_com_kgm2"])
     noise = node.per_joint("noise_nm", N_JOINTS, min=0, max=100)
+    noise_rest = node.per_joint("noise_rest_nm", N_JOINTS, min=0, max=100) if node.has("noise_rest_nm") else None
     fr = node.child("friction")
     coulomb = fr.per_joint("coulomb_nm", N_JOINTS, min=0, max=200)
     viscous = fr.per_joint("viscous_nm_s_rad", N_JOINTS, min=0, max=1000)
@@ -141,7 +144,7 @@ def parse_simulation(node: Node) -> SimulationConfig:
     angle_noise = node.per_joint("angle_noise_rad", N_JOINTS, 0.0, min=0, max=0.01)
     jitter_ms = node.number("timestamp_jitter_ms", 0.0, min=0, max=100)
     effects = parse_effects(node.child("effects", required=False))
-    node.reject_unknown(["arm", "payload", "noise_nm", "friction", "drive_gain_error", "time_scale", "seed",
-                         "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects"])
+    node.reject_unknown(["arm", "payload", "noise_nm", "noise_rest_nm", "friction", "drive_gain_error", "time_scale",
+                         "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects"])
     return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start,
-                            angle_noise, jitter_ms / 1000.0, effects)
+                            angle_noise, jitter_ms / 1000.0, effects, noise_rest)

@@ -22,6 +22,7 @@ import numpy as np
 from payload_agent.analysis.motion_alignment import AlignedPair, align, resample
 from payload_agent.errors import DataError
 from payload_agent.evaluation.torque_constants import TorqueConstants, fit_torque_constants
+from payload_agent.evaluation.inertia_support import uncertainty_problem
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.output.payload_forms import payload_forms
 from payload_agent.recording.motion_csv import MotionRecording
@@ -33,9 +34,6 @@ KIND = "recorded-motion"
 # torque per ampere is not in the data. Declared (standard uncertainty, relative), added to each joint's fit σ: on the
 # real UR10e pairs (docs/benchmarks.md, "Real data") the mass came out 1.3 % and 1.9 % low with these constants.
 CONTROLLER_CONSTANT_REL_STD = 0.015
-# The inertia is reported only when the data support it: physically possible and each diagonal element known to
-# this fraction of the largest principal moment
-INERTIA_MAX_REL_STD = 0.25
 
 
 @dataclass(frozen=True)
@@ -76,16 +74,12 @@ class RecordedMotionResult:
 
 
 def inertia_problem(inertia: np.ndarray, std: np.ndarray) -> str | None:
-    """Why the data do not support this inertia about the centre of mass, or None."""
+    """Why the data do not support this inertia about the centre of mass, or None: physically possible, and known
+    well enough (``inertia_support``)."""
     problem = full_payload.consistency_problem(inertia)
     if problem:
         return f"the data give a tensor that is {problem}"
-    largest = float(np.max(np.linalg.eigvalsh(0.5 * (inertia + inertia.T))))
-    worst = float(np.max(np.diag(std)))
-    if worst > INERTIA_MAX_REL_STD * largest:
-        return (f"a diagonal element is known only to ±{worst:.3g} kg·m², more than {100 * INERTIA_MAX_REL_STD:.0f} % "
-                f"of the largest principal moment ({largest:.3g} kg·m²)")
-    return None
+    return uncertainty_problem(inertia, std)
 
 
 def controller_constants(recordings: Sequence[MotionRecording]) -> TorqueConstants | None:

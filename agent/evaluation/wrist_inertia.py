@@ -3,13 +3,14 @@
 Pure: it takes the wrist moves of both phases (``recording.rundata.load_wrist_moves``), the
 kinematics and the static result's m, m·c and their covariance, and returns what a user reads:
 
-1. the fit (``solvers.inertia_fit``): six inertia parameters on loaded − empty, m and m·c held;
+1. the fit (``solvers.inertia_fit``): six inertia parameters on loaded − empty, m and m·c updated from the
+   static result where the wrist moves agree with it, else held;
 2. the tensor about the centre of mass with the 6×6 covariance of its elements (delta method);
 3. when the estimate is not physically possible, its projection onto the consistent set in the
    covariance metric (``solvers.inertia_consistency``), and the result says so;
-4. the quality check: the inertia is refused (mass and CoM still given) when a diagonal element's
-   σ exceeds ``INERTIA_MAX_REL_STD`` of the largest principal moment: a light, compact tool whose
-   inertial torques drown in the noise.
+4. the quality check (``inertia_support``): the inertia is refused (mass and CoM still given) when any
+   element's σ exceeds ``INERTIA_MAX_REL_STD`` of the largest principal moment: a light, compact tool
+   whose inertial torques drown in the noise.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Mapping
 import numpy as np
 
 from payload_agent.errors import DataError
-from payload_agent.evaluation.recorded_motion import INERTIA_MAX_REL_STD
+from payload_agent.evaluation.inertia_support import uncertainty_problem
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import WristRecord
 from payload_agent.solvers.inertia_consistency import project_consistent, to_tensor
@@ -36,6 +37,8 @@ class InertiaResult:
     moves: tuple[str, ...]
     condition_number: float
     samples: int
+    static_held: str | None = None  # why m, m·c were held at the sweeps' result (None: updated by the wrist moves)
+    static_nis: float = float("nan")  # the wrist moves' m, m·c against the sweeps' (normalised innovation squared)
 
     @property
     def inertia_com_kgm2(self) -> np.ndarray | None:
@@ -50,6 +53,8 @@ class InertiaResult:
         if self.inconsistent_data:
             out.append(f"inertia: the wrist moves alone gave a tensor that is {self.inconsistent_data}; the one given "
                        "is the nearest physically possible tensor (in the estimate's covariance metric)")
+        if self.static_held and self.samples:
+            out.append(f"inertia: {self.static_held}")
         if self.refused:
             out.append(f"inertia not given: {self.refused}")
         return out
@@ -64,19 +69,16 @@ class InertiaResult:
                         "estimate_kgm2": self.estimate_kgm2.tolist() if known else None,
                         "std_kgm2": self.std_kgm2.tolist() if known else None, "wrist_moves": list(self.moves),
                         "condition_number": self.condition_number, "samples": self.samples,
-                        "method": "wrist moves, m and m·c held at the static result (docs/analysis.md, Inertia)"},
+                        "first_moments": "held at the sweeps' result" if self.static_held else
+                        "updated by the wrist moves, the sweeps' result as prior",
+                        "first_moments_nis": None if np.isnan(self.static_nis) else self.static_nis,
+                        "method": "wrist moves, m and m·c from the sweeps (docs/analysis.md, Inertia)"},
         }
 
 
 def support_problem(inertia: np.ndarray, std: np.ndarray) -> str | None:
-    """Why the data do not support this (consistent) tensor, or None."""
-    largest = float(np.max(np.linalg.eigvalsh(inertia)))
-    worst = float(np.max(np.diag(std)))
-    if worst > INERTIA_MAX_REL_STD * largest:
-        return (f"a diagonal element is known only to ±{worst:.2g} kg·m² (1σ), more than {100 * INERTIA_MAX_REL_STD:.0f} % "
-                f"of the largest principal moment ({largest:.2g} kg·m²): the tool's inertial torques are too small "
-                "for these wrist moves")
-    return None
+    """Why the data do not support this (consistent) tensor, or None (``inertia_support``)."""
+    return uncertainty_problem(inertia, std)
 
 
 def identify_inertia(loaded: Mapping[str, WristRecord], empty: Mapping[str, WristRecord], kin: Kinematics,
@@ -88,7 +90,7 @@ def identify_inertia(loaded: Mapping[str, WristRecord], empty: Mapping[str, Wris
     std = to_tensor(np.sqrt(np.maximum(np.diag(cov6), 0.0)))
     tensor, problem = project_consistent(raw, cov6)
     return InertiaResult(tensor, std, support_problem(tensor, std), problem, fit.moves, fit.condition_number,
-                         fit.samples)
+                         fit.samples, fit.static_held, fit.static_nis)
 
 
 def identify_or_none(loaded: Mapping[str, WristRecord], empty: Mapping[str, WristRecord], kin: Kinematics,

@@ -179,12 +179,12 @@ def wrist_moves(config: Config, wp: WristProcedure, geo: ArmGeometry, wrist_limi
     """The inertia part, after the move to ``after``: per wrist move of ``wp``, a travel to its start (where the arm
     is not there already), then there and back, both recorded.
 
-    Speed and acceleration are the wrist procedure's own; the safety gate refuses them by move name
-    when the YAML's caps forbid them (they are never slowed down to fit).
+    Speed and acceleration are the wrist procedure's own (its accel_percent of ``Config.wrist_accel_rad_s2``); the
+    safety gate refuses them by move name when the YAML's caps forbid them (they are never slowed down to fit).
     """
     robot, pc = config.robot, config.procedure
     speed = robot.max_joint_speed_rad_s * wp.speed_percent / 100.0
-    accel = robot.max_joint_accel_rad_s2 * wp.accel_percent / 100.0
+    accel = config.wrist_accel_rad_s2 * wp.accel_percent / 100.0
     travel = robot.max_joint_speed_rad_s * pc.travel_speed_percent / 100.0
     travel_accel = robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0
     q2, q3 = geo.joints_for(0.0, 0.0)

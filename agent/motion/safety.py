@@ -74,6 +74,9 @@ class SafetyGate:
         first_cap = vmax * first_pct / 100.0
         wrist_pct = s.max_speed_percent if s.max_wrist_speed_percent is None else s.max_wrist_speed_percent
         wrist_cap = vmax * wrist_pct / 100.0
+        wrist_accel = self.config.wrist_accel_rad_s2
+        wrist_accel_key = ("safety.max_wrist_accel_deg_s2" if s.max_wrist_accel_rad_s2 is not None
+                           else "robot.max_joint_accel_deg_s2; safety.max_wrist_accel_deg_s2 not set")
         margin = s.joint_limit_margin_rad
         (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
         if not plan.moves:
@@ -101,8 +104,12 @@ class SafetyGate:
             if i == 0 and m.speed_rad_s > first_cap * (1 + 1e-9):
                 problems.append(f"{where}: first move at {100 * m.speed_rad_s / vmax:.2f} %, {first_what} is "
                                 f"{first_pct:g} %")
-            if m.accel_rad_s2 <= 0 or m.accel_rad_s2 > robot.max_joint_accel_rad_s2 * (1 + 1e-9):
-                problems.append(f"{where}: acceleration outside (0, max_joint_accel]")
+            if m.kind == "wrist" and not 0 < m.accel_rad_s2 <= wrist_accel * (1 + 1e-9):
+                problems.append(f"{where}: wrist move accelerating at {math.degrees(m.accel_rad_s2):.1f}°/s², outside "
+                                f"(0, {math.degrees(wrist_accel):.1f}]°/s² ({wrist_accel_key})")
+            elif m.kind != "wrist" and not 0 < m.accel_rad_s2 <= robot.max_joint_accel_rad_s2 * (1 + 1e-9):
+                problems.append(f"{where}: acceleration {math.degrees(m.accel_rad_s2):.1f}°/s² outside "
+                                f"(0, {math.degrees(robot.max_joint_accel_rad_s2):.1f}]°/s² (robot.max_joint_accel_deg_s2)")
             problems.extend(self._driver_limit_problems(where, m))
             if prev is None:
                 prev = tgt
@@ -127,7 +134,8 @@ class SafetyGate:
             f"{len(plan.moves)} moves within joint limits less {math.degrees(margin):.0f}° margin",
             f"every speed <= {s.max_speed_percent:g} % of {math.degrees(vmax):.0f}°/s; first move <= "
             f"{first_pct:g} %" + (f" ({first_what})" if first_pct > s.approach_speed_percent else "")
-            + (f"; wrist moves <= {wrist_pct:g} %" if plan.wrist_moves else ""),
+            + (f"; wrist moves <= {wrist_pct:g} % and <= {math.degrees(wrist_accel):.1f}°/s²" if plan.wrist_moves
+               else ""),
             f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
         ]
         return Verdict(not problems, problems, checks if not problems else [])
