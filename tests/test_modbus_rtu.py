@@ -38,6 +38,7 @@ def _rtu():
                                   "baudrate": 115200, "preset": "generic_float32", "unit_id": 7})
     data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
     data = tweak(data, "simulation.noise_nm", 0.3)
+    data = tweak(data, "simulation.noise_rest_nm", 0.3)
     data = tweak(data, "simulation.seed", 5)
     data = tweak(data, "simulation.start_deg", [float(v) for v in np.degrees(Q0)])
     cell = SimulatedCell(parse_config(data, source="test")).start()
@@ -119,6 +120,7 @@ def test_identification_over_rtu(tmp_path):
     data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
     data = tweak(data, "procedure.bidirectional", False)  # 4 sweeps a run: a shorter test
     data = tweak(data, "simulation.noise_nm", 0.5)
+    data = tweak(data, "simulation.noise_rest_nm", 0.5)  # one level, moving or standing
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
     truth = data["simulation"]["payload"]
     cfg = parse_config(data, source="test")
