@@ -87,7 +87,12 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 
     from payload_agent.evaluation.pipeline import run_gains
 
+    from payload_agent.evaluation.planned_terms import earlier_friction_change
+
     noise, source = _effort_noise(config)
+    known = earlier_friction_change(config) if noise.friction_level_nm is not None else None
+    if known is not None:
+        noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source
     gains = run_gains(config, None)
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
