@@ -73,4 +73,9 @@ def test_choose_picks_the_fastest_candidate_that_meets_the_target(config):
     assert all(p.robot_time_s >= loose.best.robot_time_s for p in usable if p.meets(5.0, 2.0))
     assert tight.best.mass_std_g <= 1.0 and tight.best.cog_std_mm <= 0.3
     none = design.choose(config, 0.01, 0.001, noise, grid=grid)
-    assert none.best is None and "none meets" in none.describe(0.01, 0.001)
+    text = none.describe(0.01, 0.001)
+    assert none.best is None and "none meets" in text
+    # how far the target is: the nearest candidate and the least mass σ, with the numbers of the table
+    least = min((p for p in none.table if p.usable), key=lambda p: p.mass_std_g)
+    assert "nearest: " in text and f"least mass σ of the {sum(p.usable for p in none.table)} candidates " \
+        f"{least.mass_std_g:.2f} g" in text
