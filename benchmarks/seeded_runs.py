@@ -41,14 +41,14 @@ DEFAULT_REFERENCE = (3.0, (0.0, 0.0, 80.0))  # kg, mm
 
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
-            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None) -> dict:
+            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    quiet = dict(assume_yes=True, report=False)
+    quiet = dict(assume_yes=True, report=False, retry_sweeps=retry_sweeps)
     ui = OperatorUI(progress=False, out=lambda *_: None)
     if calibrate:
         import dataclasses
@@ -105,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
+                   help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     args = p.parse_args(argv)
     reference = DEFAULT_REFERENCE
     if args.calibrate_with:
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
-                            args.calibrate_speed)
+                            args.calibrate_speed, args.retry_sweeps)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

@@ -13,9 +13,10 @@ the procedure, the information matrix is Σ YᵀY/σ², and
     Cov θ ≈ (Σ YᵀY/σ²)⁻¹ · inflation² + the systematic terms (drive gains, DH lengths),
 
 the same terms ``general.solve`` reports, plus those of ``evaluation.systematics`` that can be
-predicted before the run (``systematics.planned_covariance``: joint zeros, and residual friction with
-the declared change of the friction level; the stiffness and the data-sized wrist and gain-scatter
-terms cannot be predicted before the run). ``inflation`` is the ratio of the reported
+predicted before the run (``systematics.planned_covariance``: joint zeros) and the expectation of the
+run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
+the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
+stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (1 without a baseline).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method.
 
