@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from payload_agent.analysis.delta import DeltaSweep, outside_gaps
+from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.types import SweepKey
 
@@ -33,21 +33,6 @@ def _interp_columns(x_new: np.ndarray, x: np.ndarray, values: np.ndarray) -> np.
     return np.column_stack([np.interp(x_new, x, values[:, c]) for c in range(values.shape[1])])
 
 
-def _grid(xu: np.ndarray, xd: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """The angles to average the legs at: the sparser leg's own samples inside the overlap, without those that
-    fall into a stream gap of the other leg (``delta.outside_gaps``).
-
-    No more points than the sparser leg has samples keeps the averaged noise nearly independent; a uniform
-    grid over the overlap, used before, also put points into a leg's stream gaps (a busy host's simulated
-    stream, a congested network), where interpolating between two far samples makes many correlated points
-    that the fit counts as independent: offline runs of sim-ur5e without a cable whose loaded runs lost
-    half their samples in 20–60 ms gaps gave the wrist offsets a mean χ² of 19 for 6 offsets, and the
-    cable check refused 27 % of them (benchmarks/cable_false_alarms.py, --gap-rate 0.05)."""
-    su, sd = xu[(xu >= lo) & (xu <= hi)], xd[(xd >= lo) & (xd <= hi)]
-    grid, other = (su, xd) if len(su) <= len(sd) else (sd, xu)
-    return grid[outside_gaps(grid, other)] if len(grid) else grid
-
-
 def combine_pair(up: DeltaSweep, down: DeltaSweep) -> DeltaSweep:
     """The friction-cancelling average of two legs of the same sweep, on a common angle grid."""
     if (up.key.pose, up.key.joint, up.key.speed_percent) != (down.key.pose, down.key.joint, down.key.speed_percent):
@@ -59,10 +44,8 @@ def combine_pair(up: DeltaSweep, down: DeltaSweep) -> DeltaSweep:
     n = min(int(np.sum((xu >= lo - eps) & (xu <= hi + eps))), int(np.sum((xd >= lo - eps) & (xd <= hi + eps))))
     if n < MIN_OVERLAP_SAMPLES or not hi > lo:
         raise DataError(f"the up and down legs of {up.key.pose}-j{up.key.joint} share too few angles ({n} samples)")
-    grid = _grid(xu, xd, lo - eps, hi + eps)
-    if len(grid) < MIN_OVERLAP_SAMPLES:
-        raise DataError(f"the up and down legs of {up.key.pose}-j{up.key.joint} share too few angles "
-                        f"({len(grid)} samples outside stream gaps)")
+    # no more grid points than the sparser leg has samples: the averaged noise stays nearly independent
+    grid = np.linspace(lo, hi, n)
     q = 0.5 * (_interp_columns(grid, xu, qu) + _interp_columns(grid, xd, qd))
     q[:, up.moving] = grid
     dtau = 0.5 * (_interp_columns(grid, xu, tu) + _interp_columns(grid, xd, td))

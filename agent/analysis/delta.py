@@ -41,22 +41,6 @@ def window_of(sweep: SweepData, command: SweepCommand | None = None) -> Window:
     return cruise_window(sweep.t, sweep.q[:, j], command, where=sweep.source)
 
 
-GAP_FACTOR = 3.0  # a run's angle spacing this many times its median is a gap in its sample stream
-
-
-def outside_gaps(x: np.ndarray, xs: np.ndarray) -> np.ndarray:
-    """Which angles ``x`` have samples of the sorted ``xs`` close on both sides (not in a stream gap of ``xs``).
-
-    Interpolating ``xs``'s run across a gap gives many samples of the other run one shared, correlated
-    error that the fit would count as independent (a busy host's simulated stream, a congested network);
-    those samples are left out."""
-    if len(xs) < 2:
-        return np.ones(len(x), bool)
-    step = float(np.median(np.diff(xs)))
-    right = np.clip(np.searchsorted(xs, x), 1, len(xs) - 1)
-    return (xs[right] - xs[right - 1]) <= GAP_FACTOR * max(step, 1e-12)
-
-
 def subtract(loaded: SweepData, empty: SweepData, command: SweepCommand | None = None) -> DeltaSweep:
     if loaded.key != empty.key:
         raise DataError(f"cannot subtract {empty.key} from {loaded.key}: different sweeps")
@@ -73,10 +57,6 @@ def subtract(loaded: SweepData, empty: SweepData, command: SweepCommand | None =
     if inside.sum() < MIN_OVERLAP_SAMPLES:
         raise DataError(f"{loaded.source}: the loaded and empty sweeps hardly overlap in joint {j + 1} angle "
                         f"({inside.sum()} samples); was the baseline recorded with the same procedure?")
-    inside &= outside_gaps(x, xe)
-    if inside.sum() < MIN_OVERLAP_SAMPLES:
-        raise DataError(f"{loaded.source}: too few loaded samples ({inside.sum()}) lie where the empty run's stream "
-                        f"has no gap in joint {j + 1} angle")
     q = q[inside]
     x = x[inside]
     empty_at = np.column_stack([np.interp(x, xe, ye[:, c]) for c in range(ye.shape[1])])
