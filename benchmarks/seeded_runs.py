@@ -7,13 +7,15 @@ mean error (a bias shows here), its standard error, rms(error/σ) and the share 
 hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
-        [--target-std G,MM [--calibrate]]
+        [--target-std G,MM [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
 chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22).
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
-reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it.
+reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
+another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
+``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise).
 """
 
 from __future__ import annotations
@@ -35,21 +37,30 @@ ROOT = Path(__file__).resolve().parents[1]
 NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
 
 
-def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False) -> dict:
+DEFAULT_REFERENCE = (3.0, (0.0, 0.0, 80.0))  # kg, mm
+
+
+def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
+            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    quiet = dict(assume_yes=True, report=False)
+    quiet = dict(assume_yes=True, report=False, retry_sweeps=retry_sweeps)
     ui = OperatorUI(progress=False, out=lambda *_: None)
     if calibrate:
+        import dataclasses
+
         from payload_agent.types import PayloadSetting
 
-        run_identification(config, RunOptions(mode="calibrate", reference=PayloadSetting(3.0, (0.0, 0.0, 0.08)),
-                                              **quiet), ui,
-                           SimulatedCellUse(on_cell=lambda cell: cell.change_tool(3.0, (0.0, 0.0, 80.0))))
+        kg, cog_mm = reference
+        cal_config = config if calibrate_speed is None else dataclasses.replace(
+            config, procedure=dataclasses.replace(config.procedure, speed_percent=calibrate_speed))
+        run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
+            kg, tuple(c / 1000.0 for c in cog_mm)), **quiet), ui,
+            SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
     plan: dict = {}
     if target:
         from payload_agent.evaluation import design
@@ -92,12 +103,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", metavar="OUT", help="also write the runs and the summary as JSON")
     p.add_argument("--target-std", metavar="G,MM", help="run the procedure `plan --target-std` chooses")
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
+    p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
+    p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
+                   help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     args = p.parse_args(argv)
+    reference = DEFAULT_REFERENCE
+    if args.calibrate_with:
+        kg, cog = args.calibrate_with.split(":")
+        reference = (float(kg), tuple(float(v) for v in cog.split(",")))
     runs, failed = [], []
     for seed in range(args.first_seed, args.first_seed + args.runs):
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
-                r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate)
+                r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
+                            args.calibrate_speed, args.retry_sweeps)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

@@ -2,6 +2,8 @@
 
 import json
 
+import numpy as np
+
 import pytest
 
 from conftest import ROOT
@@ -180,3 +182,22 @@ def test_the_prediction_carries_the_stored_calibration_as_the_run_will(monkeypat
     cand, theta = design.Candidate(3, 25, 0, 40, 1, 100, "j2_triple"), design.nominal_theta(2.0, (40, -25, 70))
     assert design.predict(config, cand, calibrated, theta).mass_std_g < 0.8 * design.predict(
         config, cand, nominal, theta).mass_std_g
+
+
+def test_the_sample_density_of_a_gappy_baseline_is_what_the_plan_assumes():
+    """A stream that dropped samples (a busy host's simulation, a congested network) keeps fewer constant-speed
+    samples per second; the prediction must assume what the run will have: per sweep pair the sparser leg."""
+    from payload_agent.recording.rundata import SweepData
+    from payload_agent.session.target import measured_sample_period_s
+    from payload_agent.types import SweepKey
+
+    def leg(direction, keep_every):
+        t = np.arange(0.0, 2.0, 0.002)[::keep_every]
+        q = np.zeros((len(t), 6))
+        q[:, 1] = 0.3 * t if direction == "up" else 0.6 - 0.3 * t
+        return SweepData(SweepKey("b", 2, direction, 10.0), t, q, np.zeros((len(t), 6)), direction)
+
+    dense = {s.key: s for s in (leg("up", 1), leg("down", 1))}
+    gappy = {s.key: s for s in (leg("up", 1), leg("down", 4))}
+    assert measured_sample_period_s(dense) == pytest.approx(0.002, rel=0.01)
+    assert measured_sample_period_s(gappy) == pytest.approx(0.008, rel=0.01)

@@ -13,9 +13,10 @@ the procedure, the information matrix is Σ YᵀY/σ², and
     Cov θ ≈ (Σ YᵀY/σ²)⁻¹ · inflation² + the systematic terms (drive gains, DH lengths),
 
 the same terms ``general.solve`` reports, plus those of ``evaluation.systematics`` that can be
-predicted before the run (``systematics.planned_covariance``: joint zeros, and residual friction with
-the declared change of the friction level; the stiffness and the data-sized wrist and gain-scatter
-terms cannot be predicted before the run). ``inflation`` is the ratio of the reported
+predicted before the run (``systematics.planned_covariance``: joint zeros) and the expectation of the
+run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
+the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
+stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (1 without a baseline).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method.
 
@@ -39,11 +40,15 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
+from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_covariance, wrist_covariance
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
-SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0)
+# sweep speeds above safety.max_speed_percent are refused by the gate, as ``plan`` would refuse them
+SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 25.0)
 TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
-RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0))
+# long ranges pay where the wrist-torque term binds the centre of mass: the wrist offsets of a pose are
+# separable from m·c only through the change of the wrist's gravity torque along the sweep (issue 22)
+RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0), (0.0, 70.0), (0.0, 90.0))
 ACCELS_PERCENT = (40.0, 100.0)
 # The product's grid runs each procedure once: a run has no repetition key, so a chosen "×2" could not be run
 # as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
@@ -103,6 +108,8 @@ class NoiseModel:
     # friction; None: the residual-friction term is not predicted)
     joints: JointSystematicsConfig | None = None
     friction_level_nm: tuple[float, ...] | None = None
+    # an earlier run's measured friction change (``planned_terms.earlier_friction_change``; None: the prior)
+    friction_known: FrictionKnowledge | None = None
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -194,13 +201,22 @@ def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     Y = np.vstack([g.Y for g in groups])
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
     cov = inv * noise.inflation ** 2
+    # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
+    # noise and the samples, so per candidate
+    cov = cov + wrist_covariance(sweeps, groups, w, noise.inflation, theta, noise.gain_rel_std)
+    friction = np.zeros((4, 4))
+    decl, level = noise.joints, noise.friction_level_nm
+    if decl is not None and level is not None:
+        friction = friction_covariance(sweeps, groups, w, theta, float(decl.friction_asymmetry_std),
+                                       float(decl.friction_change_std), dict(enumerate(level)), std,
+                                       noise.inflation, noise.friction_known)
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
     # (procedure and sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
     ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]))
     # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
     key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,
-           tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints), noise.friction_level_nm)
+           tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints))
     if key not in _SYSTEMATIC:
         sys_cov = np.zeros((4, 4))
         if noise.gain_rel_std is not None:
@@ -213,12 +229,12 @@ def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
             # residual friction with the declared change of the friction level)
             from payload_agent.evaluation import systematics
 
-            level = None if noise.friction_level_nm is None else dict(enumerate(noise.friction_level_nm))
-            sys_cov = sys_cov + systematics.planned_covariance(sweeps, kin, noise.joints, theta, w, level)
+            # joint zeros only: the residual friction is ``friction`` above (the change as the run will measure it)
+            sys_cov = sys_cov + systematics.planned_covariance(sweeps, kin, noise.joints, theta, w, None)
         if len(_SYSTEMATIC) > 256:
             _SYSTEMATIC.clear()
         _SYSTEMATIC[key] = sys_cov
-    return cov, _SYSTEMATIC[key], sum(len(d.q) for d in sweeps)
+    return cov, _SYSTEMATIC[key] + friction, sum(len(d.q) for d in sweeps)
 
 
 _SYSTEMATIC: dict[tuple, np.ndarray] = {}

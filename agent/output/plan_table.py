@@ -66,4 +66,11 @@ def format_choice(choice: Any, mass_std_g: float, cog_std_mm: float, limit: int 
     lines.append("chosen: " + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.0f} s of robot time, "
                                f"{choice.best.approach_s:.0f} s of it the approach)" if choice.best
                                else "none meets the target; slower sweeps, a wider range or a calibration"))
+    usable = [p for p in choice.table if p.usable]
+    if choice.best is None and usable:  # how far the target is: the candidate nearest to it, and the least σ
+        near = min(usable, key=lambda p: max(p.mass_std_g / mass_std_g, p.cog_std_mm / cog_std_mm))
+        least_m = min(usable, key=lambda p: p.mass_std_g)
+        lines.append(f"nearest: {near.candidate.describe()} ({near.robot_time_s:.0f} s): σ {near.mass_std_g:.2f} g, "
+                     f"{near.cog_std_mm:.2f} mm; least mass σ of the {len(usable)} candidates {least_m.mass_std_g:.2f} g "
+                     f"({least_m.candidate.describe()}, {least_m.robot_time_s:.0f} s)")
     return "\n".join(lines)

@@ -87,7 +87,12 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 
     from payload_agent.evaluation.pipeline import run_gains
 
+    from payload_agent.evaluation.planned_terms import earlier_friction_change
+
     noise, source = _effort_noise(config)
+    known = earlier_friction_change(config) if noise.friction_level_nm is not None else None
+    if known is not None:
+        noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source
     gains = run_gains(config, None)
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
@@ -106,9 +111,14 @@ def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
             gains = np.asarray(manifest.get("gains_nm_per_unit") or config.effort.gains_nm_per_unit, float)
             empty = load_phase(state.baseline_dir, "empty", gains, manifest)
             std = measured_effort_std(empty)
+            dense = measured_sample_period_s(empty)
+            source = f"effort noise and friction measured in the stored baseline ({state.baseline_dir})"
+            if dense is not None and dense > 1.2 * period:
+                source += (f"; its constant-speed samples {1.0 / dense:.0f} per s against the controller's "
+                           f"{1.0 / period:.0f} (stream gaps), as predicted for the run")
+                period = dense
             return (NoiseModel(std, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
-                               friction_level_nm=baseline_friction_nm(empty)),
-                    f"effort noise and friction measured in the stored baseline ({state.baseline_dir})")
+                               friction_level_nm=baseline_friction_nm(empty)), source)
         except DataError:
             pass
     if config.simulation is not None:
@@ -117,6 +127,31 @@ def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
                 "effort noise and friction declared in the simulation section (no stored baseline)")
     raise ConfigError("--target-std", "no stored empty-flange baseline to measure the effort noise from: record one "
                                       "with `payload-agent baseline`, then plan for a target accuracy", config.source)
+
+
+def measured_sample_period_s(sweeps) -> float | None:
+    """The time between the samples a run keeps in its constant-speed windows, as the stored baseline shows it:
+    per sweep pair the sparser leg (the combination of the two legs has no more points than it), median over
+    pairs. A controller that streams without gaps gives its own period; a stream that drops samples (a busy
+    host of a simulation, a congested network) a longer one, which the prediction must use too."""
+    from payload_agent.analysis.delta import window_of
+    from payload_agent.errors import DataError
+
+    per_sweep = {}
+    for key, s in sweeps.items():
+        try:
+            win = window_of(s)
+        except DataError:
+            continue
+        n = win.stop - win.start
+        if n >= 10:
+            t = np.asarray(s.t, float)
+            per_sweep[key] = (t[win.stop - 1] - t[win.start]) / (n - 1)
+    pairs: dict = {}
+    for key, dt in per_sweep.items():
+        pair = (key.pose, key.joint, key.speed_percent)
+        pairs[pair] = max(pairs.get(pair, 0.0), dt)
+    return float(np.median(list(pairs.values()))) if pairs else None
 
 
 def baseline_friction_nm(empty) -> tuple[float, ...] | None:

@@ -1,0 +1,200 @@
+"""The data-sized systematic terms of a run, predicted before it (for ``evaluation.design``).
+
+``systematics.planned_covariance`` predicts the terms fixed by declarations (joint zeros). Two terms of a
+run are sized from its own data, and ``plan --target-std`` has to predict what the run will report
+(issue 22: a plan that leaves them out picks a procedure whose reported σ then misses the target):
+
+- **wrist torques** (``systematics.wrist_terms``): the fit with one offset per (pose, wrist joint) gives
+  offsets b̂ (covariance C), whose effect on θ, β̂ = A·b̂ (D = A·C·Aᵀ), goes into σ shrunk by
+  s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D. With no wrist torque on the arm, β̂ = D^½·z with z standard
+  normal, and since z's direction is uniform and independent of |z|², the term's expectation is
+  E[s²·β̂β̂ᵀ] = D · E[(χ²_r − r)⁺]/r, with β̂'s true spread (``SPREAD_RATIO``: below). D is computed here
+  from the planned sweeps exactly as the run computes it (offset sensitivities of the plain fit, the
+  offsets' covariance of the fit with them, drive-gain part included). A real cable adds to that;
+  it is not predicted (the gate's cable check refuses strong ones).
+- **residual friction** (``systematics.friction_terms``): asymmetry a (declared) × √E[Δ²], where the run's
+  Δ combines the constant friction part's change it measures (precision v_m, from the split of each
+  sweep's half gap into a constant and a load-proportional part, ``systematics.friction``) with the
+  declared prior N(0, v_p). With k = v_p/(v_p + v_m) the run reports v_p·v_m/(v_p + v_m) + k²·(Δ² + v_m)
+  on average, where Δ is the arm's true change. Its expectation under the prior is v_p (what the plan
+  used before); when an earlier run of this robot with both phases (the calibration's, or an
+  identification with its own empty run) measured Δ, E[Δ²] is that measurement's posterior
+  (mean² + variance) instead. v_m here: noise of the half gap (σ²/2 per sample and run, both runs)
+  and the regression on [1, |load torque|] along the planned sweep; the load torque's shape is the
+  planned payload's on the moving joint (the arm's own gravity on joints 2/3 has nearly the same shape
+  in the procedures' poses).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.solvers import wls
+
+
+# The true spread of the loaded-minus-empty torques against the 2σ² the plan (and, through its residuals and
+# their autocorrelation, the run) assigns them: the empty run's samples are interpolated onto the loaded
+# run's angles, which for a uniform fractional position t leaves E[(1 − t)² + t²]·σ² = ⅔σ² of its noise, so
+# (1 + ⅔)/2 = ⅚. Offline seeded runs of sim-ec66 (16 seeds, paper_bd 15 %, 0–55°) gave a mean q of 3.1 for
+# r = 4 (⅚·4 = 3.3).
+SPREAD_RATIO = 5.0 / 6.0
+
+
+def shrunk_share(rank: int, spread: float = SPREAD_RATIO) -> float:
+    """E[(q − r)⁺/q · β̂β̂ᵀ] as a multiple of D, for β̂ ~ N(0, spread·D), q = β̂ᵀD⁻¹β̂ ~ spread·χ²_r: the expected
+    share of D the wrist term keeps on an arm without wrist torques (z's direction is uniform, independent
+    of |z|, so the expectation is E[(spread·X − r)⁺]/r · D with X ~ χ²_r)."""
+    if rank <= 0:
+        return 0.0
+    from scipy.stats import chi2
+
+    r, c = float(rank), float(rank) / spread
+    # E[X·1{X > c}] = r·P(χ²_{r+2} > c) for X ~ χ²_r
+    return (spread * r * float(chi2.sf(c, rank + 2)) - r * float(chi2.sf(c, rank))) / r
+
+
+def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                     theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
+    """Expected covariance of the wrist-torque term of a run of the planned sweeps (no wrist torque on the arm)."""
+    from payload_agent.evaluation.systematics import offsets
+
+    sweeps, groups = list(sweeps), list(groups)
+    aug, labels = offsets.augment(sweeps, groups, offsets.wrist_joint)
+    if not labels:
+        return np.zeros((4, 4))
+    Y = np.vstack([g.Y for g in groups])
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+    sens = offsets.offset_sensitivities(sweeps, groups, w, inv, offsets.wrist_joint)
+    A = np.column_stack([sens.get(lab, np.zeros(4)) for lab in labels])
+    Ya = np.vstack([g.Y for g in aug])
+    inv_a = np.linalg.pinv((Ya * w[:, None]).T @ Ya)
+    cov_a = inv_a * inflation ** 2
+    if gain_rel_std is not None:
+        cov_a = cov_a + wls.gain_covariance(aug, Ya, w, inv_a, np.concatenate([theta, np.zeros(len(labels))]),
+                                            gain_rel_std)
+    D = A @ cov_a[4:, 4:] @ A.T
+    return shrunk_share(int(np.linalg.matrix_rank(D))) * D
+
+
+@dataclass(frozen=True)
+class FrictionKnowledge:
+    """What is known about each joint's change of the constant friction part between an empty and a loaded
+    run (N·m): an earlier run's posterior, and where it came from."""
+
+    mean_nm: Mapping[int, float]
+    std_nm: Mapping[int, float]
+    source: str
+
+    def expected_square(self, joint: int) -> float | None:
+        if joint not in self.mean_nm:
+            return None
+        return float(self.mean_nm[joint]) ** 2 + float(self.std_nm[joint]) ** 2
+
+
+def measurement_variance(d: DeltaSweep, g: wls.Group, theta: np.ndarray, effort_std_nm: float,
+                         inflation: float) -> float:
+    """Variance of the constant part's change one combined sweep will measure (loaded and empty run)."""
+    shape = np.abs(g.Y @ theta)
+    A = np.column_stack([np.ones(len(shape)), shape])
+    AtA = A.T @ A
+    if len(shape) < 10 or np.linalg.cond(AtA) > 1e12:
+        return float("inf")
+    one_run = 0.5 * effort_std_nm ** 2 * inflation ** 2 * float(np.linalg.inv(AtA)[0, 0])
+    return 2.0 * one_run
+
+
+def expected_change_square(prior_var: float, meas_var: float, truth_square: float) -> float:
+    """E[mean² + var] of the run's combination of its measurement (variance ``meas_var``) with the prior, for a
+    true change of mean square ``truth_square``."""
+    if prior_var <= 0.0:
+        return 0.0 if not math.isfinite(meas_var) else truth_square + 2.0 * meas_var
+    if not math.isfinite(meas_var):
+        return prior_var
+    k = prior_var / (prior_var + meas_var)
+    return prior_var * meas_var / (prior_var + meas_var) + k * k * (truth_square + meas_var)
+
+
+def friction_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray,
+                        theta: np.ndarray, asymmetry: float, change_rel: float, level_nm: Mapping[int, float],
+                        effort_std_nm: Sequence[float], inflation: float,
+                        known: FrictionKnowledge | None = None) -> np.ndarray:
+    """Expected covariance of the residual-friction term of a run of the planned sweeps."""
+    from payload_agent.evaluation.systematics import offsets
+
+    if asymmetry <= 0 or not level_nm:
+        return np.zeros((4, 4))
+    sweeps, groups = list(sweeps), list(groups)
+    by_name = {d.key.name: d for d in sweeps}
+    Y = np.vstack([g.Y for g in groups])
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+
+    def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:
+        ok = g.joint == d.moving and d.key.direction == "both" and g.joint in level_nm
+        return str(g.joint) if ok else None
+
+    info: dict[int, float] = {}
+    for g in groups:
+        d = by_name[g.sweep]
+        if per_joint(g, d) is None:
+            continue
+        v = measurement_variance(d, g, theta, float(effort_std_nm[g.joint]), inflation)
+        info[g.joint] = info.get(g.joint, 0.0) + (0.0 if not math.isfinite(v) else 1.0 / v)
+    cov = np.zeros((4, 4))
+    for j, s in offsets.offset_sensitivities(sweeps, groups, w, inv, per_joint).items():
+        j = int(j)
+        prior_var = (change_rel * float(level_nm[j])) ** 2
+        meas_var = 1.0 / info[j] if info.get(j, 0.0) > 0 else float("inf")
+        truth = known.expected_square(j) if known is not None else None
+        e2 = expected_change_square(prior_var, meas_var, prior_var if truth is None else truth)
+        cov += asymmetry ** 2 * e2 * np.outer(s, s)
+    return cov
+
+
+def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
+    """The friction change the newest earlier run of this robot with both phases measured (its own empty run:
+    a calibration, or an identification with a fresh baseline), per joint, as the run's term combines it
+    with the declared prior; None without one. Looks at the stored calibration's run and the newest ``limit``
+    run folders."""
+    from payload_agent.errors import DataError
+    from payload_agent.evaluation.calibration import effective_calibration
+    from payload_agent.evaluation.systematics import friction
+    from payload_agent.analysis.run_deltas import phases_for
+
+    decl = config.robot.joints
+    if float(decl.friction_asymmetry_std) <= 0:
+        return None
+    runs = Path(config.storage.runs_dir)
+    folders = sorted((p for p in runs.glob("*") if (p / "empty").is_dir() and (p / "loaded").is_dir()),
+                     reverse=True)[:limit] if runs.is_dir() else []
+    cal = effective_calibration(config)
+    if cal is not None and Path(cal.run_dir).is_dir():
+        folders.append(Path(cal.run_dir))
+    gains = np.asarray(cal.gains_nm_per_unit if cal is not None else config.effort.gains_nm_per_unit, float)
+    for folder in folders:
+        try:
+            loaded, empty, commands = phases_for(folder, gains)
+        except (DataError, OSError, ValueError, KeyError):
+            continue
+        lo, em = friction.friction_gaps(loaded, commands), friction.friction_gaps(empty, commands)
+        pairs = sorted(set(lo) & set(em))
+        if not pairs:
+            continue
+        mean, std = {}, {}
+        for j in sorted({j for _, j in pairs}):
+            mine = [p for p in pairs if p[1] == j]
+            level = max(abs(em[p].level_nm) for p in mine)
+            c = friction.coulomb_change([lo[p] for p in mine], [em[p] for p in mine],
+                                        float(decl.friction_change_std) * level)
+            mean[j], std[j] = c.mean_nm, c.std_nm
+        return FrictionKnowledge(mean, std, f"the friction change measured in {folder.name}")
+    return None
+
+
+__all__ = ["shrunk_share", "wrist_covariance", "FrictionKnowledge", "measurement_variance", "expected_change_square",
+           "friction_covariance", "earlier_friction_change"]

@@ -1,0 +1,110 @@
+"""How often does the tool-cable check refuse a run of an arm that has no cable? (issue 22, sim-ur5e)
+
+Not a test: it prints a table. Seeded offline runs (``fakes.offline.record_plan``, no sockets) of a
+shipped simulated robot's arm, noise, friction and tool (its inertia tensor included), empty and loaded,
+through the analysis' deltas (``systematics.prepare``) into ``evaluation.cable_check.check``. The check's
+significance test claims a false-alarm rate of ``cable_check.ALPHA`` (χ² of the k wrist offsets against the
+χ²_k quantile). Printed: the mean χ² against k, the share above the χ²_k 90 %, 99 % and 1 − ALPHA
+quantiles, and the share of runs the check refused (significant and moving the result).
+
+``--gap-rate`` drops samples as a busy host's simulated stream does (a gap of 10–29 samples starts after
+any sample with this probability; 0.05 keeps about half), in the empty and the loaded run alike.
+
+    .venv/bin/python -m benchmarks.cable_false_alarms --robot sim-ur5e --seeds 60 [--gap-rate 0.05]
+        [--procedure j2_pair --speed 12 --sweep-deg 0:15]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def thin(sweeps: dict, rng: np.random.Generator, gap_rate: float) -> dict:
+    """Each sweep without the samples of random gaps (``gap_rate``: gap starts per kept sample)."""
+    if gap_rate <= 0:
+        return sweeps
+    out = {}
+    for key, sd in sweeps.items():
+        keep = np.ones(len(sd.t), bool)
+        i = 0
+        while i < len(keep):
+            if rng.random() < gap_rate:
+                n = int(rng.integers(10, 30))
+                keep[i:i + n] = False
+                i += n
+            else:
+                i += 1
+        out[key] = dataclasses.replace(sd, t=sd.t[keep], q=sd.q[keep], effort_nm=sd.effort_nm[keep])
+    return out
+
+
+def one(config, plan, seed: int, gap_rate: float) -> dict:
+    from payload_agent.evaluation import cable_check, systematics
+    from payload_agent.fakes.arms import SPECS
+    from payload_agent.fakes.base import sim_robot_kwargs
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.fakes.physics import PayloadTruth
+    from payload_agent.fakes.sim_robot import SimRobot
+
+    sim = config.simulation
+    kw = dict(sim_robot_kwargs(config), seed=seed, q0_rad=np.asarray(plan.moves[0].target_rad))
+    robot = SimRobot(SPECS[sim.arm](), tick_s=0.008 if config.driver_type == "elite_ec" else 0.002, **kw)
+    empty, _ = record_plan(robot, plan)
+    p = sim.payload
+    robot.set_payload(PayloadTruth.from_tensor(p.mass_kg, [c / 1000.0 for c in p.cog_mm], p.inertia_com_kgm2)
+                      if p.inertia_com_kgm2 is not None else PayloadTruth.point(p.mass_kg, p.cog_mm))
+    robot.set_friction_scale(1.0 + sim.friction_drift)  # as the simulated cell does on a tool change
+    loaded, _ = record_plan(robot, plan)
+    rng = np.random.default_rng(1000 + seed)
+    prepared = systematics.prepare(thin(loaded, rng, gap_rate), thin(empty, rng, gap_rate), config.robot.joints)
+    return cable_check.check(prepared.deltas, config.robot.kinematics)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.evaluation import cable_check, design
+    from payload_agent.motion.planner import make_plan
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robot", default="sim-ur5e")
+    ap.add_argument("--seeds", type=int, default=60)
+    ap.add_argument("--gap-rate", type=float, default=0.0)
+    ap.add_argument("--procedure", default="j2_pair")
+    ap.add_argument("--speed", type=float, default=12.0)
+    ap.add_argument("--sweep-deg", default="0:15")
+    args = ap.parse_args(argv)
+    config = parse_config(yaml.safe_load((ROOT / "configs" / f"{args.robot}.yaml").read_text()),
+                          source=f"configs/{args.robot}.yaml", base_dir=ROOT / "configs")
+    lo, hi = (float(v) for v in args.sweep_deg.split(":"))
+    cand = design.Candidate(args.speed, 25.0, lo, hi, 1, 100.0, args.procedure)
+    plan = make_plan(design.with_candidate(config, cand))
+    chi2, refused, k = [], 0, 0
+    for seed in range(1, args.seeds + 1):
+        c = one(config, plan, seed, args.gap_rate)
+        if "chi2" not in c:
+            print(f"seed {seed}: {c.get('note')}")
+            continue
+        chi2.append(c["chi2"])
+        refused += not c["passed"]
+        k = c["dof"]
+        print(f"seed {seed:3d}: χ² {c['chi2']:6.1f} (k {k}, limit {c['chi2_limit']:.1f}), shift {c['mass_shift_g']:+7.1f} g "
+              f"{c['cog_shift_mm']:6.1f} mm{'  REFUSED' if not c['passed'] else ''}", flush=True)
+    x = np.array(chi2)
+    q = {p: cable_check.chi2_quantile(p, k) for p in (0.9, 0.99, 1.0 - cable_check.ALPHA)}
+    print(f"\n{args.robot}, {cand.describe()}, gap rate {args.gap_rate:g}, {len(x)} runs without a cable: mean χ² "
+          f"{x.mean():.2f} (k = {k}); above the χ²_k 90 % quantile {np.mean(x > q[0.9]):.3f}, 99 % "
+          f"{np.mean(x > q[0.99]):.3f}, {1 - cable_check.ALPHA:g} {np.mean(x > q[1.0 - cable_check.ALPHA]):.3f} "
+          f"(claimed {cable_check.ALPHA:g}); refused {refused} of {len(x)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
