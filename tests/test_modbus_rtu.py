@@ -135,8 +135,11 @@ def test_identification_over_rtu(tmp_path):
         assert type(cell.controller).__name__ == "HostedController"  # not a thread of this process
         outcome = run_identification(cfg, opts, QUIET, SimulatedCellUse(cell=cell))
         result = json.loads((tmp_path / "r.json").read_text())
-        assert abs(result["mass_kg"] - truth["mass_kg"]) < 0.05, result
-        assert np.max(np.abs(np.array(result["cog_mm"]) - truth["cog_mm"])) < 8.0, result
+        # within the run's own σ (a busy host's stream gaps leave fewer samples and a wider σ: 6-19 g seen) and
+        # within a sanity bound
+        err_mass, err_cog = result["mass_kg"] - truth["mass_kg"], np.array(result["cog_mm"]) - truth["cog_mm"]
+        assert abs(err_mass) < min(0.15, 4 * result["mass_std_kg"]), result
+        assert np.all(np.abs(err_cog) < np.minimum(15.0, 4 * np.asarray(result["cog_std_mm"]))), result
         # --apply wrote the result through the map's payload fields and read it back
         mass, cog = cell.controller.payload_setting
         assert mass == pytest.approx(result["mass_kg"], abs=1e-5)
