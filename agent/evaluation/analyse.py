@@ -73,7 +73,8 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     prepared = systematics.prepare(loaded, empty, options.joints, commands)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
-    syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model)
+    syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model,
+                                gain_reference=gains.reference)
     primary, others = solve_all(model, options, gains, syst, solvers)
     primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []))
     quality_result = quality.evaluate(deltas, kin, primary, gain_rel_std=gains.rel_std,
