@@ -257,6 +257,15 @@ def note(gs: GainScatter) -> str:
             f"({len(gs.labels)} (joint, angle) pairs, from the data; gear ripple under load) in σ")
 
 
+def of_model(model: FittedModel) -> GainScatter:
+    """``measure`` on the analysis' fitted model (its deltas and drive-gain uncertainty), made once per model:
+    the torque-gain term and the wrist term (which fits nuisance gain columns only where this finds a
+    scatter) share it."""
+    gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
+    return model.cached(("gain scatter", SELECTORS), lambda: measure(model.deltas, model.kin, gain,
+                                                                      selectors=SELECTORS, model=model))
+
+
 @dataclass(frozen=True)
 class ScatterTerm:
     """The scatter as ``evaluation.systematics`` uses it: what was measured and how each fit responds."""
@@ -285,7 +294,7 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     ``model``: the analysis' fitted model of these deltas (made here if None). ``gain_reference``: (θ_ref,
     fitted joints) of the drive-gain calibration the data were scaled with (None: nominal gains).
     """
-    gs = measure(deltas, kin, gain_rel_std, selectors=SELECTORS, model=model)
+    gs = of_model(model) if model is not None else measure(deltas, kin, gain_rel_std, selectors=SELECTORS)
     if gs.tau <= 0.0:
         return None
     labels = list(gs.labels)
@@ -298,6 +307,6 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     return ScatterTerm(gs, labels, shares, sens, text, combined)
 
 
-__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "absorbed_shares", "measure",
+__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "absorbed_shares", "measure", "of_model",
            "ScatterTerm",
            "note", "term"]

@@ -9,8 +9,10 @@ offsets' common part is nearly confounded with m·c). One offset b per (pose, wr
 shrunk to the size the data show beyond their noise, s²·β̂β̂ᵀ with s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D
 (E[q] = r + βᵀD⁻¹β: q − r is the unbiased size; docs/sources.md, noncentral χ²).
 
-The fit also carries one nuisance gain column Y_gθ̂ per (joint, standing angle) of the other still joints
-(``gain_scatter.clusters``): load-dependent gear ripple frozen at the angle joint 2 or 3 stands at scales the
+Where the data show a torque-gain scatter (``gain_scatter``'s likelihood-ratio test) the fit also carries one
+nuisance gain column Y_gθ̂ per (joint, standing angle) of the other still joints (``gain_scatter.clusters``);
+elsewhere they would only cost the offsets precision (the weak-cable ablation lost coverage with them).
+Load-dependent gear ripple frozen at the angle joint 2 or 3 stands at scales the
 payload torque of those rows by a few per mille, which moves θ̂ of a fit with wrist offsets, and the offsets,
 nearly confounded with m·c, took up the misfit. In the benchmark's ripple ablation (default procedure,
 ripple on joints 1–3 only, no torque on the wrist at all) the offsets-only fit put 8–17 g of "wrist
@@ -44,14 +46,15 @@ class WristTorques:
     q: float  # β̂ᵀD⁻¹β̂
 
 
-def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.ndarray
+def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.ndarray, nuisance_gains: bool = True
             ) -> tuple[list[Group], list[str]]:
-    """The groups with one offset column per (pose, wrist joint) the still wrist names, then one nuisance gain
-    column (Y_gθ̂) per (joint, standing angle) of the other still joints that carry payload torque."""
+    """The groups with one offset column per (pose, wrist joint) the still wrist names, then (``nuisance_gains``)
+    one nuisance gain column (Y_gθ̂) per (joint, standing angle) of the other still joints that carry payload
+    torque."""
     by_name = {d.key.name: d for d in sweeps}
     names = [offsets.wrist_joint(g, by_name[g.sweep]) for g in groups]
     labels = list(dict.fromkeys(n for n in names if n is not None))
-    others = [c if c is not None and g.joint not in offsets.WRIST_JOINTS
+    others = [c if nuisance_gains and c is not None and g.joint not in offsets.WRIST_JOINTS
               and np.max(np.abs(g.Y[:, :4] @ theta)) > gain_scatter.MIN_CLUSTER_PEAK_NM else None
               for g, c in zip(groups, gain_scatter.clusters(list(sweeps), list(groups)))]
     nuisance = list(dict.fromkeys(c for c in others if c is not None))
@@ -71,11 +74,16 @@ def measure(model: FittedModel, A: np.ndarray, labels: Sequence[str]) -> WristTo
     """The wrist torques of the run ``model`` fitted, over ``labels`` (the (pose, wrist joint) offsets whose
     combined-fit sensitivities are the columns of ``A``, (4, k)); None when the wrist never stands still."""
     sweeps, groups = list(model.sweeps), list(model.groups)
-    aug, names = columns(sweeps, groups, model.fit(ALL).theta[:4])
+    nuisance = gain_scatter.of_model(model).tau > 0
+    aug, names = columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance)
     if not names:
         return None
     gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
-    res = model.cached(("wrist offsets beside still-joint gains",), lambda: fit(aug, gain))
+    if nuisance:
+        res = model.cached(("wrist offsets beside still-joint gains",), lambda: fit(aug, gain))
+    else:  # the same fit as the cable check's
+        alone = offsets.fit_offsets(model.deltas, model.kin, offsets.wrist_joint, model=model)
+        res, names = alone.result, alone.labels
     idx = [4 + names.index(lab) for lab in labels]
     b = res.theta[idx]
     s, q = offsets.shrink(A, b, res.cov[np.ix_(idx, idx)])
