@@ -196,6 +196,10 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
     ``reference`` = (θ_ref, fitted joints) as in ``general.kinematic_sensitivities``; the calibration's fit
     of joint j's scale is the DH lengths' ``general.absorbed_length_error`` with the "length derivative"
     Y·θ_ref on the cluster's rows only. ``names``: as in ``sensitivities``.
+
+    Assumes the calibration ran the tool run's procedure (as the DH lengths' absorption does): a calibration that
+    stood the joints at other angles absorbed other clusters' errors, and the term then under-states the tool's.
+    The calibration file does not record its standing angles, so this cannot be checked here yet.
     """
     if reference is None:
         return {}
