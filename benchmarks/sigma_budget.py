@@ -89,8 +89,11 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
         theta = np.array([plain.mass_kg, *(plain.mass_kg * np.asarray(plain.cog_m))])
         noise = noise_iid = np.asarray(plain.covariance)
         parts["gains j2, j3"] = np.asarray(with_gains.covariance) - noise
+    from payload_agent.evaluation.systematics import gain_scatter
+
+    stood = gain_scatter.standing_angles(systematics.prepare(ref, empty, decl).deltas, kin)
     for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model,
-                                     gain_reference=(theta_reference(), fitted)).terms:
+                                     gain_reference=(theta_reference(), fitted, stood)).terms:
         parts[term.name] = term.covariance(key)
     i, unit, _ = QUANTITIES[quantity]
     truth = np.array([mass, *(np.asarray(cog) / 1000.0)])

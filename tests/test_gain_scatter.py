@@ -161,6 +161,11 @@ def test_the_scatter_a_calibration_absorbed_moves_both_solvers_as_the_term_says(
     res = general.fit_model(tool, kin).fit()  # the run's own fit (its weights), as the term uses it
     shares = gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted))
     assert all(0.0 < w <= 1.0 + 1e-9 for _, w in shares.values())  # 1: a joint standing at one angle throughout
+    # a calibration that recorded where it stood: the same procedure, the same shares; other angles, none
+    stood = gain_scatter.standing_angles(exact(kin, THETA_REF, eps), kin)
+    assert gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted, stood)) == shares
+    elsewhere = tuple((j, a + 0.1) for j, a in stood)
+    assert gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted, elsewhere)) == {}
     assert any(w < 0.9 for _, w in shares.values())
     plain = gain_scatter.sensitivities(sweeps, groups, res, THETA, labels)
     absorbed = gain_scatter.sensitivities(sweeps, groups, res, THETA, labels, absorbed=shares)

@@ -54,7 +54,7 @@ class Gains:
     source: str  # recorded as the result's ``gains_source``
     note: str | None = None  # added to the primary estimate's notes
     rel_std: tuple[float, ...] | None = None  # a calibration's relative uncertainty per joint
-    reference: tuple[tuple[float, ...], tuple[int, ...]] | None = None  # (θ_ref, fitted joints) of the calibration
+    reference: tuple | None = None  # (θ_ref, fitted joints[, standing angles]) of the calibration (GainCalibration.reference)
 
 
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,

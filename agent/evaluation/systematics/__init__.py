@@ -74,7 +74,7 @@ RIGID = JointSystematicsConfig(None, 0.0, (0.0,) * 6, 0.0, 0.0)  # nothing decla
 
 Sweeps = Mapping[SweepKey, SweepData]
 Deltas = dict[SweepKey, DeltaSweep]
-GainReference = tuple[Sequence[float], Sequence[int]]  # (θ_ref, fitted joints) of a drive-gain calibration
+GainReference = tuple  # (θ_ref, fitted joints[, standing angles]) of a drive-gain calibration (GainCalibration.reference)
 
 
 def joint_declaration(decl: JointSystematicsConfig) -> compliance.JointSystematics:

@@ -46,8 +46,8 @@ After a drive-gain calibration the scatter's effect is another one. The referenc
 same angles and carries the same ε_k (it scales the gear torque, and the reference payload's torque has
 the sign of the tool's), so the calibration's scale of joint j absorbed the share w_jk of ε_k that cluster
 k has in its fit (``absorbed_shares``: ⟨Y_jθ_ref on the cluster's rows⟩ over joint j's, the same form as the
-DH lengths' absorption in ``solvers.general``, with the tool run's sweeps standing in for the reference's:
-same procedure). The calibrated data then carry ε_k on the cluster's rows and −w_jk·ε_k on every row of
+DH lengths' absorption in ``solvers.general``, with the tool run's sweeps standing in for the reference's; only
+for clusters where the calibration stood, ``GainCalibration.standing_angles``). The calibrated data then carry ε_k on the cluster's rows and −w_jk·ε_k on every row of
 joint j, the moving ones included, and θ moves by s_k − w_jk·g_j (g_j: the fit's response to a gain error
 of all of joint j's rows). Measured in the benchmark's ripple ablation (default procedure, 6 payloads): the
 plain s_k put 3–6 g into the mass σ against ripple errors of 0.4–1.4 g; the absorbed form 0.5–1.7 g; on
@@ -118,6 +118,21 @@ def clusters(sweeps: list[DeltaSweep], groups: list[Group], tol_rad: float = SAM
             for _, i in run:
                 out[i] = label
     return out
+
+
+def standing_angles(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics) -> tuple[tuple[int, float], ...]:
+    """(joint, angle in rad) of every still-joint cluster of a run: where its joints stood while others swept.
+
+    A drive-gain calibration records them (``calibration.GainCalibration.standing_angles``), so that a tool run
+    knows which of its clusters' gain errors the calibration absorbed (``absorbed_shares``)."""
+    sweeps = general.select_sweeps(dict(deltas))
+    groups = general.build_groups(sweeps, kin) if sweeps else []
+    by_name = {d.key.name: d for d in sweeps}
+    out: dict[str, list[tuple[int, float]]] = {}
+    for g, name in zip(groups, clusters(sweeps, groups)):
+        if name is not None:
+            out.setdefault(name, []).append((g.joint, float(np.median(by_name[g.sweep].q[:, g.joint]))))
+    return tuple((v[0][0], float(np.mean([a for _, a in v]))) for v in out.values())
 
 
 def scatter_variance(eps: np.ndarray, cov: np.ndarray) -> float:
@@ -197,15 +212,21 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
     of joint j's scale is the DH lengths' ``general.absorbed_length_error`` with the "length derivative"
     Y·θ_ref on the cluster's rows only. ``names``: as in ``sensitivities``.
 
-    Assumes the calibration ran the tool run's procedure (as the DH lengths' absorption does): a calibration that
-    stood the joints at other angles absorbed other clusters' errors, and the term then under-states the tool's.
-    The calibration file does not record its standing angles, so this cannot be checked here yet.
+    ``reference[2]``, when given: the (joint, angle) pairs the calibration stood at (``standing_angles``); a cluster
+    the calibration did not stand at gets no share (its error was not in the reference run). Without it the
+    calibration is taken to have run the tool run's procedure, as the DH lengths' absorption assumes.
     """
     if reference is None:
         return {}
     names = clusters(sweeps, groups, tol_rad) if names is None else list(names)
     joint_of = {name: g.joint for g, name in zip(groups, names) if name is not None}
     fitted = {int(j) for j in reference[1]}
+    stood = list(reference[2]) if len(reference) > 2 else None  # type: ignore[arg-type]
+    by_name = {d.key.name: d for d in sweeps}
+    angle_of: dict[str, list[float]] = {}
+    for g, name in zip(groups, names):
+        if name is not None:
+            angle_of.setdefault(name, []).append(float(np.median(by_name[g.sweep].q[:, g.joint])))
     indicator = np.repeat(np.array(names, dtype=object), [len(g.y) for g in groups])
     Y = np.vstack([g.Y[:, :4] for g in groups])
     dY = [Y * (indicator == label)[:, None] for label in labels]
@@ -213,6 +234,9 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
     out = {}
     for k, label in enumerate(labels):
         j = joint_of.get(label)
+        if stood is not None and not any(jj == j and abs(a - float(np.mean(angle_of.get(label, [np.inf])))) <= tol_rad
+                                         for jj, a in stood):
+            continue  # the calibration did not stand there: it absorbed none of this cluster's error
         if j in fitted and j in eps:
             out[label] = (j, float(eps[j][k]))
     return out
@@ -311,6 +335,5 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     return ScatterTerm(gs, labels, shares, sens, text, combined)
 
 
-__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "absorbed_shares", "measure", "of_model",
-           "ScatterTerm",
-           "note", "term"]
+__all__ = ["GainScatter", "SAME_ANGLE_RAD", "SELECTORS", "clusters", "sensitivities", "absorbed_shares", "measure",
+           "of_model", "standing_angles", "ScatterTerm", "note", "term"]
