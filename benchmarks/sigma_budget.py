@@ -1,14 +1,17 @@
-"""Where a reported mass σ comes from: the general-bi-cal-comp estimate's variance, term by term (issue 22).
+"""Where a reported σ comes from: a bi-cal-comp estimate's variance, part by part, against its error (issue 22).
 
 Not a test: it prints one row per case of the accuracy benchmark (same robots, payloads, procedure,
-calibration and declarations as ``benchmarks.accuracy``'s general-bi-cal-comp) with the actual mass error and
-the mass σ of each part of the reported covariance: the autocorrelation-robust noise (and the
-independent-noise one beside it), each joint's drive-gain uncertainty after the calibration, the DH lengths
-(less what the calibration absorbed) and every systematic term of ``evaluation.systematics.TERMS``. The
-benchmark knows each effect's truth (``benchmarks.hard``; the realistic arm's draws in ``benchmarks.cases``),
-so a term that claims more than the arm has shows as a large column against a small error.
+calibration and declarations as ``benchmarks.accuracy``'s general-bi-cal-comp or three-step-bi-cal-comp) with
+the actual error of one quantity (the mass, or one CoM axis) and its σ from each part of the reported
+covariance: the autocorrelation-robust noise (and the independent-noise one beside it), each joint's
+drive-gain uncertainty after the calibration, the DH lengths (less what the calibration absorbed; the
+general solver only) and every systematic term of ``evaluation.systematics.TERMS`` through the solver's own
+sensitivities. The benchmark knows each effect's truth (``benchmarks.hard``; the realistic arm's draws in
+``benchmarks.cases``), so a term that claims more than the arm has shows as a large column against a small
+error, and an error no column covers points at an effect no term describes.
 
-    .venv/bin/python -m benchmarks.sigma_budget [--scenarios realistic,hard] [--payloads 6] [--speed 10]
+    .venv/bin/python -m benchmarks.sigma_budget [--scenarios realistic,hard] [--payloads 6] [--speed 10 |
+        --procedure speed=10,travel=20,accel=20,sweep=0:55] [--solver general|three-step] [--quantity m|x|y|z]
 """
 
 from __future__ import annotations
@@ -26,12 +29,28 @@ from benchmarks.reference import calibrate, theta_reference  # noqa: E402
 from benchmarks.remedies import declaration, scaled  # noqa: E402
 
 
-def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int) -> dict[str, float]:
-    """Mass error and the mass σ of each part of the reported covariance, in g, for one case."""
+QUANTITIES = {"m": (0, 1000.0, "g"), "x": (1, 1000.0, "mm"), "y": (2, 1000.0, "mm"), "z": (3, 1000.0, "mm")}
+
+
+def to_mass_cog(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """A covariance of θ = [m, m·c] as one of [m, c_x, c_y, c_z] (first order: c = θ[1:]/m)."""
+    m = float(theta[0])
+    J = np.zeros((4, 4))
+    J[0, 0] = 1.0
+    J[1:, 0] = -np.asarray(theta[1:4]) / m ** 2
+    J[1:, 1:] = np.eye(3) / m
+    return J @ cov @ J.T
+
+
+def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, solver: str = "general",
+           quantity: str = "m") -> dict[str, float]:
+    """The error of one quantity (mass in g or a CoM axis in mm) and the σ of each part of the reported
+    covariance, for one case (``solver``: "general" or "three-step", as general-bi-cal-comp and
+    three-step-bi-cal-comp report it)."""
     from payload_agent.evaluation import systematics
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
-    from payload_agent.solvers import general, wls
+    from payload_agent.solvers import general, three_step, wls
 
     mass, cog = cases.payloads(n_payloads)[index]
     draws = cases.robot_draws(scenario, index)
@@ -49,41 +68,73 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int) ->
     prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl)
     model = general.fit_model(prepared.deltas, kin, gain_std)
     res = model.fit()
-    theta, groups = res.theta, list(model.groups)
-    out = {"error": 1000 * (theta[0] - mass), "noise (iid)": 1000 * np.sqrt(res.cov_iid[0, 0]),
-           "noise": 1000 * np.sqrt(res.cov[0, 0])}
-    Y = np.vstack([g.Y for g in groups])
-    for j, s in enumerate(gain_std):
-        one = np.where(np.arange(len(gain_std)) == j, s, 0.0)
-        v = wls.gain_covariance(groups, Y, res.weights, res.normal_inverse, theta, one)[0, 0]
-        if v > 0:
-            out[f"gain j{j + 1}"] = 1000 * np.sqrt(v)
-    length_std_m = cases.declared_length_std_mm(scenario) / 1000.0
-    if length_std_m > 0:
-        S = general.kinematic_sensitivities(list(model.sweeps), kin, groups, res.weights, res.normal_inverse,
-                                            theta, (theta_reference(), fitted))
-        out["DH lengths"] = 1000 * length_std_m * float(np.sqrt(np.sum(S[:, 0] ** 2)))
-    for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model).terms:
-        out[term.name] = 1000 * float(np.sqrt(term.covariance()[0, 0]))
-    parts = [v for k, v in out.items() if k not in ("error", "noise (iid)")]
-    out["total"] = float(np.sqrt(np.sum(np.square(parts))))
+    theta, groups = res.theta[:4], list(model.groups)
+    parts: dict[str, np.ndarray] = {}
+    key = systematics.ALL
+    if solver == "general":
+        noise_iid, noise = res.cov_iid[:4, :4], res.cov[:4, :4]
+        Y = np.vstack([g.Y for g in groups])
+        for j, s in enumerate(gain_std):
+            one = np.where(np.arange(len(gain_std)) == j, s, 0.0)
+            parts[f"gain j{j + 1}"] = wls.gain_covariance(groups, Y, res.weights, res.normal_inverse, theta, one)[:4, :4]
+        length_std_m = cases.declared_length_std_mm(scenario) / 1000.0
+        if length_std_m > 0:
+            S = general.kinematic_sensitivities(list(model.sweeps), kin, groups, res.weights, res.normal_inverse,
+                                                theta, (theta_reference(), fitted))
+            parts["DH lengths"] = length_std_m ** 2 * (S.T @ S)  # S: (K, 4)
+    else:
+        key = systematics.THREE_STEP
+        plain = three_step.solve(prepared.deltas, kin)
+        with_gains = three_step.solve(prepared.deltas, kin, gain_rel_std=gain_std)
+        theta = np.array([plain.mass_kg, *(plain.mass_kg * np.asarray(plain.cog_m))])
+        noise = noise_iid = np.asarray(plain.covariance)
+        parts["gains j2, j3"] = np.asarray(with_gains.covariance) - noise
+    from payload_agent.evaluation.systematics import gain_scatter
+
+    stood = gain_scatter.standing_angles(systematics.prepare(ref, empty, decl).deltas, kin)
+    for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model,
+                                     gain_reference=(theta_reference(), fitted, stood)).terms:
+        parts[term.name] = term.covariance(key)
+    i, unit, _ = QUANTITIES[quantity]
+    truth = np.array([mass, *(np.asarray(cog) / 1000.0)])
+    est = np.array([theta[0], *(np.asarray(theta[1:4]) / theta[0])])
+
+    def std(cov):
+        return unit * float(np.sqrt(max(to_mass_cog(theta, cov)[i, i], 0.0)))
+
+    out = {"error": unit * float(est[i] - truth[i]), "noise (iid)": std(noise_iid), "noise": std(noise)}
+    out.update({name: std(c) for name, c in parts.items() if std(c) > 0})
+    total = noise + sum(parts.values(), np.zeros((4, 4)))
+    out["total"] = std(total)
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
+    from benchmarks.accuracy import parse_procedure
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", default="realistic,hard", help="comma-separated (benchmarks.cases.ALL_SCENARIOS)")
     p.add_argument("--payloads", type=int, default=6)
     p.add_argument("--speed", type=float, default=10.0, help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
+    p.add_argument("--procedure", metavar="SPEC", help="instead of --speed: e.g. the accuracy benchmark's default, "
+                   f"{cases.RECOMMENDED_DEFAULT} (speed, travel, accel in %%, sweep=FROM:TO in deg)")
+    p.add_argument("--solver", choices=("general", "three-step"), default="general")
+    p.add_argument("--quantity", choices=tuple(QUANTITIES), default="m", help="mass (g) or one CoM axis (mm)")
     args = p.parse_args(argv)
     proc = cases.Procedure(f"{args.speed:g}", args.speed, cases.SPEED_ROW_TRAVEL, cases.SPEED_ROW_ACCEL,
                            *cases.SWEEP_DEG)
+    if args.procedure:
+        try:
+            proc = parse_procedure(args.procedure, "default", proc)
+        except ValueError as exc:
+            p.error(str(exc))
     for scenario in args.scenarios.split(","):
         if scenario not in cases.ALL_SCENARIOS:
             p.error(f"unknown scenario {scenario!r}; known: {', '.join(cases.ALL_SCENARIOS)}")
-        rows = [budget(scenario, i, proc, args.payloads) for i in range(args.payloads)]
+        rows = [budget(scenario, i, proc, args.payloads, args.solver, args.quantity) for i in range(args.payloads)]
         cols = list(dict.fromkeys(k for r in rows for k in r))
-        print(f"\n{scenario}, sweep {args.speed:g} %: mass error and mass σ per part, g")
+        unit = QUANTITIES[args.quantity][2]
+        print(f"\n{scenario}, {proc.describe()}, {args.solver}: error and σ per part of {args.quantity}, {unit}")
         print("| case | " + " | ".join(cols) + " | err/σ |")
         print("|---" * (len(cols) + 2) + "|")
         for i, r in enumerate(rows):

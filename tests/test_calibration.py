@@ -157,6 +157,9 @@ def test_run_folder_save_load_and_analysis_uses_calibration(sim, tmp_path):
     assert path == tmp_path / "state" / config.robot.name / "gains.json"
     assert load_calibration(state, config) == cal
     assert GainCalibration.from_json(cal.to_json()) == cal
+    assert cal.standing_angles  # where its joints stood: which still-joint gain errors it absorbed
+    old = {k: v for k, v in cal.to_json().items() if k != "standing_angles_rad"}  # a file from before
+    assert GainCalibration.from_json(old).standing_angles is None and len(GainCalibration.from_json(old).reference) == 2
     used, note = effective_gains(config)
     assert np.allclose(used, cal.gains_nm_per_unit)
     assert "calibration of" in note and "gains.json" in note and "2.000 kg" in note

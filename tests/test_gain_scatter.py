@@ -101,3 +101,88 @@ def test_gain_errors_of_still_joints_widen_sigma_to_cover_them(kin):
     assert 0.004 < float(np.median(taus)) < 0.025  # the 1 % drawn, found from the data
     assert rms_without > 3.0  # white-noise σ alone is far too small
     assert 0.4 < rms_with < 1.6  # with the term: about right, not inflated
+
+
+# -- after a drive-gain calibration at the same standing angles -------------------------------------------------
+
+THETA_REF = np.array([3.0, 0.0, 0.0, 3.0 * 0.08])  # the benchmark's reference: 3 kg at (0, 0, 80) mm
+
+
+def exact(kin, theta, eps: dict, scale=None) -> dict:
+    """Noise-free combined sweeps of payload ``theta`` with the gain error ``eps[(joint, angle)]`` on every still
+    joint (the same errors in every run of the arm: ripple frozen at the angle), at calibrated ``scale``."""
+    out = {}
+    for pose, q0 in POSES.items():
+        for joint in (2, 3):
+            q = np.tile(np.radians(q0), (N, 1))
+            q[:, joint - 1] += np.linspace(0.0, np.radians(55.0), N)
+            qd = np.zeros_like(q)
+            qd[:, joint - 1] = SPEED_RAD_S
+            dtau = payload_regressor(kin, q, qd, np.zeros_like(q))[:, :, :4] @ theta
+            for j in range(6):
+                if j != joint - 1:
+                    dtau[:, j] *= 1.0 + eps.get((j, round(float(q[0, j]), 6)), 0.0)
+            if scale is not None:
+                dtau = dtau * scale
+            key = SweepKey(pose, joint, "both", 10.0)
+            out[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
+    return out
+
+
+def test_the_scatter_a_calibration_absorbed_moves_both_solvers_as_the_term_says(kin):
+    """Ripple frozen at a still joint's angle is in the reference run too, so the calibration's scale of that joint
+    takes a share of it into every row of the joint, the moving ones included: the general fit moves by
+    s_k − w_k·g_j, not s_k (which overstated the benchmark's ripple errors 3–6×), and the three-step solver, which
+    reads only moving rows, by −w_k times its response to the joint's gain (0 before: its ripple rows were 2× too
+    narrow). Checked on noise-free data against what the two solvers actually do."""
+    from payload_agent.evaluation.calibration import fit_gains_from_deltas
+    from payload_agent.evaluation.systematics import three_step_response
+
+    clean = exact(kin, THETA, {})
+    sweeps = general.select_sweeps(clean)
+    groups = general.build_groups(sweeps, kin)
+    labels = sorted({n for n in gain_scatter.clusters(sweeps, groups) if n is not None})
+    eps = {}
+    rng = np.random.default_rng(5)
+    for g, name in zip(groups, gain_scatter.clusters(sweeps, groups)):
+        if name is not None:
+            d = next(s for s in sweeps if s.key.name == g.sweep)
+            eps[(g.joint, round(float(d.q[0, g.joint]), 6))] = float(rng.normal(0.0, 0.01))
+    scale, _, fitted = fit_gains_from_deltas(exact(kin, THETA_REF, eps), kin, np.ones(6), THETA_REF[0],
+                                             THETA_REF[1:] / THETA_REF[0])
+    assert {1, 2} <= set(fitted)
+    tool = exact(kin, THETA, eps, scale)
+    eps_k = np.zeros(len(labels))  # ε of each cluster, in the order of ``labels``
+    for g, name in zip(groups, gain_scatter.clusters(sweeps, groups)):
+        if name is not None:
+            d = next(s for s in sweeps if s.key.name == g.sweep)
+            eps_k[labels.index(name)] = eps[(g.joint, round(float(d.q[0, g.joint]), 6))]
+
+    res = general.fit_model(tool, kin).fit()  # the run's own fit (its weights), as the term uses it
+    shares = gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted))
+    assert all(0.0 < w <= 1.0 + 1e-9 for _, w in shares.values())  # 1: a joint standing at one angle throughout
+    # a calibration that recorded where it stood: the same procedure, the same shares; other angles, none
+    stood = gain_scatter.standing_angles(exact(kin, THETA_REF, eps), kin)
+    assert gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted, stood)) == shares
+    elsewhere = tuple((j, a + 0.1) for j, a in stood)
+    assert gain_scatter.absorbed_shares(sweeps, groups, labels, (THETA_REF, fitted, elsewhere)) == {}
+    assert any(w < 0.9 for _, w in shares.values())
+    plain = gain_scatter.sensitivities(sweeps, groups, res, THETA, labels)
+    absorbed = gain_scatter.sensitivities(sweeps, groups, res, THETA, labels, absorbed=shares)
+    actual = res.theta[:4] - THETA
+    assert actual[0] == pytest.approx((absorbed @ eps_k)[0], rel=0.05)
+    assert abs((plain @ eps_k)[0] - actual[0]) > 3 * abs((absorbed @ eps_k)[0] - actual[0])
+
+    th0 = three_step_response.theta(clean, kin)
+    assert th0 == pytest.approx(THETA, abs=1e-6)
+    predicted = np.zeros(4)
+    for k, label in enumerate(labels):
+        if label in shares:
+            j, w = shares[label]
+            predicted += -w * three_step_response.gain_response(clean, kin, j, th0) * eps_k[k]
+    moved = three_step_response.theta(tool, kin) - th0 - sum(  # less the calibration's own gain error of j2, j3
+        three_step_response.gain_response(clean, kin, j, th0) * (scale[j] - 1.0 + sum(
+            w * eps_k[labels.index(lab)] for lab, (jj, w) in shares.items() if jj == j)) for j in (1, 2))
+    assert abs(moved[0]) > 2e-3  # grams: the three steps are moved, though they read no still row
+    assert moved[0] == pytest.approx(predicted[0], rel=0.15)
+

@@ -14,7 +14,7 @@ def test_shrunk_share_is_the_mean_of_the_wrist_terms_rule():
     spread = planned_terms.SPREAD_RATIO
     z = rng.standard_normal((200_000, 4)) * np.sqrt(spread * np.diag(D))
     q = np.sum(z ** 2 / np.diag(D), axis=1)
-    s2 = np.maximum(q - 4, 0.0) / q  # offsets.wrist_torque_effect's shrink, r = rank D = 4
+    s2 = np.maximum(q - 4, 0.0) / q  # offsets.shrink, r = rank D = 4
     mean_term = np.mean(s2[:, None] * z ** 2, axis=0)
     assert mean_term == pytest.approx(planned_terms.shrunk_share(4) * np.diag(D), rel=0.03)
     assert planned_terms.shrunk_share(4, 1.0) == pytest.approx(0.2707, abs=1e-3)

@@ -54,7 +54,7 @@ class Gains:
     source: str  # recorded as the result's ``gains_source``
     note: str | None = None  # added to the primary estimate's notes
     rel_std: tuple[float, ...] | None = None  # a calibration's relative uncertainty per joint
-    reference: tuple[tuple[float, ...], tuple[int, ...]] | None = None  # (θ_ref, fitted joints) of the calibration
+    reference: tuple | None = None  # (θ_ref, fitted joints[, standing angles]) of the calibration (GainCalibration.reference)
 
 
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,
@@ -73,7 +73,8 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     prepared = systematics.prepare(loaded, empty, options.joints, commands)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
-    syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model)
+    syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model,
+                                gain_reference=gains.reference)
     primary, others = solve_all(model, options, gains, syst, solvers)
     primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []))
     quality_result = quality.evaluate(deltas, kin, primary, gain_rel_std=gains.rel_std,

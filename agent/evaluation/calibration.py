@@ -41,6 +41,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.analysis.run_deltas import phases_for
 from payload_agent.evaluation import systematics
+from payload_agent.evaluation.systematics import gain_scatter
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
@@ -73,6 +74,16 @@ class GainCalibration:
     nominal_fingerprint: str  # calibration_fingerprint(config) of the config it was fitted on
     run_dir: str
     created_utc: str
+    # (joint 0-based, angle rad) where joints stood while others swept (``gain_scatter.standing_angles``): which
+    # still-joint gain errors the calibration absorbed; None in files written before it was recorded
+    standing_angles: tuple[tuple[int, float], ...] | None = None
+
+    @property
+    def reference(self) -> tuple:
+        """(θ_ref = [m, m·c], fitted joints[, standing angles]): what the analysis subtracts the absorption with."""
+        theta = [self.reference_mass_kg, *(self.reference_mass_kg * np.asarray(self.reference_cog_m))]
+        base = (theta, self.fitted_joints)
+        return base if self.standing_angles is None else (*base, self.standing_angles)
 
     @property
     def nominal_gains(self) -> tuple[float, ...]:
@@ -90,7 +101,9 @@ class GainCalibration:
                 "reference_mass_kg": self.reference_mass_kg,
                 "reference_cog_mm": [1000.0 * v for v in self.reference_cog_m],
                 "nominal_fingerprint": self.nominal_fingerprint, "run_dir": self.run_dir,
-                "created_utc": self.created_utc}
+                "created_utc": self.created_utc,
+                **({} if self.standing_angles is None else
+                   {"standing_angles_rad": [[j + 1, float(a)] for j, a in self.standing_angles]})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -105,9 +118,11 @@ class GainCalibration:
         cog = tuple(float(v) / 1000.0 for v in d["reference_cog_mm"])
         if len(cog) != 3:
             raise ValueError("reference_cog_mm must have 3 components")
+        stood = d.get("standing_angles_rad")
+        angles = None if stood is None else tuple((int(j) - 1, float(a)) for j, a in stood)
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
-                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]))
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -289,7 +304,8 @@ def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: 
         reference_mass_kg=float(known_mass_kg), reference_cog_m=(c[0], c[1], c[2]),
         robot=config.robot.name, effort_unit=config.effort.unit,
         nominal_fingerprint=calibration_fingerprint(config), run_dir=str(run_dir),
-        created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        standing_angles=gain_scatter.standing_angles(deltas, config.robot.kinematics))
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

@@ -101,8 +101,7 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
         return Gains(fitted.nm_per_a, fitted.source, f"drive gains: {fitted.source}", fitted.rel_std)
     if cal is not None:
         gain_rel_std = cal.gain_rel_std()
-        m_ref = cal.reference_mass_kg
-        gain_reference = ([m_ref, *(m_ref * np.asarray(cal.reference_cog_m))], cal.fitted_joints)
+        gain_reference = cal.reference
         source = note
     elif gains is not None:
         source = "given by the caller"

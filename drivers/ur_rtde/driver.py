@@ -43,7 +43,7 @@ import dataclasses
 import math
 import socket
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 

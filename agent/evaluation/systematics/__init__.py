@@ -34,11 +34,12 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
      payload's torque. One parameter per joint, a_j·Δ_j, of standard deviation σ_a·√(E[Δ_j²]);
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
-     from one standing angle to the next (gear ripple growing with load), sized from the data
-     (``systematics.gain_scatter``);
-   - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable, load-
-     dependent gear ripple), one per (pose, wrist joint), estimated with θ; their measured effect on θ,
-     shrunk to the size the data show beyond noise, is the term (``offsets.wrist_torque_effect``); a strong one
+     from one standing angle to the next (gear ripple growing with load): its measured effect on θ, less
+     what a drive-gain calibration at the same angles absorbed (``gain_reference``), shrunk to the size the
+     data show beyond noise (``systematics.gain_scatter``);
+   - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable), one per (pose,
+     wrist joint), estimated with θ beside a nuisance gain column per still (joint, angle) of joints 1–3;
+     their measured effect on θ, shrunk likewise, is the term (``systematics.wrist``); a strong one
      fails the gate's cable check instead;
 3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
    per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison. The
@@ -61,7 +62,8 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.evaluation.systematics import compliance, friction, gain_scatter, offsets, three_step_response
+from payload_agent.evaluation.systematics import compliance, friction, gain_scatter, offsets, three_step_response, wrist
+from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
 from payload_agent.solvers import general, wls
 from payload_agent.solvers.fitted import ALL, FittedModel  # ALL: the combined fit's key (others: poses)
@@ -72,6 +74,7 @@ RIGID = JointSystematicsConfig(None, 0.0, (0.0,) * 6, 0.0, 0.0)  # nothing decla
 
 Sweeps = Mapping[SweepKey, SweepData]
 Deltas = dict[SweepKey, DeltaSweep]
+GainReference = tuple  # (θ_ref, fitted joints[, standing angles]) of a drive-gain calibration (GainCalibration.reference)
 
 
 def joint_declaration(decl: JointSystematicsConfig) -> compliance.JointSystematics:
@@ -177,10 +180,12 @@ class Context:
 
     model: FittedModel | None = None
     three_step: np.ndarray | None = None  # the three-step solver's θ on the same deltas (None: not solvable)
+    gain_reference: GainReference | None = None  # (θ_ref, fitted joints) of the drive-gain calibration, if any
 
     @classmethod
     def build(cls, prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
-              gain_rel_std: Sequence[float] | None = None, model: FittedModel | None = None) -> "Context":
+              gain_rel_std: Sequence[float] | None = None, model: FittedModel | None = None,
+              gain_reference: GainReference | None = None) -> "Context":
         """The context on ``model`` (the analysis' fitted model of ``prepared.deltas``; made here if None)."""
         if model is None:
             model = general.fit_model(prepared.deltas, kin, gain_rel_std)
@@ -189,7 +194,7 @@ class Context:
             raise DataError("systematics: the combined fit is impossible")
         groups = {which: model.groups_of(which) for which in (ALL, *model.poses)}
         return cls(prepared, kin, decl, gain_rel_std, list(model.sweeps), groups, fits, model,
-                   three_step_response.theta(prepared.deltas, kin))
+                   three_step_response.theta(prepared.deltas, kin), gain_reference)
 
     def thetas(self, deltas: Deltas) -> np.ndarray:
         """θ of every base fit (ALL, then the poses) on other deltas, with the base fits' weights, then the
@@ -304,36 +309,45 @@ def friction_terms(ctx: Context) -> list[Term]:
 
 def wrist_terms(ctx: Context) -> list[Term]:
     """Constant torques on the still wrist, one per (pose, wrist joint): their effect on θ as the data show it
-    (``offsets.wrist_torque_effect``), one parameter along the measured offsets."""
+    (``systematics.wrist``), one parameter along the measured offsets."""
     by_name = {d.key.name: d for d in ctx.sweeps}
     labels = sorted({offsets.wrist_joint(g, by_name[g.sweep]) for g in ctx.groups[ALL]} - {None})
     if not labels:
         return []
     sens = ctx.offset_sens(offsets.wrist_joint, labels)
     try:
-        b, s, q = offsets.wrist_torque_effect(ctx.prepared.deltas, ctx.kin, sens[ALL], labels, ctx.gain_rel_std,
-                                              ctx.model)
+        w = wrist.measure(ctx.model, sens[ALL], labels)
     except (DataError, np.linalg.LinAlgError):
         return []
-    if s <= 0:
+    if w is None or w.shrink <= 0:
         return []
-    along = {which: A @ b[:, None] for which, A in sens.items()}
-    return [Term("wrist torques", np.array([s]), along,
-                 f"constant wrist torques (up to {1000 * float(np.max(np.abs(b))):.0f} mN·m, from the data; their "
-                 f"effect on the result {s:.2f} × as measured, q = {q:.1f}) in σ")]
+    return [Term("wrist torques", np.array([w.shrink]), wrist.along(w.offsets_nm, sens),
+                 f"constant wrist torques (up to {1000 * float(np.max(np.abs(w.offsets_nm))):.0f} mN·m, from the data; "
+                 f"their effect on the result {w.shrink:.2f} × as measured, q = {w.q:.1f}) in σ")]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
-    """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load),
-    sized from the data (``systematics.gain_scatter``)."""
+    """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load): their
+    measured effect on θ, less what a drive-gain calibration absorbed (``systematics.gain_scatter``)."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
-                            {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model)
+                            {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model, ctx.gain_reference)
     if out is None:
         return []
-    std, sens, text = out
-    if ctx.three_step is not None:  # it acts on still joints, whose rows the three steps do not read
-        sens = dict(sens, **{THREE_STEP: np.zeros((4, len(std)))})
-    return [Term("torque-gain scatter", std, sens, text)]
+    sens = dict(out.sens)
+    if ctx.three_step is not None:  # still joints' rows it does not read; the calibrated gains of joints 2, 3 it does
+        response = {j: three_step_response.gain_response(ctx.prepared.deltas, ctx.kin, j, ctx.three_step)
+                    for j in sorted({j for j, _ in out.shares.values()})}
+        A = np.zeros((4, len(out.labels)))
+        for k, label in enumerate(out.labels):
+            if label in out.shares:
+                j, w = out.shares[label]
+                A[:, k] = -w * response[j]
+        sens[THREE_STEP] = A
+    shrink = out.effect_shrink()
+    if shrink <= 0:
+        return []
+    along = {which: (A @ out.scatter.eps)[:, None] for which, A in sens.items()}
+    return [Term("torque-gain scatter", np.array([shrink]), along, out.note + f", its effect {shrink:.2f} × as measured")]
 
 
 TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms, gain_scatter_terms]
@@ -342,12 +356,13 @@ TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wri
 def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
              gain_rel_std: Sequence[float] | None = None,
              terms: Sequence[Callable[[Context], list[Term]]] | None = None,
-             model: FittedModel | None = None) -> Systematics:
+             model: FittedModel | None = None, gain_reference: GainReference | None = None) -> Systematics:
     """Step 2: every term of ``TERMS`` on a prepared run (``gain_rel_std`` as the estimate was solved with;
-    ``model``: the analysis' fitted model of ``prepared.deltas``, made here if None)."""
+    ``model``: the analysis' fitted model of ``prepared.deltas``, made here if None; ``gain_reference``: the
+    drive-gain calibration the data were scaled with, (θ_ref, fitted joints), None for nominal gains)."""
     out = Systematics()
     try:
-        ctx = Context.build(prepared, kin, decl, gain_rel_std, model)
+        ctx = Context.build(prepared, kin, decl, gain_rel_std, model, gain_reference)
     except (DataError, np.linalg.LinAlgError) as exc:
         out.notes.append(f"systematic error terms not evaluated: {exc}")
         return out
@@ -357,42 +372,6 @@ def evaluate(prepared: Prepared, kin: Kinematics, decl: JointSystematicsConfig,
         except (DataError, np.linalg.LinAlgError) as exc:
             out.notes.append(f"{make.__name__.replace('_', ' ')} not evaluated: {exc}")
     return out
-
-
-def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: JointSystematicsConfig,
-                       theta: np.ndarray, weights: np.ndarray, friction_level_nm: Mapping[int, float] | None = None
-                       ) -> np.ndarray:
-    """The terms that can be predicted before moving, for a planned procedure (``evaluation.design``).
-
-    ``sweeps``: the plan's synthetic sweeps at the samples the analysis will use (Δτ unused), ``theta``
-    a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:
-    the joint zeros (θ̂ = (YᵀWY)⁻¹YᵀW·Y(q + z)θ, by a finite step) and the residual friction with the
-    declared change only (``friction_change_std`` × ``friction_level_nm`` per moving joint, e.g. what the
-    stored baseline shows): the run measures the change and reports the posterior, whose expectation
-    before the run is this prior. Not predictable: the stiffness term
-    (it needs the arm's own torques) and the wrist torques (sized from the data); both are small against
-    these on a declared arm (docs/benchmarks.md).
-    """
-    sweeps = list(sweeps)
-    groups = general.build_groups(sweeps, kin)
-    Y = np.vstack([g.Y for g in groups])
-    w = np.asarray(weights, float)
-    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
-    cov = np.zeros((4, 4))
-    zstd = np.broadcast_to(np.asarray(decl.zero_offset_std_rad, float), (6,))
-    for j in np.flatnonzero(zstd > 0):
-        shifted = [replace(d, q=d.q + np.eye(6)[j] * compliance.ZERO_STEP_RAD) for d in sweeps]
-        Y1 = np.vstack([g.Y for g in general.build_groups(shifted, kin)])
-        s = inv @ (Y.T @ (w * ((Y1 - Y) @ theta))) / compliance.ZERO_STEP_RAD
-        cov += zstd[j] ** 2 * np.outer(s, s)
-    rel = float(decl.friction_asymmetry_std) * float(decl.friction_change_std)
-    if rel > 0 and friction_level_nm:
-        s = offsets.offset_sensitivities(sweeps, groups, w, inv, lambda g, d: (
-            str(g.joint) if g.joint == d.moving and d.key.direction == "both" and g.joint in friction_level_nm
-            else None))
-        for j, v in s.items():
-            cov += (rel * friction_level_nm[int(j)]) ** 2 * np.outer(v, v)
-    return cov
 
 
 __all__ = ["ALL", "THREE_STEP", "RIGID", "Prepared", "Term", "Systematics", "Context", "TERMS", "prepare", "evaluate",

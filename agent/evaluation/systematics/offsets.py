@@ -154,32 +154,17 @@ def offset_sensitivities(sweeps: list[DeltaSweep], groups: list[Group], w: np.nd
     return s
 
 
-def wrist_torque_effect(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, A: np.ndarray,
-                        labels: list[str], gain_rel_std: Iterable[float] | None = None,
-                        model: FittedModel | None = None) -> tuple[np.ndarray, float, float]:
-    """The constant wrist torques the data show, as they move θ: (b̂ over ``labels``, shrink s, q).
-
-    The fit with one offset per (pose, wrist joint) estimates them, b̂ with covariance C; θ of the plain fit
-    moves by β = A·b (``A``: ``offset_sensitivities`` of the combined fit, (4, k) over ``labels``), estimated
-    by β̂ = A·b̂ with covariance D = A·C·Aᵀ. What goes into σ is that effect shrunk to the size the data show
-    beyond their noise: s²·β̂β̂ᵀ with s² = max(q − r, 0)/q, q = β̂ᵀ·D⁻¹·β̂, r = rank D (E[q] = r + βᵀD⁻¹β, so
-    q − r is the unbiased size; the maximum likelihood's q − 1 put 2–3 g into σ of clean runs whose noise
-    was 1.5 g). It replaced an isotropic size (b ~ N(0, σ_w²·I), the maximum-likelihood σ_w), which misses a
-    cable: its torques come from one spring wound one way, so they share a sign and add up in θ along the
-    direction the sweeps determine worst (the offsets' common part is nearly confounded with m·c); in the
-    benchmark's weak-cable ablation (issue 22) the isotropic size put 0–1 g into σ against errors of 3–8 g.
-    """
-    fitted = fit_offsets(deltas, kin, wrist_joint, gain_rel_std=gain_rel_std, model=model)
-    where = {name: i for i, name in enumerate(fitted.labels)}
-    idx = [where[name] for name in labels]
-    b = fitted.offsets_nm[idx]
+def shrink(A: np.ndarray, b: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    """(s, q) of measured effects b̂ (covariance ``cov``) as they move θ by β̂ = A·b̂: s² = max(q − r, 0)/q, the share
+    of β̂ the data show beyond their noise, with q = β̂ᵀD⁻¹β̂, D = A·C·Aᵀ, r = rank D. E[q] = r + βᵀD⁻¹β (noncentral
+    χ², docs/sources.md), so q − r is the unbiased size; the likelihood's q − 1 put 2–3 g into σ of clean runs whose
+    noise was 1.5 g (issue 22)."""
     beta = A @ b
-    D = A @ fitted.offsets_cov[np.ix_(idx, idx)] @ A.T
+    D = A @ cov @ A.T
     q = float(beta @ np.linalg.lstsq(D, beta, rcond=None)[0]) if np.any(beta) else 0.0
     r = int(np.linalg.matrix_rank(D))
-    s = math.sqrt(max(q - r, 0.0) / q) if q > 0 else 0.0
-    return b, s, q
+    return (math.sqrt(max(q - r, 0.0) / q) if q > 0 else 0.0), q
 
 
 __all__ = ["WRIST_JOINTS", "Selector", "moving_joint", "wrist_joint", "OffsetFit", "plain_groups", "augment",
-           "fit_offsets", "offset_sensitivities", "wrist_torque_effect"]
+           "fit_offsets", "offset_sensitivities", "shrink"]

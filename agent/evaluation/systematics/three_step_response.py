@@ -11,7 +11,9 @@ So each term gets the three-step's own ∂θ/∂p (θ = [m, m·c]), under the ke
   re-run returns (``theta``);
 - constant torques on named rows (residual friction, wrist torques) are added to those rows of the
   deltas, one label at a time, and the three steps re-run (``offset_response``);
-- the torque-gain scatter acts on still joints only, whose rows the three steps do not read: zero.
+- the torque-gain scatter acts on still joints only, whose rows the three steps do not read, but a drive-gain
+  calibration carried a share of it into the gains of joints 2 and 3, which the three steps do read: that
+  share times the three-step's response to a gain error of the joint (``gain_response``).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from payload_agent.types import SweepKey
 
 THREE_STEP = three_step.NAME  # the key of the three-step's sensitivities in ``Term.sens``
 STEP_NM = 1e-3  # the finite step of a constant torque (the three steps are linear in Δτ but for 1/m)
+GAIN_STEP = 1e-4  # the finite step of a relative gain error
 READS_JOINTS = (1, 2)  # 0-based: the only rows the three steps read (joint 2 and joint 3)
 
 
@@ -71,4 +74,20 @@ def offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, swee
     return out
 
 
-__all__ = ["THREE_STEP", "STEP_NM", "theta", "offset_response"]
+def gain_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, joint: int, theta0: np.ndarray) -> np.ndarray:
+    """(4,): ∂θ/∂g of the three-step solver for a relative gain error g of ``joint`` (0-based) on every sweep;
+    zero for a joint whose rows the three steps do not read."""
+    if joint not in READS_JOINTS:
+        return np.zeros(4)
+    shifted = {}
+    for key, d in deltas.items():
+        dtau = np.array(d.dtau, float)
+        dtau[:, joint] *= 1.0 + GAIN_STEP
+        shifted[key] = replace(d, dtau=dtau)
+    th = theta(shifted, kin)
+    if th is None:
+        raise DataError(f"three-step: not solvable with joint {joint + 1}'s gain {GAIN_STEP:g} higher")
+    return (th - theta0) / GAIN_STEP
+
+
+__all__ = ["THREE_STEP", "STEP_NM", "GAIN_STEP", "theta", "offset_response", "gain_response"]

@@ -1,0 +1,58 @@
+"""What the systematic terms will add to a planned procedure's σ, before it moves (``evaluation.design``).
+
+Only the terms that can be predicted without the run's data: the joint zeros and the residual friction with
+its declared change (the run measures the change; the prior is the expectation of what it reports). The
+run-time terms are in ``evaluation.systematics``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.configuration.config import JointSystematicsConfig
+from payload_agent.evaluation.systematics import compliance, offsets
+from payload_agent.model.kinematics import Kinematics
+from payload_agent.solvers import general
+
+
+def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: JointSystematicsConfig,
+                       theta: np.ndarray, weights: np.ndarray, friction_level_nm: Mapping[int, float] | None = None
+                       ) -> np.ndarray:
+    """The terms that can be predicted before moving, for a planned procedure (``evaluation.design``).
+
+    ``sweeps``: the plan's synthetic sweeps at the samples the analysis will use (Δτ unused), ``theta``
+    a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:
+    the joint zeros (θ̂ = (YᵀWY)⁻¹YᵀW·Y(q + z)θ, by a finite step) and the residual friction with the
+    declared change only (``friction_change_std`` × ``friction_level_nm`` per moving joint, e.g. what the
+    stored baseline shows): the run measures the change and reports the posterior, whose expectation
+    before the run is this prior. Not predictable: the stiffness term
+    (it needs the arm's own torques) and the wrist torques (sized from the data); both are small against
+    these on a declared arm (docs/benchmarks.md).
+    """
+    sweeps = list(sweeps)
+    groups = general.build_groups(sweeps, kin)
+    Y = np.vstack([g.Y for g in groups])
+    w = np.asarray(weights, float)
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+    cov = np.zeros((4, 4))
+    zstd = np.broadcast_to(np.asarray(decl.zero_offset_std_rad, float), (6,))
+    for j in np.flatnonzero(zstd > 0):
+        shifted = [replace(d, q=d.q + np.eye(6)[j] * compliance.ZERO_STEP_RAD) for d in sweeps]
+        Y1 = np.vstack([g.Y for g in general.build_groups(shifted, kin)])
+        s = inv @ (Y.T @ (w * ((Y1 - Y) @ theta))) / compliance.ZERO_STEP_RAD
+        cov += zstd[j] ** 2 * np.outer(s, s)
+    rel = float(decl.friction_asymmetry_std) * float(decl.friction_change_std)
+    if rel > 0 and friction_level_nm:
+        s = offsets.offset_sensitivities(sweeps, groups, w, inv, lambda g, d: (
+            str(g.joint) if g.joint == d.moving and d.key.direction == "both" and g.joint in friction_level_nm
+            else None))
+        for j, v in s.items():
+            cov += (rel * friction_level_nm[int(j)]) ** 2 * np.outer(v, v)
+    return cov
+
+
+__all__ = ["planned_covariance"]
