@@ -7,7 +7,11 @@ combined grid, friction ripple, unmodelled slow effects), so the textbook s²·(
 optimistic: the covariance is a sandwich A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance
 of the weighted scores, estimated sweep by sweep with a Bartlett (Newey–West) kernel whose
 bandwidth follows the residuals' own autocorrelation length (``autocorrelation_time``); it
-never goes below the independent-noise covariance. An optional relative drive-gain
+never goes below the independent-noise covariance. Samples that share one interpolation error
+(the deltas interpolated one run across a gap of its sample stream) are counted from how their noise
+is made (``Group.noise_map``): the covariance at lags the kernel weighs less than fully is added
+from that model (``beyond_kernel``), since neither a short kernel nor the residuals (whose mean over
+a group the fit's offsets absorb) can see it. An optional relative drive-gain
 uncertainty per joint is propagated on top (``gain_covariance``).
 
 Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
@@ -17,7 +21,7 @@ drive-gain calibration (``long_run_scores`` for the standard error of a gain sca
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -37,6 +41,8 @@ class Group:
     Y: np.ndarray  # (n, p)
     y: np.ndarray  # (n,)
     joint: int = -1  # 0-based joint of these rows (-1: unknown)
+    # (n, s) sparse: how the rows' noise is made of independent sample noises (``DeltaSweep.noise_map``)
+    noise_map: Any = None
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,28 @@ def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
     return B
 
 
+def beyond_kernel(noise: Any, bandwidth: int, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """The long-run variance of a sweep's scores that the Bartlett kernel misses, from how its samples' noise is made.
+
+    ``noise``: the sweep's (n, s) noise map (``DeltaSweep.noise_map``): ε = N·e with e independent, so
+    Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, σ² of one source sample: the joint's
+    residual variance over the mean of diag N·Nᵀ). Returns Σ_joints σ²·Gᵀ·((1 − K)∘N·Nᵀ)·G with K the
+    Bartlett kernel of ``bandwidth``: the part of the scores' covariance at lags the kernel weighs less than
+    fully, e.g. a run of samples interpolated across one stream gap of the empty run or of a leg, whose
+    residual-based estimate the fit's own offsets would also have absorbed.
+    """
+    from scipy import sparse
+
+    S = sparse.coo_matrix(noise @ noise.T)
+    lag = np.abs(S.row - S.col)
+    k = np.where(lag <= bandwidth, 1.0 - lag / (bandwidth + 1.0), 0.0)
+    D = sparse.csr_matrix(((1.0 - k) * S.data, (S.row, S.col)), shape=S.shape)
+    out = 0.0
+    for G, var in scores:
+        out = out + var * (G.T @ (D @ G))
+    return np.asarray(out)
+
+
 def weighted_lstsq(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted LS via a column-scaled lstsq; returns θ and (YᵀWY)⁻¹."""
     sw = np.sqrt(w)
@@ -140,7 +168,8 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     cov_iid = s2 * inv
 
     # sandwich: long-run variance of the weighted scores, sweep by sweep (the joints of one
-    # sample share its instant, so their scores are summed before the lags are taken)
+    # sample share its instant, so their scores are summed before the lags are taken; the samples
+    # that share one interpolation error get the part the kernel misses from their noise map)
     B = np.zeros((p, p))
     tau: dict[str, float] = {}
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
@@ -152,6 +181,11 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
         t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
         tau[sweep] = t
         B += long_run_scores(U, lag) * dof_factor
+        noise = groups[members[0]].noise_map
+        if noise is not None and noise.shape[0] == m:
+            mean_gain = float(np.mean(noise.multiply(noise).sum(axis=1)))
+            B += beyond_kernel(noise, lag, [(groups[i].Y * w[starts[i]:starts[i + 1], None],
+                                             sigma[i] ** 2 / mean_gain) for i in members])
     cov = inv @ B @ inv
     # never below the independent-noise covariance (the kernel estimate is itself noisy)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
