@@ -9,9 +9,9 @@ of the weighted scores, estimated sweep by sweep with a Bartlett (Newey–West) 
 bandwidth follows the residuals' own autocorrelation length (``autocorrelation_time``); it
 never goes below the independent-noise covariance. Samples that share one interpolation error
 (the deltas interpolated one run across a gap of its sample stream) are counted from how their noise
-is made (``Group.noise_map``): the covariance at lags the kernel weighs less than fully is added
-from that model (``beyond_kernel``), since neither a short kernel nor the residuals (whose mean over
-a group the fit's offsets absorb) can see it. An optional relative drive-gain
+is made (``Group.noise_map``, ``modelled_excess``): the map's covariance at every lag, plus what the
+residuals' kernel estimate shows beyond it, since neither a short kernel nor the residuals (whose
+mean over a group the fit's offsets absorb) can see a shared error. An optional relative drive-gain
 uncertainty per joint is propagated on top (``gain_covariance``).
 
 Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
@@ -103,26 +103,44 @@ def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
     return B
 
 
-def beyond_kernel(noise: Any, bandwidth: int, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
-    """The long-run variance of a sweep's scores that the Bartlett kernel misses, from how its samples' noise is made.
+def modelled_noise(noise: Any, bandwidth: int | None, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """The long-run variance of a sweep's scores from how its samples' noise is made, Σ_j σ_j²·Gᵀ·(K∘N·Nᵀ)·G.
 
     ``noise``: the sweep's (n, s) noise map (``DeltaSweep.noise_map``): ε = N·e with e independent, so
-    Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, σ² of one source sample: the joint's
-    residual variance over the mean of diag N·Nᵀ). Returns Σ_joints σ²·Gᵀ·((1 − K)∘N·Nᵀ)·G with K the
-    Bartlett kernel of ``bandwidth``: the part of the scores' covariance at lags the kernel weighs less than
-    fully, e.g. a run of samples interpolated across one stream gap of the empty run or of a leg, whose
-    residual-based estimate the fit's own offsets would also have absorbed.
+    Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, its residual variance; σ_j² of one
+    source is that over the mean of diag N·Nᵀ). K: the Bartlett kernel of ``bandwidth``, or all ones (None).
     """
     from scipy import sparse
 
     S = sparse.coo_matrix(noise @ noise.T)
-    lag = np.abs(S.row - S.col)
-    k = np.where(lag <= bandwidth, 1.0 - lag / (bandwidth + 1.0), 0.0)
-    D = sparse.csr_matrix(((1.0 - k) * S.data, (S.row, S.col)), shape=S.shape)
-    out = 0.0
+    k = 1.0
+    if bandwidth is not None:
+        lag = np.abs(S.row - S.col)
+        k = np.where(lag <= bandwidth, 1.0 - lag / (bandwidth + 1.0), 0.0)
+    D = sparse.csr_matrix((k * S.data, (S.row, S.col)), shape=S.shape)
+    mean_gain = float(np.mean(S.diagonal()))
+    out = np.zeros((scores[0][0].shape[1],) * 2)
     for G, var in scores:
-        out = out + var * (G.T @ (D @ G))
-    return np.asarray(out)
+        out += var / mean_gain * (G.T @ (D @ G))
+    return out
+
+
+def modelled_excess(B_kernel: np.ndarray, noise: Any, bandwidth: int, scores: list[tuple[np.ndarray, float]]
+                    ) -> np.ndarray:
+    """A sweep's long-run score variance: the noise map's (``modelled_noise``, every lag), scaled up by as much
+    as the residuals' kernel estimate ``B_kernel`` exceeds the map's at the same kernel (mean over the
+    parameters of their variance ratios; never scaled down).
+
+    The map counts a run of samples interpolated across one stream gap (of the empty run, or of a leg
+    under the combination's grid) as the one shared error it is, which a short kernel misses and which
+    the residuals cannot show: the fit's offsets absorb each group's mean, so the kernel estimate runs
+    low. It stays as the check on what the map does not know (friction ripple, slow unmodelled torques);
+    one ratio, not one per direction, so that its own scatter does not widen σ on its own.
+    """
+    at_kernel = np.diag(modelled_noise(noise, bandwidth, scores))
+    seen = at_kernel > 1e-12 * max(float(np.max(at_kernel)), 1e-300)
+    ratio = float(np.mean(np.diag(B_kernel)[seen] / at_kernel[seen])) if seen.any() else 1.0
+    return max(ratio, 1.0) * modelled_noise(noise, None, scores)
 
 
 def weighted_lstsq(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -169,7 +187,7 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
 
     # sandwich: long-run variance of the weighted scores, sweep by sweep (the joints of one
     # sample share its instant, so their scores are summed before the lags are taken; the samples
-    # that share one interpolation error get the part the kernel misses from their noise map)
+    # whose noise map is known: from it, and from the residuals only where they show more)
     B = np.zeros((p, p))
     tau: dict[str, float] = {}
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
@@ -180,12 +198,12 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
         m = len(z)
         t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
         tau[sweep] = t
-        B += long_run_scores(U, lag) * dof_factor
+        B_sweep = long_run_scores(U, lag) * dof_factor
         noise = groups[members[0]].noise_map
         if noise is not None and noise.shape[0] == m:
-            mean_gain = float(np.mean(noise.multiply(noise).sum(axis=1)))
-            B += beyond_kernel(noise, lag, [(groups[i].Y * w[starts[i]:starts[i + 1], None],
-                                             sigma[i] ** 2 / mean_gain) for i in members])
+            B_sweep = modelled_excess(B_sweep, noise, lag, [
+                (groups[i].Y * w[starts[i]:starts[i + 1], None], sigma[i] ** 2) for i in members])
+        B += B_sweep
     cov = inv @ B @ inv
     # never below the independent-noise covariance (the kernel estimate is itself noisy)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
