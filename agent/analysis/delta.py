@@ -12,9 +12,8 @@ the empty run far wider than its sample spacing; every loaded sample inside one 
 effort from the same two samples, so their deltas carry one shared interpolation error. The
 subtraction keeps those samples (the quality gate counts them) and records instead how each delta
 sample's noise is made of the runs' independent sample noises (``DeltaSweep.noise_map``): the fit
-adds the covariance such a run's shared error has beyond what its residual-based kernel sees
-(``solvers.wls.fit``), so neither θ's σ nor the wrist offsets' χ² treats the run as many
-independent observations.
+takes the covariance of its scores from that map (``solvers.wls.fit``), so neither θ's σ nor the
+wrist offsets' χ² treats such a run as many independent observations.
 """
 
 from __future__ import annotations
@@ -30,7 +29,6 @@ from payload_agent.recording.rundata import SweepData
 from payload_agent.types import SweepKey
 
 MIN_OVERLAP_SAMPLES = 20
-GAP_FACTOR = 3.0  # an angle spacing this many times a run's median spacing is a gap in its sample stream
 
 
 @dataclass
@@ -52,15 +50,6 @@ def window_of(sweep: SweepData, command: SweepCommand | None = None) -> Window:
     """The sweep's verified constant-speed window (from ``command`` if given, else from the data alone)."""
     j = sweep.key.joint - 1
     return cruise_window(sweep.t, sweep.q[:, j], command, where=sweep.source)
-
-
-def gap_intervals(xs: np.ndarray) -> np.ndarray:
-    """(len(xs) − 1,) which intervals of the sorted angles ``xs`` are gaps of their sample stream
-    (wider than ``GAP_FACTOR`` × the median spacing)."""
-    if len(xs) < 3:
-        return np.zeros(max(len(xs) - 1, 0), bool)
-    step = np.diff(xs)
-    return step > GAP_FACTOR * max(float(np.median(step)), 1e-12)
 
 
 def interval_of(x: np.ndarray, xs: np.ndarray) -> np.ndarray:

@@ -7,11 +7,12 @@ combined grid, friction ripple, unmodelled slow effects), so the textbook s²·(
 optimistic: the covariance is a sandwich A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance
 of the weighted scores, estimated sweep by sweep with a Bartlett (Newey–West) kernel whose
 bandwidth follows the residuals' own autocorrelation length (``autocorrelation_time``); it
-never goes below the independent-noise covariance. Samples that share one interpolation error
-(the deltas interpolated one run across a gap of its sample stream) are counted from how their noise
-is made (``Group.noise_map``, ``modelled_excess``): the map's covariance at every lag, plus what the
-residuals' kernel estimate shows beyond it, since neither a short kernel nor the residuals (whose
-mean over a group the fit's offsets absorb) can see a shared error. An optional relative drive-gain
+never goes below the independent-noise covariance. Where the rows say how their noise is made
+(``Group.noise_map``: the deltas' interpolations of the empty run and of the legs), B comes from
+that map at every lag, scaled up where the residuals' kernel estimate shows more
+(``modelled_excess``): samples interpolated across one gap of a run's sample stream share one
+error, which neither a short kernel nor the residuals (whose mean over a group the fit's offsets
+absorb) can see. An optional relative drive-gain
 uncertainty per joint is propagated on top (``gain_covariance``).
 
 Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
@@ -103,16 +104,17 @@ def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
     return B
 
 
-def modelled_noise(noise: Any, bandwidth: int | None, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
+def modelled_noise(noise_cov: Any, bandwidth: int | None, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
     """The long-run variance of a sweep's scores from how its samples' noise is made, Σ_j σ_j²·Gᵀ·(K∘N·Nᵀ)·G.
 
-    ``noise``: the sweep's (n, s) noise map (``DeltaSweep.noise_map``): ε = N·e with e independent, so
-    Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, its residual variance; σ_j² of one
-    source is that over the mean of diag N·Nᵀ). K: the Bartlett kernel of ``bandwidth``, or all ones (None).
+    ``noise_cov``: N·Nᵀ (sparse) of the sweep's (n, s) noise map N (``DeltaSweep.noise_map``): ε = N·e with
+    e independent, so Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, its residual
+    variance; σ_j² of one source is that over the mean of diag N·Nᵀ, the loaded and the empty run's
+    samples taken as equally noisy). K: the Bartlett kernel of ``bandwidth``, or all ones (None).
     """
     from scipy import sparse
 
-    S = sparse.coo_matrix(noise @ noise.T)
+    S = sparse.coo_matrix(noise_cov)
     k = 1.0
     if bandwidth is not None:
         lag = np.abs(S.row - S.col)
@@ -137,10 +139,11 @@ def modelled_excess(B_kernel: np.ndarray, noise: Any, bandwidth: int, scores: li
     low. It stays as the check on what the map does not know (friction ripple, slow unmodelled torques);
     one ratio, not one per direction, so that its own scatter does not widen σ on its own.
     """
-    at_kernel = np.diag(modelled_noise(noise, bandwidth, scores))
+    S = noise @ noise.T
+    at_kernel = np.diag(modelled_noise(S, bandwidth, scores))
     seen = at_kernel > 1e-12 * max(float(np.max(at_kernel)), 1e-300)
     ratio = float(np.mean(np.diag(B_kernel)[seen] / at_kernel[seen])) if seen.any() else 1.0
-    return max(ratio, 1.0) * modelled_noise(noise, None, scores)
+    return max(ratio, 1.0) * modelled_noise(S, None, scores)
 
 
 def weighted_lstsq(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
