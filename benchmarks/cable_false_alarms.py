@@ -5,13 +5,15 @@ shipped simulated robot's arm, noise, friction and tool (its inertia tensor incl
 through the analysis' deltas (``systematics.prepare``) into ``evaluation.cable_check.check``. The check's
 significance test claims a false-alarm rate of ``cable_check.ALPHA`` (χ² of the k wrist offsets against the
 χ²_k quantile). Printed: the mean χ² against k, the share above the χ²_k 90 %, 99 % and 1 − ALPHA
-quantiles, and the share of runs the check refused (significant and moving the result).
+quantiles, and the share of runs the check refused (significant and moving the result); and, since the
+same deltas feed the estimate, the general fit's rms(err/σ) of mass and centre of mass with its own (noise)
+covariance against the simulated tool.
 
 ``--gap-rate`` drops samples as a busy host's simulated stream does (a gap of 10–29 samples starts after
 any sample with this probability; 0.05 keeps about half), in the empty and the loaded run alike.
 
     .venv/bin/python -m benchmarks.cable_false_alarms --robot sim-ur5e --seeds 60 [--gap-rate 0.05]
-        [--procedure j2_pair --speed 12 --sweep-deg 0:15]
+        [--procedure j2_pair --speed 12 --sweep-deg 0:15] [--kernel-only]
 """
 
 from __future__ import annotations
@@ -46,8 +48,9 @@ def thin(sweeps: dict, rng: np.random.Generator, gap_rate: float) -> dict:
     return out
 
 
-def one(config, plan, seed: int, gap_rate: float) -> dict:
+def one(config, plan, seed: int, gap_rate: float, kernel_only: bool = False) -> dict:
     from payload_agent.evaluation import cable_check, systematics
+    from payload_agent.solvers import general
     from payload_agent.fakes.arms import SPECS
     from payload_agent.fakes.base import sim_robot_kwargs
     from payload_agent.fakes.offline import record_plan
@@ -65,7 +68,14 @@ def one(config, plan, seed: int, gap_rate: float) -> dict:
     loaded, _ = record_plan(robot, plan)
     rng = np.random.default_rng(1000 + seed)
     prepared = systematics.prepare(thin(loaded, rng, gap_rate), thin(empty, rng, gap_rate), config.robot.joints)
-    return cable_check.check(prepared.deltas, config.robot.kinematics)
+    deltas = prepared.deltas
+    if kernel_only:  # the covariance before the noise maps: the residuals' Bartlett kernel alone
+        deltas = {key: dataclasses.replace(d, noise_map=None) for key, d in deltas.items()}
+    out = cable_check.check(deltas, config.robot.kinematics)
+    est = general.solve(deltas, config.robot.kinematics)  # noise σ only: the fit's own covariance
+    err = np.r_[est.mass_kg - p.mass_kg, np.asarray(est.cog_m) - np.asarray(p.cog_mm) / 1000.0]
+    out["z"] = err / np.r_[est.mass_std_kg, est.cog_std_m]
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,29 +90,35 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--procedure", default="j2_pair")
     ap.add_argument("--speed", type=float, default=12.0)
     ap.add_argument("--sweep-deg", default="0:15")
+    ap.add_argument("--kernel-only", action="store_true",
+                    help="drop the deltas' noise maps (the covariance as before them, for comparison)")
     args = ap.parse_args(argv)
     config = parse_config(yaml.safe_load((ROOT / "configs" / f"{args.robot}.yaml").read_text()),
                           source=f"configs/{args.robot}.yaml", base_dir=ROOT / "configs")
     lo, hi = (float(v) for v in args.sweep_deg.split(":"))
     cand = design.Candidate(args.speed, 25.0, lo, hi, 1, 100.0, args.procedure)
     plan = make_plan(design.with_candidate(config, cand))
-    chi2, refused, k = [], 0, 0
+    chi2, refused, k, z = [], 0, 0, []
     for seed in range(1, args.seeds + 1):
-        c = one(config, plan, seed, args.gap_rate)
+        c = one(config, plan, seed, args.gap_rate, args.kernel_only)
         if "chi2" not in c:
             print(f"seed {seed}: {c.get('note')}")
             continue
         chi2.append(c["chi2"])
+        z.append(c["z"])
         refused += not c["passed"]
         k = c["dof"]
         print(f"seed {seed:3d}: χ² {c['chi2']:6.1f} (k {k}, limit {c['chi2_limit']:.1f}), shift {c['mass_shift_g']:+7.1f} g "
               f"{c['cog_shift_mm']:6.1f} mm{'  REFUSED' if not c['passed'] else ''}", flush=True)
     x = np.array(chi2)
     q = {p: cable_check.chi2_quantile(p, k) for p in (0.9, 0.99, 1.0 - cable_check.ALPHA)}
-    print(f"\n{args.robot}, {cand.describe()}, gap rate {args.gap_rate:g}, {len(x)} runs without a cable: mean χ² "
+    print(f"\n{args.robot}, {cand.describe()}, gap rate {args.gap_rate:g}{', kernel only' if args.kernel_only else ''}, {len(x)} runs without a cable: mean χ² "
           f"{x.mean():.2f} (k = {k}); above the χ²_k 90 % quantile {np.mean(x > q[0.9]):.3f}, 99 % "
           f"{np.mean(x > q[0.99]):.3f}, {1 - cable_check.ALPHA:g} {np.mean(x > q[1.0 - cable_check.ALPHA]):.3f} "
           f"(claimed {cable_check.ALPHA:g}); refused {refused} of {len(x)}")
+    rms = np.sqrt(np.mean(np.square(z), axis=0))
+    print(f"the general fit's own σ (noise only) against its error, rms(err/σ) m / cx / cy / cz: "
+          f"{' / '.join(f'{v:.2f}' for v in rms)}")
     return 0
 
 

@@ -80,7 +80,8 @@ def build_groups(sweeps: list[DeltaSweep], kin: Kinematics,
             Yj = Y[:, c, :]
             if np.max(np.abs(Yj)) < ZERO_ROW_TOL:
                 continue
-            groups.append(Group(f"{d.key.name}/j{j + 1}", d.key.name, Yj, np.asarray(d.dtau[:, j], float), j))
+            groups.append(Group(f"{d.key.name}/j{j + 1}", d.key.name, Yj, np.asarray(d.dtau[:, j], float), j,
+                                d.noise_map))
     return groups
 
 

@@ -7,7 +7,12 @@ combined grid, friction ripple, unmodelled slow effects), so the textbook s²·(
 optimistic: the covariance is a sandwich A⁻¹·B·A⁻¹ with A = YᵀWY and B the long-run variance
 of the weighted scores, estimated sweep by sweep with a Bartlett (Newey–West) kernel whose
 bandwidth follows the residuals' own autocorrelation length (``autocorrelation_time``); it
-never goes below the independent-noise covariance. An optional relative drive-gain
+never goes below the independent-noise covariance. Where the rows say how their noise is made
+(``Group.noise_map``: the deltas' interpolations of the empty run and of the legs), B comes from
+that map at every lag, scaled up where the residuals' kernel estimate shows more
+(``modelled_excess``): samples interpolated across one gap of a run's sample stream share one
+error, which neither a short kernel nor the residuals (whose mean over a group the fit's offsets
+absorb) can see. An optional relative drive-gain
 uncertainty per joint is propagated on top (``gain_covariance``).
 
 Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
@@ -17,7 +22,7 @@ drive-gain calibration (``long_run_scores`` for the standard error of a gain sca
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -37,6 +42,8 @@ class Group:
     Y: np.ndarray  # (n, p)
     y: np.ndarray  # (n,)
     joint: int = -1  # 0-based joint of these rows (-1: unknown)
+    # (n, s) sparse: how the rows' noise is made of independent sample noises (``DeltaSweep.noise_map``)
+    noise_map: Any = None
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,48 @@ def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
     return B
 
 
+def modelled_noise(noise_cov: Any, bandwidth: int | None, scores: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """The long-run variance of a sweep's scores from how its samples' noise is made, Σ_j σ_j²·Gᵀ·(K∘N·Nᵀ)·G.
+
+    ``noise_cov``: N·Nᵀ (sparse) of the sweep's (n, s) noise map N (``DeltaSweep.noise_map``): ε = N·e with
+    e independent, so Cov(ε) = σ²·N·Nᵀ. ``scores``: per joint, (G = W·Y of its rows, its residual
+    variance; σ_j² of one source is that over the mean of diag N·Nᵀ, the loaded and the empty run's
+    samples taken as equally noisy). K: the Bartlett kernel of ``bandwidth``, or all ones (None).
+    """
+    from scipy import sparse
+
+    S = sparse.coo_matrix(noise_cov)
+    k = 1.0
+    if bandwidth is not None:
+        lag = np.abs(S.row - S.col)
+        k = np.where(lag <= bandwidth, 1.0 - lag / (bandwidth + 1.0), 0.0)
+    D = sparse.csr_matrix((k * S.data, (S.row, S.col)), shape=S.shape)
+    mean_gain = float(np.mean(S.diagonal()))
+    out = np.zeros((scores[0][0].shape[1],) * 2)
+    for G, var in scores:
+        out += var / mean_gain * (G.T @ (D @ G))
+    return out
+
+
+def modelled_excess(B_kernel: np.ndarray, noise: Any, bandwidth: int, scores: list[tuple[np.ndarray, float]]
+                    ) -> np.ndarray:
+    """A sweep's long-run score variance: the noise map's (``modelled_noise``, every lag), scaled up by as much
+    as the residuals' kernel estimate ``B_kernel`` exceeds the map's at the same kernel (mean over the
+    parameters of their variance ratios; never scaled down).
+
+    The map counts a run of samples interpolated across one stream gap (of the empty run, or of a leg
+    under the combination's grid) as the one shared error it is, which a short kernel misses and which
+    the residuals cannot show: the fit's offsets absorb each group's mean, so the kernel estimate runs
+    low. It stays as the check on what the map does not know (friction ripple, slow unmodelled torques);
+    one ratio, not one per direction, so that its own scatter does not widen σ on its own.
+    """
+    S = noise @ noise.T
+    at_kernel = np.diag(modelled_noise(S, bandwidth, scores))
+    seen = at_kernel > 1e-12 * max(float(np.max(at_kernel)), 1e-300)
+    ratio = float(np.mean(np.diag(B_kernel)[seen] / at_kernel[seen])) if seen.any() else 1.0
+    return max(ratio, 1.0) * modelled_noise(S, None, scores)
+
+
 def weighted_lstsq(Y: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted LS via a column-scaled lstsq; returns θ and (YᵀWY)⁻¹."""
     sw = np.sqrt(w)
@@ -140,7 +189,8 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     cov_iid = s2 * inv
 
     # sandwich: long-run variance of the weighted scores, sweep by sweep (the joints of one
-    # sample share its instant, so their scores are summed before the lags are taken)
+    # sample share its instant, so their scores are summed before the lags are taken; the samples
+    # whose noise map is known: from it, and from the residuals only where they show more)
     B = np.zeros((p, p))
     tau: dict[str, float] = {}
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
@@ -151,7 +201,12 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
         m = len(z)
         t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
         tau[sweep] = t
-        B += long_run_scores(U, lag) * dof_factor
+        B_sweep = long_run_scores(U, lag) * dof_factor
+        noise = groups[members[0]].noise_map
+        if noise is not None and noise.shape[0] == m:
+            B_sweep = modelled_excess(B_sweep, noise, lag, [
+                (groups[i].Y * w[starts[i]:starts[i + 1], None], sigma[i] ** 2) for i in members])
+        B += B_sweep
     cov = inv @ B @ inv
     # never below the independent-noise covariance (the kernel estimate is itself noisy)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
