@@ -1,11 +1,9 @@
 """The move-code measure of issue 20: how many lines a driver family writes only to make its moves.
 
 Read with ``ast`` from a family folder (``drivers/<name>/``). Move code is the driver's move hooks
-(``_prepare_move``, ``_start_move``, ``_move_status``) and everything of the family they reach that the
-family's other contract members do not: a function, class or method reached from the connection, the
-stream, the stop, the activation or the state report (``SHARED_ROOTS``) is shared infrastructure. The
-optional capabilities (payload, inputs, pose) and public helpers are *not* roots: code a payload write
-shares with the moves (Modbus's command watch) or a helper made public stays move code.
+(``_prepare_move``, ``_start_move``, ``_move_status``) and everything of the family they reach that the rest
+of the driver contract does not reach. Public helpers are not roots (making a helper public does not take it
+out of the count); the optional capabilities are (Modbus's payload write shares the command watch).
 
 What counts as reaching:
 
@@ -19,9 +17,14 @@ What counts as reaching:
   annotates it (``self.sync: SyncProducer | None``) or assigns it from a constructor or an annotated
   function (``self.monitor = DriveMonitor(opts)``, ``SdoWatch(self).start()`` with ``-> "SdoWatch"``), the
   driver's ``options`` as its ``options_class``;
-- the rule for what it cannot resolve is strict: on the move side an attribute of an untyped receiver reaches
-  every family method of that name; on the shared side it reaches nothing. So a call the measure cannot see
-  through never takes code out of the count.
+- what it cannot type is guessed by name, and never in the driver's favour: on the move side an attribute of
+  an untyped receiver reaches every family method of that name; on the shared side it reaches only methods
+  the move code reaches by a guess too, never one the move code reaches through a resolved receiver. A name
+  clash with a shared call (``x.poll()`` somewhere in ``state()``) cannot take seen move code out of the count.
+
+Shared infrastructure is what ``SHARED_ROOTS`` reach (the contract's non-move hooks, ``state()``,
+``identify()``, the optional capabilities); a class whose methods or attributes the shared code uses is
+shared, its construction with it. The driver's ``__init__`` is neither side (it builds per-move state too).
 
 Code lines only: no blank lines, comments or docstrings.
 """
@@ -33,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 MOVE_HOOKS = ("_prepare_move", "_start_move", "_move_status")
-# the contract members the base calls outside a move, and the state report: what they reach is shared
+# the contract's members other than the moves (hooks, state report, optional capabilities): what they reach is shared
 SHARED_ROOTS = ("_open", "_close", "_read_sample", "_activate", "_stop_command", "_stop_fresh", "_command_alive",
                 "state", "identify", "describe_endpoint", "capabilities", "flange_pose", "read_payload",
                 "write_payload", "read_digital_input", "read_trigger", "joint_temperatures_c")
@@ -235,12 +238,13 @@ class _Env:
         return None
 
 
-def _refs(fam: _Family, key: Key, move_side: bool):
+def _refs(fam: _Family, key: Key, not_guessed: set[Key]):
+    """(key, typed) of what ``key`` reaches; an untyped attribute guesses by name, never a key in ``not_guessed``."""
     node, mod, cls = fam.nodes[key]
     if isinstance(node, ast.ClassDef) and (mod, node.name) not in fam.mixins | {fam.driver}:
         for name in ("__init__", "__post_init__"):
             if (k := fam.owner_key((mod, node.name), name)) is not None:
-                yield k
+                yield k, True
         walk = [n for stmt in node.body if not isinstance(stmt, ast.FunctionDef) for n in ast.walk(stmt)]
         walk += [n for b in node.bases + node.decorator_list for n in ast.walk(b)]
     else:
@@ -254,26 +258,30 @@ def _refs(fam: _Family, key: Key, move_side: bool):
             base = env.type_of(n.value)
             t = env.type_of(n)
             if base is not None and base[0] == "instance" and base[1] in fam.nodes:
-                yield base[1]  # an object of a family class in use: its class (and construction) too
+                yield base[1], True  # an object of a family class in use: its class (and construction) too
             if t is not None and t[0] in ("callable", "class"):
                 if t[1] not in {("self", h) for h in MOVE_HOOKS}:
-                    yield t[1]
+                    yield t[1], True
             elif base is None and getattr(n.value, "id", None) not in fam.external[mod] \
                     and not n.attr.startswith("__"):  # super().__init__ is the base's
-                yield from (k for k in by_name.get(n.attr, []) if (k[0] == "self" or "." in k[1])
-                            and k not in {("self", h) for h in MOVE_HOOKS})
+                yield from ((k, False) for k in by_name.get(n.attr, []) if (k[0] == "self" or "." in k[1])
+                            and k not in {("self", h) for h in MOVE_HOOKS} and k not in not_guessed)
         elif isinstance(n, ast.Name) and (r := fam.resolve_name(mod, n)) is not None and r in fam.nodes:
-            yield r
+            yield r, True
 
 
-def _reach(fam: _Family, roots, move_side: bool) -> set[Key]:
+def _reach(fam: _Family, roots, not_guessed: set[Key]) -> tuple[set[Key], set[Key]]:
+    """Everything reached from ``roots``, and what of it was reached through a resolved reference."""
     seen: set[Key] = set()
+    typed = set(roots)
     todo = list(roots)
     while todo:
         if (k := todo.pop()) not in seen:
             seen.add(k)
-            todo.extend(_refs(fam, k, move_side))
-    return seen
+            for r, is_typed in _refs(fam, k, not_guessed):
+                typed |= {r} if is_typed else set()
+                todo.append(r)
+    return seen, typed
 
 
 def _code_lines(node: ast.AST, lines: list[str]) -> int:
@@ -293,11 +301,12 @@ def move_code(folder: Path, package: str | None = None) -> tuple[int, list[str]]
     fam = _parse(folder, package or f"payload_agent.drivers.{folder.name}")
     hooks = [("self", h) for h in MOVE_HOOKS if ("self", h) in fam.nodes]
     shared = [("self", r) for r in SHARED_ROOTS if ("self", r) in fam.nodes]
-    shared_keys = _reach(fam, shared, False)
+    moved, moved_typed = _reach(fam, hooks, set())
+    shared_keys, _ = _reach(fam, shared, moved_typed)
     # a class whose methods the shared code uses is shared, its construction with it
     used = {fam.nodes[k][2] for k in shared_keys if fam.nodes[k][2] is not None} | (shared_keys & set(fam.classes))
     shared_keys |= {k for k, (_, _, cls) in fam.nodes.items() if k in used or (cls in used and k[1].rpartition(".")[2]
                                                                               in ("__init__", "__post_init__"))}
-    own = _reach(fam, hooks, True) - shared_keys
+    own = moved - shared_keys
     return (sum(_code_lines(fam.nodes[k][0], fam.modules[fam.nodes[k][1]][1]) for k in own),
             sorted(f"{m}.{n}" for m, n in own))

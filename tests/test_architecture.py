@@ -241,7 +241,8 @@ def test_move_code_measure_counts_methods_of_the_familys_classes(tmp_path):
     (``self.watch: Watch | None``), a constructor-typed one (``self.sync = Sync()``), the driver's options, a
     local alias of a typed expression, an annotated ``drv`` parameter and an annotated return; a method the
     connection, the stream, the stop or the state report also reaches does not, nor does its class; an
-    attribute the measure cannot type reaches every family method of its name on the move side only."""
+    attribute the measure cannot type reaches every family method of its name from the moves, and from the
+    shared code only those the moves reach by such a guess too."""
     fam = tmp_path / "fam"
     fam.mkdir()
     (fam / "driver.py").write_text(
@@ -260,7 +261,9 @@ def test_move_code_measure_counts_methods_of_the_familys_classes(tmp_path):
         "        self.options.to_counts(target)\n"
         "        return motion.start(self)\n"
         "    def _move_status(self):\n"
-        "        return mystery.untyped_only()\n", encoding="utf-8")
+        "        return mystery.untyped_only()\n"
+        "    def _close(self):\n"
+        "        other.confirm()\n", encoding="utf-8")  # a guess never shares what the moves reach typed
     (fam / "motion.py").write_text(
         "def start(drv: 'FamDriver'):\n"
         "    s = drv.sync\n"
