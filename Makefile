@@ -20,10 +20,11 @@ sim: $(VENV)/.installed
 
 # two workers (pytest-xdist): each has its own state folder (tests/conftest.py), simulated controllers bind
 # ephemeral ports or a free 127.0.0.x, so the files run side by side; a file stays on one worker, in its own
-# order (its module-scoped simulators and CLI runs are built once, as in a serial run)
+# order (its module-scoped simulators and CLI runs are built once, as in a serial run). Files go out slowest
+# first (tests/conftest.py SLOWEST_FIRST): --no-loadscope-reorder keeps xdist from sorting them by test count
 TEST_WORKERS ?= 2
 test: $(VENV)/.installed browser
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # The report's screenshot tests render in headless Chromium (Debian package `chromium`): installed
 # here when missing and we are root with apt-get; otherwise those tests skip (CI makes them fail).

@@ -64,3 +64,20 @@ def ec66_sim():
     robot.start()
     yield robot
     robot.close()
+
+
+# The slowest files first (worker seconds per file, from --durations / junit times; README.md): with
+# `--dist loadfile` a worker takes the next file while its last two tests still run, so a long file collected
+# late leaves the other worker idle at the end. xdist would order files by their number of tests (which puts
+# the few-but-long session files last); `make test` passes --no-loadscope-reorder so this order stands.
+SLOWEST_FIRST = ("test_driver_conformance.py", "test_report.py", "test_report_inertia.py", "test_modbus_rtu.py",
+                 "test_verify.py", "test_minimal_driver.py", "test_workflow.py", "test_ur_driver.py",
+                 "test_cli_session.py", "test_ur_end_to_end.py", "test_end_to_end.py", "test_canopen_driver.py",
+                 "test_canopen_end_to_end.py", "test_durability.py", "test_run_format.py", "test_fault_matrix.py",
+                 "test_quality.py", "test_empty_run_check.py", "test_api.py", "test_plan_target.py")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Files in SLOWEST_FIRST order, then the rest as collected; each file's tests keep their own order."""
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))

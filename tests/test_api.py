@@ -23,6 +23,7 @@ def sim_robot(tmp_path, **sim):
     data["driver"] = {"type": "inproc", "name": f"api-{tmp_path.name}"}
     data["effort"] = {"unit": "Nm", "gains_nm_per_unit": 1.0}
     data["procedure"]["inertia"] = False
+    data["procedure"]["name"] = "j2_pair"  # two sweeps, not four: the wrapper is tested, not the procedure
     data["safety"]["unattended_without_pose_check"] = True  # it reports no flange pose (the YAML acknowledges)
     data["simulation"].update(sim)
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}

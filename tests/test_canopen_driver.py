@@ -59,15 +59,21 @@ def rig(request):
 
 
 def move_with_fault(drv, fake, fault, delay_s=0.15, **params):
-    """Start a move, inject ``fault`` ``delay_s`` into it; (exception, fault time, samples)."""
+    """Start a move, inject ``fault`` ``delay_s`` after its set-points reached the drives (the power-up before
+    them takes longer on a loaded host); (exception, fault time, samples)."""
     samples = []
     drv.start_stream(samples.append)
     t_fault = []
+    t_call = time.monotonic()
 
     def inject():
+        deadline = time.monotonic() + 5.0
+        while not any(e.kind == "move" and e.t >= t_call for e in list(fake.events)) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        time.sleep(delay_s)
         t_fault.append(time.monotonic())
         fake.inject_fault(fault, **params)
-    timer = threading.Timer(delay_s, inject)
+    timer = threading.Thread(target=inject, daemon=True)
     timer.start()
     with pytest.raises((SupervisionTrip, MotionAbortedError)) as exc:
         drv.move_joints(TARGET, SLOW, ACCEL, 30.0)

@@ -46,16 +46,26 @@ def _text(page: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def given(cfg, tmp_path_factory):  # noqa: F811
-    run = make_run(tmp_path_factory.mktemp("inertia"), cfg)
+def base_run(cfg, tmp_path_factory):  # noqa: F811
+    """One recorded and analysed run; each test's run is a copy of it (recording and analysis run once)."""
+    return make_run(tmp_path_factory.mktemp("inertia_base"), cfg)
+
+
+def _copy(run_dir, to):
+    return shutil.copytree(run_dir, to / "runs" / run_dir.name)
+
+
+@pytest.fixture(scope="module")
+def given(cfg, base_run, tmp_path_factory):  # noqa: F811
+    run = _copy(base_run, tmp_path_factory.mktemp("inertia"))
     res, result = _with_inertia(run, TENSOR, STD, truth=TENSOR * 1.02)
     assert res.refused is None
     return write_report(run, cfg), result
 
 
 @pytest.fixture(scope="module")
-def refused(cfg, tmp_path_factory):  # noqa: F811
-    run = make_run(tmp_path_factory.mktemp("inertia_refused"), cfg)
+def refused(cfg, base_run, tmp_path_factory):  # noqa: F811
+    run = _copy(base_run, tmp_path_factory.mktemp("inertia_refused"))
     res, result = _with_inertia(run, TENSOR * 0.05, STD)  # a light, compact tool: σ far above 25 % of λmax
     assert res.refused
     return write_report(run, cfg), res.refused
@@ -89,8 +99,8 @@ def test_a_refused_inertia_says_so_and_why_and_shows_no_controller_form(refused)
     assert "not supported, not to be used" in text and "set_target_payload / setTargetPayload" not in text
 
 
-def test_a_result_without_the_inertia_part_has_no_inertia_section(cfg, tmp_path):  # noqa: F811
-    run = make_run(tmp_path, cfg)
+def test_a_result_without_the_inertia_part_has_no_inertia_section(cfg, base_run, tmp_path):  # noqa: F811
+    run = _copy(base_run, tmp_path)
     assert "<h2>Inertia</h2>" not in write_report(run, cfg).read_text(encoding="utf-8")
 
 

@@ -23,7 +23,7 @@ from payload_agent.drivers.move_status import DONE, RUNNING, MoveStatus, aborted
 from payload_agent.drivers.canopen.pdo import (RPDO1_COB, RPDO3_COB, RPDO4_COB, RPDO_DECELERATION, RPDO_PROFILE,
                                                RPDO_SETPOINT)
 from payload_agent.errors import CommunicationError
-from payload_agent.model.profile import synchronised_profiles, whole_unit_rates
+from payload_agent.model.profile import JointProfiles, synchronised_profiles, whole_unit_rates
 
 if TYPE_CHECKING:
     from payload_agent.drivers.canopen.driver import CANopenDriver
@@ -36,12 +36,11 @@ FRESH_STOP_WAIT_S = 0.3
 MIN_ACK_WAIT_S = 0.5  # set-point acknowledge: at least this, or 20 SYNC periods
 
 
-def _profile_frames(drv: "CANopenDriver", j: int, speed_rad_s: float, accel_rad_s2: float, travel_counts: int,
-                    duration_s: float) -> list[tuple[int, bytes]]:
-    """RPDO3 (profile velocity, acceleration) and RPDO4 (deceleration = acceleration) of joint ``j``, in
-    whole counts (``model.profile.whole_unit_rates``: rounded up, so no joint arrives late)."""
+def _profile_frames(drv: "CANopenDriver", j: int, prof: JointProfiles, travel_counts: int) -> list[tuple[int, bytes]]:
+    """RPDO3 (profile velocity, acceleration) and RPDO4 (deceleration = acceleration) of joint ``j``'s trapezoid
+    in ``prof``, in whole counts (``model.profile.whole_unit_rates``: rounded up, so no joint arrives late)."""
     cpr, nid = drv.options.counts_per_rad[j], drv.options.node_ids[j]
-    v, a = whole_unit_rates(speed_rad_s * cpr, accel_rad_s2 * cpr, travel_counts, duration_s)
+    v, a = whole_unit_rates(prof.speeds_rad_s[j] * cpr, prof.accels_rad_s2[j] * cpr, travel_counts, prof.duration_s)
     return [(RPDO3_COB + nid, RPDO_PROFILE.pack(v, a)), (RPDO4_COB + nid, RPDO_DECELERATION.pack(a))]
 
 
@@ -67,18 +66,17 @@ def start(drv: "CANopenDriver", target: np.ndarray, speed_rad_s: float, accel_ra
     # a joint moves if its target changed; before its first set-point, if it stands outside the target window
     moving = [j for j in range(drv.n) if (counts[j] != drv.commanded[j] if drv.commanded[j] is not None
                                           else abs(counts[j] - m.position[j]) > o.window_counts(j))]
-    mv = ProfileMove(moving, counts)
     if not moving:
-        return mv
-    drv.sdo_watch.confirm_alive(drv.check_drives)  # a drive late on SDO trips here, before any set-point
-    drv.check_drives()  # nothing is sent once the supervision has stopped the arm
-    profile = [frame for j in moving for frame in
-               _profile_frames(drv, j, float(prof.speeds_rad_s[j]), float(prof.accels_rad_s2[j]),
-                               counts[j] - m.position[j], prof.duration_s)]
-    mv.seq, mv.phase = list(m.seq), "ack"
-    mv.ack_deadline = time.monotonic() + max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s)
+        return ProfileMove(moving, counts)
+    # a drive late on SDO trips here, before any set-point; nothing is sent once the supervision stopped the arm
+    drv.sdo_watch.confirm_alive(drv.check_drives)
+    profile = [frame for j in moving for frame in _profile_frames(drv, j, prof, counts[j] - m.position[j])]
+    mv = ProfileMove(moving, counts, "ack", list(m.seq),
+                     ack_deadline=time.monotonic() + max(MIN_ACK_WAIT_S, 20 * drv.nominal_period_s))
     # profiles first, then the set-points: all act at the same SYNC
     drv.sync.after_next_sync(profile + _setpoints(drv, mv, CW_ENABLE_OPERATION | CW_NEW_SETPOINT))
+    for j in moving:  # each drive's last set-point since enabled (any stop forgets them: ``_forget_enabled``)
+        drv.commanded[j] = counts[j]
     return mv
 
 
@@ -102,9 +100,7 @@ def status(drv: "CANopenDriver", mv: ProfileMove) -> MoveStatus:
     if mv.phase == "reach" and m.pending(lambda j, sw: not sw & SW_SETPOINT_ACK and bool(sw & SW_TARGET_REACHED),
                                          mv.seq, mv.moving):
         return RUNNING
-    for j in mv.moving:  # (the base checks that the arm stands at the target)
-        drv.commanded[j] = mv.counts[j]
-    return DONE
+    return DONE  # (the base checks that the arm stands at the target)
 
 
 def _forget_enabled(drv: "CANopenDriver") -> None:

@@ -31,6 +31,8 @@ def enable_all(drv: "CANopenDriver") -> None:
     """OPERATION ENABLED on every drive (the mode of operation is set at connect:
     ``device.set_profile_position_mode``); RobotNotReadyError names the drive that cannot get there."""
     m, timeout = drv.monitor, drv.options.enable_timeout_s
+    # no power stage is energised on a drive whose SDO server is gone (its error code, its stop confirmation)
+    drv.sdo_watch.confirm_alive(drv.check_drives)
     for _ in range(MAX_STEPS):
         states = m.states()
         todo = [j for j, st in enumerate(states) if st != OPERATION_ENABLED]

@@ -114,16 +114,19 @@ class SdoWatch:
         self._thread = None
 
     def confirm_alive(self, poll: Callable[[], None]) -> None:
-        """Return once every drive answered an SDO request sent after this call; ``poll()`` raises on a trip."""
+        """Return once every drive answered an SDO request sent after this call; ``poll()`` runs first and then
+        while waiting, and raises on a trip (or a pending drive fault). Before set-points go out, and before the
+        power stages are enabled: a drive whose SDO server is gone could neither report its error code nor
+        confirm a stop over SDO."""
         t0 = time.monotonic()
         deadline = t0 + max(GATE_TIMEOUT_S, 2 * (self.drv.options.sdo_timeout_s + self.drv.monitor.sdo_reply_limit_s))
         self._hurry.set()
         try:
             while True:
+                poll()  # the monitor's judgement: a drive alive on PDO but late on SDO trips the supervision
                 late = [j for j, t in enumerate(self.answered_t) if t < t0]
                 if not late:
                     return
-                poll()  # the monitor's judgement: a drive alive on PDO but late on SDO trips the supervision
                 if time.monotonic() > deadline:
                     raise CommunicationError(f"{self.drv.labels[late[0]]} did not answer an SDO request within "
                                              f"{deadline - t0:.2f} s before the move; no set-point was sent")
