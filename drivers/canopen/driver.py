@@ -4,8 +4,8 @@ Connect (``_open``): open the bus, put every drive in NMT PRE-OPERATIONAL, check
 drive (0x1000), read its identity, write its producer heartbeat (0x1017), its consumer heartbeat
 of the agent and its reaction to losing it (0x1016, 0x6007: ``watch``), its PDO layout
 (``pdo.configure_pdos``), its quick stop deceleration and target window and profile position mode
-(0x6060 = 1, confirmed in 0x6061), read its rated torque or current (0x6076 / 0x6075), start NMT and the SYNC producer (which also sends the agent's
-heartbeat), and wait for every drive's first TPDO; then ``watch.SdoWatch`` polls the drives' SDO
+(0x6060 = 1, confirmed in 0x6061), read its rated torque or current (0x6076 / 0x6075), start NMT and
+the SYNC producer (which also sends the agent's heartbeat), and wait for every drive's first TPDO; then ``watch.SdoWatch`` polls the drives' SDO
 servers until close. A drive found in FAULT is reported by ``state()`` (motion refused, error code 0x603F
 named) and reset only with ``driver.clear_faults: true``, which logs a warning and says so in the
 state's detail: never silently.
