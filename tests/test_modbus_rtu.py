@@ -118,7 +118,8 @@ def test_identification_over_rtu(tmp_path):
                                   "timeout_s": 3.0, "heartbeat_timeout_s": 3.0, "ack_timeout_s": 5.0})
     data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
     data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
-    data = tweak(data, "procedure.bidirectional", False)  # 4 sweeps a run: a shorter test
+    data = tweak(data, "procedure.bidirectional", False)
+    data = tweak(data, "procedure.name", "j2_pair")  # 2 sweeps a run: the RTU path is under test, not the procedure
     data = tweak(data, "simulation.noise_nm", 0.5)
     data = tweak(data, "simulation.noise_rest_nm", 0.5)  # one level, moving or standing
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
