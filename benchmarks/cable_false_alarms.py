@@ -29,21 +29,28 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def kept(n: int, rng: np.random.Generator, gap_rate: float) -> np.ndarray:
+    """Which of n samples a stream with random gaps keeps (``gap_rate``: gap starts per kept sample, each gap
+    10-29 samples long)."""
+    keep = np.ones(n, bool)
+    i = 0
+    while i < n:
+        if rng.random() < gap_rate:
+            k = int(rng.integers(10, 30))
+            keep[i:i + k] = False
+            i += k
+        else:
+            i += 1
+    return keep
+
+
 def thin(sweeps: dict, rng: np.random.Generator, gap_rate: float) -> dict:
-    """Each sweep without the samples of random gaps (``gap_rate``: gap starts per kept sample)."""
+    """Each sweep without the samples of random gaps (``kept``)."""
     if gap_rate <= 0:
         return sweeps
     out = {}
     for key, sd in sweeps.items():
-        keep = np.ones(len(sd.t), bool)
-        i = 0
-        while i < len(keep):
-            if rng.random() < gap_rate:
-                n = int(rng.integers(10, 30))
-                keep[i:i + n] = False
-                i += n
-            else:
-                i += 1
+        keep = kept(len(sd.t), rng, gap_rate)
         out[key] = dataclasses.replace(sd, t=sd.t[keep], q=sd.q[keep], effort_nm=sd.effort_nm[keep])
     return out
 

@@ -32,25 +32,35 @@ def kin():
     return load_config(CONFIG).robot.kinematics
 
 
-def deltas(kin, rng, noise_nm: float, gain_std: float) -> dict:
-    """Combined sweeps; each (still joint, standing angle) gets one gain error drawn N(0, gain_std)."""
-    eps: dict[tuple[int, float], float] = {}
-    out = {}
+def _sweep_rows(kin):
+    """(pose, joint, q, Y) of every combined sweep: joints 2 and 3 over 55° from each pose, at the sweep speed (the
+    model has its centripetal term); Y the payload regressor's mass and first-moment columns."""
     for pose, q0 in POSES.items():
         for joint in (2, 3):
             q = np.tile(np.radians(q0), (N, 1))
             q[:, joint - 1] += np.linspace(0.0, np.radians(55.0), N)
             qd = np.zeros_like(q)
-            qd[:, joint - 1] = SPEED_RAD_S  # the model has the centripetal term of the sweep speed
-            Y = payload_regressor(kin, q, qd, np.zeros_like(q))[:, :, :4]
-            dtau = Y @ THETA
-            for j in range(6):
-                if j != joint - 1:
-                    e = eps.setdefault((j, round(float(q[0, j]), 6)), float(rng.normal(0.0, gain_std)))
-                    dtau[:, j] *= 1.0 + e
-            dtau = dtau + rng.normal(0.0, noise_nm, dtau.shape)
-            key = SweepKey(pose, joint, "both", 10.0)
-            out[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
+            qd[:, joint - 1] = SPEED_RAD_S
+            yield pose, joint, q, payload_regressor(kin, q, qd, np.zeros_like(q))[:, :, :4]
+
+
+def _with_still_gains(dtau, joint, q, gain_of) -> np.ndarray:
+    """dtau with every still joint's torque scaled by 1 + gain_of((joint index, standing angle))."""
+    for j in range(6):
+        if j != joint - 1:
+            dtau[:, j] *= 1.0 + gain_of((j, round(float(q[0, j]), 6)))
+    return dtau
+
+
+def deltas(kin, rng, noise_nm: float, gain_std: float) -> dict:
+    """Combined sweeps; each (still joint, standing angle) gets one gain error drawn N(0, gain_std)."""
+    eps: dict[tuple[int, float], float] = {}
+    out = {}
+    for pose, joint, q, Y in _sweep_rows(kin):
+        dtau = _with_still_gains(Y @ THETA, joint, q, lambda k: eps.setdefault(k, float(rng.normal(0.0, gain_std))))
+        dtau = dtau + rng.normal(0.0, noise_nm, dtau.shape)
+        key = SweepKey(pose, joint, "both", 10.0)
+        out[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
     return out
 
 
@@ -112,20 +122,12 @@ def exact(kin, theta, eps: dict, scale=None) -> dict:
     """Noise-free combined sweeps of payload ``theta`` with the gain error ``eps[(joint, angle)]`` on every still
     joint (the same errors in every run of the arm: ripple frozen at the angle), at calibrated ``scale``."""
     out = {}
-    for pose, q0 in POSES.items():
-        for joint in (2, 3):
-            q = np.tile(np.radians(q0), (N, 1))
-            q[:, joint - 1] += np.linspace(0.0, np.radians(55.0), N)
-            qd = np.zeros_like(q)
-            qd[:, joint - 1] = SPEED_RAD_S
-            dtau = payload_regressor(kin, q, qd, np.zeros_like(q))[:, :, :4] @ theta
-            for j in range(6):
-                if j != joint - 1:
-                    dtau[:, j] *= 1.0 + eps.get((j, round(float(q[0, j]), 6)), 0.0)
-            if scale is not None:
-                dtau = dtau * scale
-            key = SweepKey(pose, joint, "both", 10.0)
-            out[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
+    for pose, joint, q, Y in _sweep_rows(kin):
+        dtau = _with_still_gains(Y @ theta, joint, q, lambda k: eps.get(k, 0.0))
+        if scale is not None:
+            dtau = dtau * scale
+        key = SweepKey(pose, joint, "both", 10.0)
+        out[key] = DeltaSweep(key, q, dtau, SPEED_RAD_S)
     return out
 
 

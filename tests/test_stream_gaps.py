@@ -5,6 +5,7 @@ by a run of samples interpolated across one gap once, not as many independent ob
 import numpy as np
 from scipy import sparse
 
+from benchmarks.cable_false_alarms import kept
 from payload_agent.analysis.combine import combine_pair
 from payload_agent.analysis.delta import DeltaSweep, subtract
 from payload_agent.recording.rundata import SweepData
@@ -18,16 +19,8 @@ NOISE_NM = 0.5
 
 
 def _thin(n: int, rng: np.random.Generator, gap_rate: float) -> np.ndarray:
-    """Which of n samples a stream with gaps keeps (as ``benchmarks.cable_false_alarms.thin``)."""
-    keep = np.ones(n, bool)
-    i = 0
-    while i < n:
-        if rng.random() < gap_rate:
-            k = int(rng.integers(10, 30))
-            keep[i:i + k] = False
-            i += k
-        else:
-            i += 1
+    """Which of n samples a stream with gaps keeps (``benchmarks.cable_false_alarms.kept``), its ends recorded."""
+    keep = kept(n, rng, gap_rate)
     keep[:5] = keep[-5:] = True  # the sweep's ends are recorded (the windows must overlap)
     return keep
 
