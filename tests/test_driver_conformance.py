@@ -193,6 +193,16 @@ def test_a_move_never_reported_finished_is_stopped(rig):
     assert ctrl.first_event_after("stop", t0) is not None
 
 
+def test_the_finish_grace_is_the_yamls_gap_limit_where_that_allows_a_later_controller(tmp_path):
+    """A YAML that allows the stream longer silences (a busy host) allows the controller's "finished" as late."""
+    import dataclasses
+
+    config = load_sim_config("elite_ec", tmp_path)
+    for gap_s, grace_s in ((1.0, 1.0), (0.1, 0.5)):
+        safety = dataclasses.replace(config.safety, max_stream_gap_s=gap_s)
+        assert supervision(dataclasses.replace(config, safety=safety)).finish_grace_s == grace_s
+
+
 def test_our_stop_from_another_thread_ends_our_move_and_the_next_one_runs(rig):
     drv, ctrl, _ = rig
     start = np.asarray(drv.latest_sample.q)
