@@ -84,6 +84,10 @@ class ModbusBus:
         if ep.transport == "tcp":
             client = ModbusTcpClient(ep.host, port=ep.port, timeout=ep.timeout_s, retries=ep.retries,
                                      reconnect_delay=0, reconnect_delay_max=0)
+        elif ep.device_server:  # RTU frames over the device server's TCP connection, as on the line
+            host, port = ep.device_server
+            client = ModbusTcpClient(host, port=port, framer=FramerType.RTU, timeout=ep.timeout_s,
+                                     retries=ep.retries, reconnect_delay=0, reconnect_delay_max=0)
         else:
             client = ModbusSerialClient(ep.serial_port, framer=FramerType.RTU, baudrate=ep.baudrate,
                                         parity=ep.parity, stopbits=ep.stopbits, bytesize=ep.bytesize,
@@ -186,12 +190,16 @@ class ModbusBus:
 
     def _drain(self, client) -> None:
         """Wait out the line's silence and throw away whatever arrived (RTU after a timeout)."""
-        serial = getattr(client, "socket", None)
+        line = getattr(client, "socket", None)  # a serial port, or the device server's TCP socket
         try:
             time.sleep(max(0.005, 35.0 / self.endpoint.baudrate))  # 3.5 characters and then some
-            if serial is not None:
-                serial.reset_input_buffer()
-        except Exception:
+            if hasattr(line, "reset_input_buffer"):
+                line.reset_input_buffer()
+            elif line is not None:
+                line.setblocking(False)
+                while line.recv(4096):
+                    pass
+        except Exception:  # nothing (more) to read: BlockingIOError
             pass
         self._stale = False
 

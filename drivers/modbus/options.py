@@ -8,6 +8,7 @@ YAML ``driver`` mapping (every key validated by ``plan`` without connecting)::
       host: 192.168.1.10          # tcp: the controller's address
       port: 502
       # serial_port: /dev/ttyUSB0 # rtu: the serial device; baudrate, parity, stopbits, bytesize
+      #   or socket://192.168.1.50:4001: a serial device server's TCP port in raw mode (RTU frames over TCP)
       unit_id: 1                  # Modbus unit (device) id
       preset: ur_modbus_server    # a map in drivers/modbus/presets/, or leave out and give a full map
       map:                        # entries to add or change (key by key); null removes an optional one
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit
 
 from payload_agent.configuration.options import option, parse_options
 from payload_agent.drivers.base import DriverOptions
@@ -45,6 +47,14 @@ class Endpoint:
     timeout_s: float
     retries: int
 
+    @property
+    def device_server(self) -> tuple[str, int] | None:
+        """RTU through a serial device server: its host and TCP port (``socket://host:port``), else None."""
+        if self.transport != "rtu" or not self.serial_port.startswith("socket://"):
+            return None
+        url = urlsplit(self.serial_port)
+        return url.hostname, url.port
+
     def describe(self) -> str:
         if self.transport == "tcp":
             return f"{self.host}:{self.port} (Modbus TCP, unit {self.device_id})"
@@ -56,7 +66,8 @@ class ModbusOptions(DriverOptions):
     transport: str = option("tcp", choices=("tcp", "rtu"), help="tcp or rtu")
     host: str | None = option(None, help="the controller's IP address (tcp)")
     port: int = option(502, min=0, max=65535, help="Modbus TCP port (0: a simulated server picks a free one)")
-    serial_port: str | None = option(None, help="serial device (rtu), e.g. /dev/ttyUSB0")
+    serial_port: str | None = option(None, help="serial device (rtu), e.g. /dev/ttyUSB0, or a serial device "
+                                                "server's TCP port, socket://192.168.1.50:4001")
     baudrate: int = option(115200, min=300, max=4_000_000)
     parity: str = option("N", choices=("N", "E", "O"))
     stopbits: int = option(1, choices=(1, 2))
@@ -89,6 +100,15 @@ def parse_modbus_options(data: Any, key_path: str = "driver", source: str | None
         raise ConfigError(f"{key_path}.host", "Modbus TCP needs the controller's address (host)", source)
     if opts.transport == "rtu" and not opts.serial_port:
         raise ConfigError(f"{key_path}.serial_port", "Modbus RTU needs the serial device (serial_port)", source)
+    if opts.transport == "rtu" and opts.serial_port.startswith("socket://"):
+        try:
+            url = urlsplit(opts.serial_port)
+            bad = not url.hostname or url.port is None or url.path not in ("", "/") or url.query
+        except ValueError:  # a port that is no number or out of range
+            bad = True
+        if bad:
+            raise ConfigError(f"{key_path}.serial_port", f"{opts.serial_port!r}: a serial device server is "
+                                                         "socket://HOST:PORT (its TCP data port, raw mode)", source)
     if opts.preset is None and opts.map is None:
         raise ConfigError(f"{key_path}.map", "give a register map (map) or a preset name (preset) plus overrides; "
                                              "see docs/modbus.md", source)

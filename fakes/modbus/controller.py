@@ -49,7 +49,7 @@ class SimulatedModbusRobot(SimulatedController):
 
     def __init__(self, robot: SimRobot, regmap: RegisterMap, *, gains: Sequence[float],
                  gain_error: Sequence[float] = (1.0,) * 6, transport: str = "tcp", host: str = "127.0.0.1",
-                 unit_id: int = 1, baudrate: int = 115200, owns_robot: bool = False):
+                 unit_id: int = 1, baudrate: int = 115200, device_server: bool = False, owns_robot: bool = False):
         super().__init__()
         self._robot = robot
         self._owns_robot = owns_robot
@@ -60,7 +60,7 @@ class SimulatedModbusRobot(SimulatedController):
         self.store = RegisterStore(valid_ranges(list(regmap.entries.values()), regmap.bridge_gaps), unit_id,
                                    any_unit=(transport == "tcp"))
         self.store.on_write = self._on_write
-        self.server = ModbusServerThread(self.store, transport, require_loopback(host), baudrate)
+        self.server = ModbusServerThread(self.store, transport, require_loopback(host), baudrate, device_server)
         self.image = SensorImage(self.store, regmap, robot.spec.dh, gains, gain_error)
         self.program = HandshakeProgram(self.store, regmap, robot, self.record_event)
         update = regmap.update_hz or DEFAULT_UPDATE_HZ
@@ -98,7 +98,10 @@ class SimulatedModbusRobot(SimulatedController):
         host = opts.host if opts.transport == "tcp" else "127.0.0.1"
         return cls(robot, regmap, gains=config.effort.gains_nm_per_unit, gain_error=sim.drive_gain_error,
                    transport=opts.transport, host=host or "127.0.0.1", unit_id=opts.unit_id,
-                   baudrate=opts.baudrate, owns_robot=True)
+                   baudrate=opts.baudrate, owns_robot=True,
+                   # the YAML names a serial device server's TCP port (pyserial URL): the simulation stands one
+                   # in front of its device, else a tty
+                   device_server=opts.transport == "rtu" and opts.serial_port.startswith("socket://"))
 
     @staticmethod
     def _check_config(config: "Config", regmap: RegisterMap) -> None:
