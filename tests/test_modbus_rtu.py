@@ -91,11 +91,12 @@ def test_rtu_unit_id_mismatch_gets_no_reply():
         fake.close()
 
 
-def test_rtu_a_late_reply_in_the_way_of_a_read_is_drained_and_the_read_asked_again():
+@pytest.mark.parametrize("line", [TTY, DEVICE_SERVER], ids=["tty", "device_server"])
+def test_rtu_a_late_reply_in_the_way_of_a_read_is_drained_and_the_read_asked_again(line):
     """RTU has no transaction id: the late answer to a read that timed out can arrive while the next read waits,
     and looks like that read's answer. The bus recognises it (another register count), drains the line and asks
     again, once: a read changes nothing on the device (a busy host made the move's first read fail this way)."""
-    fake, options = _rtu()
+    fake, options = _rtu(line)
     regmap = resolve_map(options)
     [joints] = group_reads([regmap[n] for n in ("joint_angles", "joint_efforts", "timestamp")], regmap.bridge_gaps)
     [status] = group_reads([regmap[n] for n in ("status", "ack_seq", "error_code")], regmap.bridge_gaps)
