@@ -25,8 +25,8 @@ as ``plan`` checks it, the approach too when where the robot stands is given), a
 that meets the target in the least robot time (the approach move counted then: procedures start in
 different poses), with the whole trade-off table. The procedures tried are the configured one and the bundled procedures of
 ``PROCEDURES``: joint-2 sweeps only in two or three tool orientations (procedures/j2_pair.yaml,
-j2_triple.yaml, j2_orthogonal.yaml), which carry the payload's weight on the longest lever (links 2 and 3
-collinear) and need no 90° joint-2 travel to a joint-3 sweep's start. ``covariance_terms`` keeps each part
+j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear) and
+need no 90° joint-2 travel to a joint-3 sweep's start. ``covariance_terms`` keeps each part
 of a prediction apart (``benchmarks.plan_budget``). The CLI hook is ``plan --target-std G,MM``.
 """
 
@@ -55,7 +55,7 @@ ACCELS_PERCENT = (40.0, 100.0)
 # as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
 REPETITIONS = (1,)
 # "" = the configured procedure; the others are bundled (procedures/*.yaml)
-PROCEDURES = ("", "j2_pair", "j2_triple", "j2_orthogonal")
+PROCEDURES = ("", "j2_pair", "j2_triple")
 
 
 @dataclass(frozen=True)
