@@ -45,7 +45,7 @@ from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_c
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
 # sweep speeds above safety.max_speed_percent are refused by the gate, as ``plan`` would refuse them
-SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 25.0)
+SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 22.5, 25.0)
 TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
 # long ranges pay where the wrist-torque term binds the centre of mass: the wrist offsets of a pose are
 # separable from m·c only through the change of the wrist's gravity torque along the sweep (issue 22)
