@@ -155,6 +155,10 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--known-mass", type=float, required=True, metavar="KG", help="reference payload mass, kg")
     cal.add_argument("--known-cog", required=True, metavar="X,Y,Z",
                      help="reference centre of mass in mm, flange frame, e.g. 0,0,80")
+    cal.add_argument("--speed-percent", type=float, metavar="PERCENT",
+                     help="the calibration's sweep speed instead of the YAML's procedure.speed_percent: slower pins "
+                          "the drive gains tighter, and every later run carries their uncertainty (a calibration is "
+                          "run once per robot, not per tool)")
     _session_args(cal)
 
     hist = add("history", "list past identifications of this robot", json_ok=True)

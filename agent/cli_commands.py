@@ -9,7 +9,6 @@ PayloadAgentError and turned into exit codes by ``cli.main``.
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 from typing import Any, Callable
 
@@ -51,11 +50,11 @@ def _operator_ui(con: Console, mode: str):
                       progress_stream=con.human)
 
 
-def _session(args, con: Console, mode: str, on_cell=None, **extra):
+def _session(args, con: Console, mode: str, on_cell=None, adjust=None, **extra):
     from payload_agent.recording.state import describe_locations
     from payload_agent.session.runner import SimulatedCellUse, run_identification
 
-    config = load_robot(args)
+    config = load_robot(args) if adjust is None else adjust(load_robot(args))  # adjust: a command-line override
     con.say(describe_locations(config))
     try:  # checks everything `plan` checks before anything starts (session.preflight), once
         outcome = run_identification(config, _run_options(args, mode, **extra), _operator_ui(con, mode),
@@ -131,24 +130,17 @@ def cmd_baseline(args, con: Console) -> int:
 
 
 def cmd_calibrate(args, con: Console) -> int:
-    from payload_agent.types import PayloadSetting
+    from payload_agent.calibrate_args import reference_payload, with_speed
 
-    try:
-        cog = [float(v) for v in args.known_cog.split(",")]
-        if len(cog) != 3 or not all(math.isfinite(c) for c in cog):
-            raise ValueError
-    except ValueError:
-        raise ConfigError("--known-cog", f"expected three numbers in mm separated by commas, got {args.known_cog!r}")
-    if not 0 < args.known_mass < 100:
-        raise ConfigError("--known-mass", f"expected the reference payload's mass in kg, got {args.known_mass:g}")
-    ref = PayloadSetting(mass_kg=args.known_mass, cog_m=tuple(v / 1000.0 for v in cog))
+    ref, cog = reference_payload(args.known_mass, args.known_cog)
 
     def mount_reference(cell) -> None:  # a simulated robot: the reference named here is what gets mounted
-        cell.change_tool(args.known_mass, tuple(cog))
+        cell.change_tool(args.known_mass, cog)
         con.say(f"Simulated robot: the reference payload {args.known_mass:g} kg at [{args.known_cog}] mm is the "
                 "simulated tool for this calibration (the YAML's simulation.payload is not used)")
 
-    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference)
+    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference,
+             adjust=lambda config: with_speed(config, args.speed_percent))
     return 0
 
 

@@ -40,16 +40,23 @@ NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
 DEFAULT_REFERENCE = (3.0, (0.0, 0.0, 80.0))  # kg, mm
 
 
-def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
-            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
+def parse_reference(text: str | None) -> tuple:
+    """``--calibrate-with KG:X,Y,Z`` as (kg, (x, y, z) mm); the default reference without one."""
+    if not text:
+        return DEFAULT_REFERENCE
+    kg, cog = text.split(":")
+    return float(kg), tuple(float(v) for v in cog.split(","))
+
+
+def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
+                calibrate_speed: float | None = None, retry_sweeps: int = 0):
+    """The shipped simulated robot's config for one seed, its state in ``storage`` (calibrated first when asked)."""
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
-    quiet = dict(assume_yes=True, report=False, retry_sweeps=retry_sweeps)
-    ui = OperatorUI(progress=False, out=lambda *_: None)
     if calibrate:
         import dataclasses
 
@@ -59,8 +66,23 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         cal_config = config if calibrate_speed is None else dataclasses.replace(
             config, procedure=dataclasses.replace(config.procedure, speed_percent=calibrate_speed))
         run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
-            kg, tuple(c / 1000.0 for c in cog_mm)), **quiet), ui,
+            kg, tuple(c / 1000.0 for c in cog_mm)), **_quiet(retry_sweeps)), _silent(),
             SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
+    return config
+
+
+def _quiet(retry_sweeps: int) -> dict:
+    return dict(assume_yes=True, report=False, retry_sweeps=retry_sweeps)
+
+
+def _silent() -> OperatorUI:
+    return OperatorUI(progress=False, out=lambda *_: None)
+
+
+def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
+            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
+    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps)
+    quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     if target:
         from payload_agent.evaluation import design
@@ -108,10 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     args = p.parse_args(argv)
-    reference = DEFAULT_REFERENCE
-    if args.calibrate_with:
-        kg, cog = args.calibrate_with.split(":")
-        reference = (float(kg), tuple(float(v) for v in cog.split(",")))
+    reference = parse_reference(args.calibrate_with)
     runs, failed = [], []
     for seed in range(args.first_seed, args.first_seed + args.runs):
         try:

@@ -185,3 +185,20 @@ def test_doctor_and_plan_connect_name_host_and_port_of_an_unreachable_controller
     assert cli.main(["plan", "--robot", str(path), "--connect"]) == 6
     err = capsys.readouterr().err
     assert "127.0.0.1" in err and str(port) in err and "Traceback" not in err
+
+
+def test_calibrate_speed_outside_the_cap_is_refused_by_name_before_anything_starts(tmp_path, sim_ec66_data, capsys,
+                                                                                    monkeypatch):
+    from payload_agent.session import runner
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
+    started = []
+    monkeypatch.setattr(runner, "run_identification", lambda *a, **k: started.append(a))
+    path = _robot_file(tmp_path, sim_ec66_data)
+    for bad in ("40", "0", "nan"):
+        rc = cli.main(["calibrate", "--robot", str(path), "--yes", "--known-mass", "3", "--known-cog", "0,0,80",
+                       "--speed-percent", bad])
+        err = capsys.readouterr().err
+        assert rc == 2 and "--speed-percent" in err and "safety.max_speed_percent" in err and "25 %" in err
+        assert "Traceback" not in err
+    assert started == []  # refused before any session (nothing connected, nothing moved)

@@ -270,3 +270,19 @@ def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypat
     cross = next(c for c in report.checks if c.name == "kinematic cross-check")
     assert cross.status == "FAIL" and "a2" in cross.detail and not report.ready
     assert report.exit_code == (3 if report.config_ok else 2)
+
+
+def test_calibrate_runs_its_sweeps_at_the_speed_given(tmp_path, capsys, monkeypatch):
+    """`calibrate --speed-percent 5`: the calibration run's sweeps at 5 % (the YAML says 10 %), its gains stored;
+    a slower calibration pins the gains tighter for every later run (issue 22)."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+    robot = sim_robot(tmp_path, "calslow")
+    assert yaml.safe_load(robot.read_text())["procedure"]["speed_percent"] == 10
+    rc, out, err = _main(["calibrate", "--robot", str(robot), "--yes", "--known-mass", "3.0", "--known-cog",
+                          "0,0,80", "--speed-percent", "5"], capsys)
+    assert rc == 0, err[-3000:]
+    gains = json.loads((tmp_path / "xdg-state" / "payload-agent" / "calslow" / "gains.json").read_text())
+    manifest = json.loads((Path(gains["run_dir"]) / "manifest.json").read_text())
+    sweeps = [m for m in manifest["plan"] if m.get("sweep")]
+    assert sweeps and {m["sweep"]["speed_percent"] for m in sweeps} == {5.0}
+    assert [m["speed_deg_s"] for m in sweeps] == pytest.approx([0.05 * 144] * len(sweeps))

@@ -79,3 +79,27 @@ def test_choose_picks_the_fastest_candidate_that_meets_the_target(config):
     least = min((p for p in none.table if p.usable), key=lambda p: p.mass_std_g)
     assert "nearest: " in text and f"least mass σ of the {sum(p.usable for p in none.table)} candidates " \
         f"{least.mass_std_g:.2f} g" in text
+
+
+def test_the_prediction_is_the_sum_of_its_named_terms(config):
+    """``covariance_terms`` keeps apart what ``predict`` sums (``benchmarks.plan_budget`` shows each, issue 22): the
+    parts add to the predicted σ, the noise shrinks with the samples, and the drive gains, DH lengths and joint
+    zeros, which do not shrink with more samples, stay as they are at half the speed."""
+    noise = design.NoiseModel((NOISE_NM,) * 6, 0.008, gain_rel_std=(0.03, 4e-4, 6e-4, 3e-3, 4e-3, 0.03),
+                              length_std_m=5e-4, joints=config.robot.joints)
+    theta = design.nominal_theta(2.0, (40.0, -25.0, 70.0))
+    parts = {}
+    for speed in (10.0, 20.0):
+        design._SYSTEMATIC.clear()  # computed afresh per speed: what the cache (keyed without the speed) assumes
+        cand = design.Candidate(speed, 25.0, 0.0, 55.0, 1, 100.0, "j2_triple")
+        terms, n = design.covariance_terms(design.with_candidate(config, cand), design.plan_for(config, cand), noise,
+                                           theta)
+        assert set(terms) == set(design.NOISE_TERMS + design.SYSTEMATIC_TERMS)
+        pred = design.predict(config, cand, noise, theta, check_safety=False)
+        assert 1000 * np.sqrt(sum(terms.values())[0, 0]) == pytest.approx(pred.mass_std_g, rel=1e-9)
+        parts[speed] = terms, n
+    (slow, n_slow), (fast, n_fast) = parts[10.0], parts[20.0]
+    assert n_slow == pytest.approx(2 * n_fast, rel=0.1)
+    assert slow["noise"][0, 0] == pytest.approx(fast["noise"][0, 0] * n_fast / n_slow, rel=0.05)
+    for name in ("gains", "lengths", "zeros"):
+        assert slow[name][0, 0] > 0 and slow[name][0, 0] == pytest.approx(fast[name][0, 0], rel=0.05)

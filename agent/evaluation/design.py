@@ -25,8 +25,9 @@ as ``plan`` checks it, the approach too when where the robot stands is given), a
 that meets the target in the least robot time (the approach move counted then: procedures start in
 different poses), with the whole trade-off table. The procedures tried are the configured one and the bundled procedures of
 ``PROCEDURES``: joint-2 sweeps only in two or three tool orientations (procedures/j2_pair.yaml,
-j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear)
-and need no 90° joint-2 travel to a joint-3 sweep's start. The CLI hook is ``plan --target-std G,MM``.
+j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear) and
+need no 90° joint-2 travel to a joint-3 sweep's start. ``covariance_terms`` keeps each part
+of a prediction apart (``benchmarks.plan_budget``). The CLI hook is ``plan --target-std G,MM``.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_c
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
 # sweep speeds above safety.max_speed_percent are refused by the gate, as ``plan`` would refuse them
-SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 25.0)
+SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 22.5, 25.0)
 TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
 # long ranges pay where the wrist-torque term binds the centre of mass: the wrist offsets of a pose are
 # separable from m·c only through the change of the wrist's gravity torque along the sweep (issue 22)
@@ -181,9 +182,16 @@ def planned_sweeps(plan: Plan, period_s: float):
     return out
 
 
-def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray, int]:
-    """(noise covariance of one run, systematic covariance, constant-speed samples of one run)."""
+# the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
+NOISE_TERMS = ("noise", "wrist")
+SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros")
+
+
+def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+                     ) -> tuple[dict[str, np.ndarray], int]:
+    """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``), and
+    the constant-speed samples of one run: what ``covariance_parts`` sums, kept apart so that a benchmark can show
+    what binds a candidate (docs/benchmarks.md, issue 22)."""
     from payload_agent.solvers import general, wls
 
     kin = config.robot.kinematics
@@ -200,16 +208,16 @@ def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     w = np.concatenate(w_rows)
     Y = np.vstack([g.Y for g in groups])
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
-    cov = inv * noise.inflation ** 2
+    terms = {"noise": inv * noise.inflation ** 2}
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
-    cov = cov + wrist_covariance(sweeps, groups, w, noise.inflation, theta, noise.gain_rel_std)
-    friction = np.zeros((4, 4))
+    terms["wrist"] = wrist_covariance(sweeps, groups, w, noise.inflation, theta, noise.gain_rel_std)
+    terms["friction"] = np.zeros((4, 4))
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
-        friction = friction_covariance(sweeps, groups, w, theta, float(decl.friction_asymmetry_std),
-                                       float(decl.friction_change_std), dict(enumerate(level)), std,
-                                       noise.inflation, noise.friction_known)
+        terms["friction"] = friction_covariance(sweeps, groups, w, theta, float(decl.friction_asymmetry_std),
+                                                float(decl.friction_change_std), dict(enumerate(level)), std,
+                                                noise.inflation, noise.friction_known)
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
     # (procedure and sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
     ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]))
@@ -218,26 +226,32 @@ def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,
            tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints))
     if key not in _SYSTEMATIC:
-        sys_cov = np.zeros((4, 4))
+        fixed = {name: np.zeros((4, 4)) for name in ("gains", "lengths", "zeros")}
         if noise.gain_rel_std is not None:
-            sys_cov = sys_cov + wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
+            fixed["gains"] = wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
         if noise.length_std_m > 0:
-            sys_cov = sys_cov + general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
-                                                             noise.gain_reference)
+            fixed["lengths"] = general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
+                                                            noise.gain_reference)
         if noise.joints is not None:
-            # evaluation.systematics' own prediction of its terms for a planned procedure (joint zeros,
-            # residual friction with the declared change of the friction level)
+            # evaluation.systematics' own prediction for a planned procedure, joint zeros only: the residual
+            # friction is ``friction`` above (the change as the run will measure it)
             from payload_agent.evaluation import systematics
 
-            # joint zeros only: the residual friction is ``friction`` above (the change as the run will measure it)
-            sys_cov = sys_cov + systematics.planned_covariance(sweeps, kin, noise.joints, theta, w, None)
+            fixed["zeros"] = systematics.planned_covariance(sweeps, kin, noise.joints, theta, w, None)
         if len(_SYSTEMATIC) > 256:
             _SYSTEMATIC.clear()
-        _SYSTEMATIC[key] = sys_cov
-    return cov, _SYSTEMATIC[key] + friction, sum(len(d.q) for d in sweeps)
+        _SYSTEMATIC[key] = fixed
+    return {**terms, **_SYSTEMATIC[key]}, sum(len(d.q) for d in sweeps)
 
 
-_SYSTEMATIC: dict[tuple, np.ndarray] = {}
+def covariance_parts(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """(noise covariance of one run, systematic covariance, constant-speed samples of one run)."""
+    terms, n = covariance_terms(config, plan, noise, theta)
+    return sum(terms[k] for k in NOISE_TERMS), sum(terms[k] for k in SYSTEMATIC_TERMS), n
+
+
+_SYSTEMATIC: dict[tuple, dict[str, np.ndarray]] = {}
 
 
 def nominal_theta(mass_kg: float, cog_mm: Sequence[float]) -> np.ndarray:
