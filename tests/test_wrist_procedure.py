@@ -193,3 +193,17 @@ def test_the_wrist_moves_take_the_yaml_wrist_acceleration_and_a_lower_cap_refuse
     assert make_plan(plain).wrist_moves[0].accel_rad_s2 == pytest.approx(plain.robot.max_joint_accel_rad_s2)
     verdict = SafetyGate(plain).check(plan, start(cfg))
     assert any("w1-c-j456 fwd" in p and "robot.max_joint_accel_deg_s2" in p for p in verdict.problems), verdict.problems
+
+
+@pytest.mark.parametrize("name", ["ur5e.yaml", "ur10e.yaml"])
+def test_the_real_ur_configs_carry_the_sourced_wrist_acceleration_and_leave_the_wrist_speed_to_the_user(name):
+    data = tweak(yaml.safe_load((ROOT / "configs" / name).read_text()), "procedure.inertia", True)
+    cfg = parse_config(data, source=name)
+    assert cfg.wrist_accel_rad_s2 == pytest.approx(5.0, rel=1e-3)  # 286.5°/s², UR's ROS 2 driver
+    plan = make_plan(cfg)
+    begin = np.asarray(plan.moves[0].target_rad)
+    assert all(m.accel_rad_s2 == pytest.approx(5.0, rel=1e-3) for m in plan.wrist_moves)
+    verdict = SafetyGate(cfg).check(plan, begin)  # the wrist speed cap is still max_speed_percent: refused by name
+    assert not verdict.ok and all("safety.max_wrist_speed_percent" in p for p in verdict.problems), verdict.problems
+    fast = parse_config(tweak(data, "safety.max_wrist_speed_percent", 95), source=name)
+    assert SafetyGate(fast).check(make_plan(fast), begin).ok
