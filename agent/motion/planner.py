@@ -30,7 +30,7 @@ class Move:
     speed_rad_s: float
     accel_rad_s2: float
     sweep: SweepKey | None = None
-    wrist: str | None = None  # a recorded wrist move's name (inertia), e.g. "w1-a-j6-fwd"
+    wrist: str | None = None  # a recorded wrist move's name (inertia), e.g. "w1-c-j456-fwd" (joints 4, 5, 6 together)
 
     @property
     def recorded_name(self) -> str | None:
