@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
+from benchmarks.inertia import one_joint_procedure
 from conftest import ROOT, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.configuration.procedure import load_procedure
@@ -100,9 +101,7 @@ def test_wrist_joints_turned_together_carry_more_information_than_one_at_a_time_
     6 back). Same arm, tool, seeds and noise: the fit's own σ (without the declared model term) must be clearly
     smaller for about the same robot time, or turning them together was not worth it (docs/analysis.md)."""
     cfg, plan, start = ec66
-    old = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
-    old["moves"] = [{"pose": p, "joint": j, "range_deg": r} for p in ("c", "b")
-                    for j, r in ((6, [0, 60]), (5, [0, 45]), (4, [0, 45]), (6, [0, -40]))]
+    old = one_joint_procedure()
     geo = ArmGeometry(cfg.robot.kinematics, 0.0)
     margin = cfg.safety.joint_limit_margin_rad
     limits = [(a + margin, b - margin) for a, b in cfg.robot.joint_limits_rad[3:]]
