@@ -3,8 +3,10 @@
 Mass and centre of mass come from the slow sweeps; the inertia tensor needs the payload's
 inertial torques, which are large only where a wrist joint accelerates hard. A wrist procedure
 names tool orientations (the arm frame of link 3, as in the sweep procedures), the arm's
-elevations while the wrist moves, and per move the wrist joint (4, 5 or 6) and its travel
-relative to the orientation's wrist angles. Each move runs there and back; both legs are recorded,
+elevations while the wrist moves, and per move the wrist joint (4, 5 or 6) or joints (turned
+together in one synchronised PTP move: the flange's angular acceleration, and so the inertial
+torque's information per second, grows with each joint added) and each one's travel relative to
+the orientation's wrist angles. Each move runs there and back; both legs are recorded,
 once with the empty flange and once with the tool. Speed and acceleration are percent of the
 robot's maxima, and the safety gate refuses a move above the YAML's caps by name (never slowed).
 """
