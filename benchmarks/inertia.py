@@ -1,6 +1,6 @@
 """Inertia from the wrist moves: error, 95 % coverage and refusals by tool, EC66 and UR5e (issue 21).
 
-    python -m benchmarks.inertia [--quick] [--seeds N]
+    python -m benchmarks.inertia [--quick] [--seeds N] [--robots ec66,ur5e] [--scenarios realistic,hard] [--one-joint]
 
 Each case records the wrist moves of ``procedures/wrist_inertia.yaml`` (the plan of the sim YAML
 with ``procedure.inertia: true``) on an in-process simulated arm (``fakes.offline``), once with the
@@ -25,6 +25,7 @@ and the extra robot time of the inertia part (planned durations: wrist moves + t
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -56,11 +57,24 @@ TOOLS = (
 )
 
 
-def config_for(robot: str):
+# The earlier wrist procedure (sessions 9-10): one wrist joint per move, 6, 5, 4, then 6 the other way, in the same
+# two orientations; the shipped one turns joints 4, 5 and 6 together (docs/analysis.md, Inertia). ``--one-joint``.
+ONE_JOINT_MOVES = [{"pose": p, "joint": j, "range_deg": r} for p in ("c", "b")
+                   for j, r in ((6, [0, 60]), (5, [0, 45]), (4, [0, 45]), (6, [0, -40]))]
+
+
+def one_joint_procedure() -> dict:
+    """procedures/wrist_inertia.yaml with the earlier one-joint-at-a-time moves."""
+    data = yaml.safe_load((ROOT / "procedures" / "wrist_inertia.yaml").read_text())
+    return dict(data, name="wrist_one_joint", moves=ONE_JOINT_MOVES)
+
+
+def config_for(robot: str, procedure: str | bool = True):
+    """The sim YAML of ``robot`` with the inertia part on: the bundled procedure, or a wrist procedure file."""
     from payload_agent.configuration.config import parse_config
 
     data = yaml.safe_load((ROOT / "configs" / ROBOTS[robot][0]).read_text())
-    data["procedure"]["inertia"] = True
+    data["procedure"]["inertia"] = procedure
     return parse_config(data, source=ROBOTS[robot][0])
 
 
@@ -127,26 +141,35 @@ def main(argv=None) -> None:
     ap.add_argument("--quick", action="store_true", help="one seed per case")
     ap.add_argument("--seeds", type=int, default=None, help="cases per robot, scenario and tool (default 4)")
     ap.add_argument("--robots", default="ec66,ur5e")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS))
+    ap.add_argument("--one-joint", action="store_true", help="the earlier procedure: one wrist joint per move")
     args = ap.parse_args(argv)
     seeds = args.seeds or (1 if args.quick else 4)
+    scenarios = [s for s in SCENARIOS if s in args.scenarios.split(",")]
     rows, times = [], {}
     t0 = time.time()
-    for robot in args.robots.split(","):
-        cfg = config_for(robot)
-        plan, start, extra = wrist_plan(cfg)
-        times[robot] = extra
-        cache: dict = {}
-        for scenario in SCENARIOS:
-            for seed in range(seeds):
-                for tool in TOOLS:
-                    rows.append(run_case(cfg, plan, start, robot, scenario, seed, tool, cache))
-    print(f"inertia benchmark: {seeds} case(s) per robot, scenario and tool, {time.time() - t0:.0f} s of wall time")
+    with tempfile.TemporaryDirectory() as tmp:
+        procedure: str | bool = True
+        if args.one_joint:
+            procedure = str(Path(tmp) / "wrist_one_joint.yaml")
+            Path(procedure).write_text(yaml.safe_dump(one_joint_procedure()))
+        for robot in args.robots.split(","):
+            cfg = config_for(robot, procedure)
+            plan, start, extra = wrist_plan(cfg)
+            times[robot] = extra
+            cache: dict = {}
+            for scenario in scenarios:
+                for seed in range(seeds):
+                    for tool in TOOLS:
+                        rows.append(run_case(cfg, plan, start, robot, scenario, seed, tool, cache))
+    print(f"inertia benchmark{' (one wrist joint per move)' if args.one_joint else ''}: {seeds} case(s) per robot, "
+          f"scenario and tool, {time.time() - t0:.0f} s of wall time")
     print("extra robot time of the inertia part (planned): " + ", ".join(f"{r} {t:.1f} s" for r, t in times.items()))
     head = f"{'robot':6} {'scenario':10} {'tool':32} {'λmax kg·m²':>11} {'err/λmax':>9} {'cover95':>8} {'refused':>8}"
     print(head)
     print("-" * len(head))
     for robot in dict.fromkeys(r["robot"] for r in rows):
-        for scenario in SCENARIOS:
+        for scenario in scenarios:
             for tool in TOOLS:
                 sel = [r for r in rows if r["robot"] == robot and r["scenario"] == scenario and r["tool"] == tool[0]]
                 ok = [r for r in sel if not r["refused"]]

@@ -3,8 +3,10 @@
 Mass and centre of mass come from the slow sweeps; the inertia tensor needs the payload's
 inertial torques, which are large only where a wrist joint accelerates hard. A wrist procedure
 names tool orientations (the arm frame of link 3, as in the sweep procedures), the arm's
-elevations while the wrist moves, and per move the wrist joint (4, 5 or 6) and its travel
-relative to the orientation's wrist angles. Each move runs there and back; both legs are recorded,
+elevations while the wrist moves, and per move the wrist joint (4, 5 or 6) or joints (turned
+together in one synchronised PTP move: the flange's angular acceleration, and so the inertial
+torque's information per second, grows with each joint added) and each one's travel relative to
+the orientation's wrist angles. Each move runs there and back; both legs are recorded,
 once with the empty flange and once with the tool. Speed and acceleration are percent of the
 robot's maxima, and the safety gate refuses a move above the YAML's caps by name (never slowed).
 """
@@ -20,16 +22,21 @@ from pathlib import Path
 import yaml
 
 from payload_agent.configuration.procedure import PoseSpec, parse_poses
-from payload_agent.configuration.yamlcheck import Node
+from payload_agent.configuration.yamlcheck import Node, check_numbers
 from payload_agent.errors import ConfigError
 
 
 @dataclass(frozen=True)
 class WristMoveSpec:
     pose: str
-    joint: int  # 1-based: 4, 5 or 6
-    from_deg: float  # relative to the pose's wrist angle of that joint
-    to_deg: float
+    joints: tuple[int, ...]  # 1-based: 4, 5 and/or 6, turned together (one synchronised PTP move)
+    from_deg: tuple[float, ...]  # per joint, relative to the pose's wrist angle of that joint
+    to_deg: tuple[float, ...]
+
+    @property
+    def label(self) -> str:
+        """``j6`` for one joint, ``j456`` for several (the move names' part)."""
+        return "j" + "".join(str(j) for j in self.joints)
 
 
 @dataclass(frozen=True)
@@ -80,15 +87,31 @@ def parse_wrist_procedure(data, source: str = "<wrist procedure>") -> WristProce
     for i, item in enumerate(raw):
         m = Node(item, f"moves[{i}]", source)
         pose = m.string("pose", choices=sorted(poses))
-        joint = m.integer("joint", min=4, max=6)
-        lo, hi = m.numbers("range_deg", 2, min=-360, max=360)
-        if abs(hi - lo) < 20:
-            raise m.error("range_deg", f"needs at least 20 degrees of travel, got [{lo:g}, {hi:g}]")
-        m.reject_unknown(["pose", "joint", "range_deg"])
-        moves.append(WristMoveSpec(pose, joint, lo, hi))
+        moves.append(_move(m, pose))
     top.reject_unknown(["name", "description", "speed_percent", "accel_percent", "elevation_deg", "poses", "moves"])
     fp = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
     return WristProcedure(name, description, speed, accel, (elev[0], elev[1]), poses, tuple(moves), fp)
+
+
+def _move(m: Node, pose: str) -> WristMoveSpec:
+    """One move: ``joint: 6, range_deg: [0, 60]``, or several wrist joints turned together in one synchronised PTP
+    move, ``joint: [4, 5, 6], range_deg: [[0, 45], [0, -45], [0, 45]]`` (one range per joint, in that order)."""
+    raw_j, raw_r = m.raw("joint"), m.raw("range_deg")
+    several = isinstance(raw_j, list)
+    joints = raw_j if several else [raw_j]
+    if not joints or any(isinstance(j, bool) or j not in (4, 5, 6) for j in joints) or len(set(joints)) != len(joints):
+        raise m.error("joint", f"expected a wrist joint (4, 5 or 6) or a list of different ones, got {raw_j!r}")
+    if several and (not isinstance(raw_r, list) or len(raw_r) != len(joints)):
+        raise m.error("range_deg", f"expected one [from, to] per joint of {joints}, got {raw_r!r}")
+    ranges = []
+    for k, r in enumerate(raw_r if several else [raw_r]):
+        key = f"{m.key('range_deg')}[{k}]" if several else m.key("range_deg")
+        lo, hi = check_numbers(r, key, 2, source=m.source, min=-360, max=360)
+        if abs(hi - lo) < 20:
+            raise ConfigError(key, f"needs at least 20 degrees of travel, got [{lo:g}, {hi:g}]", m.source)
+        ranges.append((lo, hi))
+    m.reject_unknown(["pose", "joint", "range_deg"])
+    return WristMoveSpec(pose, tuple(int(j) for j in joints), tuple(r[0] for r in ranges), tuple(r[1] for r in ranges))
 
 
 def inertia_procedure_key(node: Node) -> str | None:

@@ -30,7 +30,7 @@ class Move:
     speed_rad_s: float
     accel_rad_s2: float
     sweep: SweepKey | None = None
-    wrist: str | None = None  # a recorded wrist move's name (inertia), e.g. "w1-a-j6-fwd"
+    wrist: str | None = None  # a recorded wrist move's name (inertia), e.g. "w1-c-j456-fwd" (joints 4, 5, 6 together)
 
     @property
     def recorded_name(self) -> str | None:
@@ -197,9 +197,10 @@ def wrist_moves(config: Config, wp: WristProcedure, geo: ArmGeometry, wrist_limi
     for k, mv in enumerate(wp.moves):
         start = np.array([geo.base, q2e, q3e, *wrists[mv.pose]])
         end = start.copy()
-        start[mv.joint - 1] += math.radians(mv.from_deg)
-        end[mv.joint - 1] += math.radians(mv.to_deg)
-        name = f"w{k + 1}-{mv.pose}-j{mv.joint}"
+        for j, lo, hi in zip(mv.joints, mv.from_deg, mv.to_deg):
+            start[j - 1] += math.radians(lo)
+            end[j - 1] += math.radians(hi)
+        name = f"w{k + 1}-{mv.pose}-{mv.label}"
         if np.max(np.abs(np.asarray(out[-1].target_rad if out else after) - start)) > 1e-9:
             out.append(Move(f"to {name} start", "travel", tuple(start), travel, travel_accel))
         out.append(Move(f"{name} fwd", "wrist", tuple(end), speed, accel, wrist=f"{name}-fwd"))

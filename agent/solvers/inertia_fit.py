@@ -140,7 +140,7 @@ def _groups(pairs, kin: Kinematics, theta_static: np.ndarray, joints: Sequence[i
             free_static: bool = False):
     """One group per (move, joint). Columns: six inertia parameters, a Coulomb and a viscous friction change per
     moving wrist joint, and with ``free_static`` the four static parameters' corrections (m, m·c) last."""
-    moving_all = sorted({int(np.argmax(np.ptp(q, axis=0))) for _, _, q, _ in pairs})
+    moving_all = sorted({k for _, _, q, _ in pairs for k in range(6) if np.ptp(q[:, k]) > MOVING_RANGE_RAD})
     n_fric = 6 + 2 * len(moving_all)
     n_par = n_fric + (4 if free_static else 0)
     groups, static_cols = [], []
