@@ -64,6 +64,28 @@ def test_gate_refuses(sim_ec66_data, path, value, problem):
         gate.approve(plan, start)
 
 
+def test_the_tool_sphere_is_kept_above_the_floor_where_the_flange_alone_would_pass(sim_ec66_data):
+    """safety.tool_radius_mm: a tool reaches below its flange. With the floor 50 mm under the plan's lowest flange
+    point, the flange passes, a 100 mm tool does not, and the refusal names the tool; without the key the gate
+    says that it checked the flange only."""
+    cfg = parse_config(tweak(sim_ec66_data, "safety.tool_radius_mm", 0))
+    start = np.radians(cfg.simulation.start_deg)
+    plan = turned_to(cfg, make_plan(cfg), start)
+    qs = [start] + [np.asarray(m.target_rad) for m in plan.moves]
+    lowest = min(cfg.robot.kinematics.flange(a + (b - a) * k / 60)[2, 3] for a, b in zip(qs, qs[1:])
+                 for k in range(61))
+    floor = round(1000 * lowest) - 50
+    data = tweak(sim_ec66_data, "safety.floor_z_mm", floor)
+    flange_only = data["safety"].copy()
+    del flange_only["tool_radius_mm"]
+    verdict = SafetyGate(parse_config(tweak(data, "safety", flange_only))).check(plan, start)
+    assert verdict.ok and "the tool not checked: no safety.tool_radius_mm" in verdict.describe()
+    tool = parse_config(tweak(data, "safety.tool_radius_mm", 100))
+    with pytest.raises(SafetyError, match=rf"tool \(within 100 mm of the flange\) at z = -?\d+ mm \(flange at "
+                                          rf"\d+ mm\), below the floor \({floor} mm\)"):
+        SafetyGate(tool).approve(plan, start)
+
+
 def test_gate_refuses_unknown_start_and_fast_approach(sim_ec66_data):
     cfg = parse_config(sim_ec66_data)
     plan = make_plan(cfg)

@@ -123,6 +123,8 @@ class SafetyConfig:
     max_wrist_speed_percent: float | None = None  # wrist moves of the inertia part (None: max_speed_percent)
     # the inertia part's wrist moves accelerate at most this (their 100 %; None: robot.max_joint_accel_deg_s2)
     max_wrist_accel_rad_s2: float | None = None
+    # the tool's farthest point from the flange centre: that sphere kept above the floor, in the box (None: flange)
+    tool_radius_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -180,7 +182,7 @@ PROCEDURE_KEYS = ("name", "speed_percent", "travel_speed_percent", "accel_percen
                   "bidirectional", "solver", "inertia")
 SAFETY_KEYS = ("joint_limit_margin_deg", "max_speed_percent", "approach_speed_percent", "floor_z_mm", "reach_box_mm",
                "motion_timeout_factor", "max_stream_gap_ms", "stop_ack_timeout_s", "pose_tolerance_mm",
-               "max_wrist_speed_percent", "max_wrist_accel_deg_s2",
+               "max_wrist_speed_percent", "max_wrist_accel_deg_s2", "tool_radius_mm",
                "pose_tolerance_deg", "unattended_without_pose_check")
 STORAGE_KEYS = ("runs_dir", "state_dir", "baseline_max_age_days", "baseline_max_temperature_delta_c")
 # driver keys that were removed, and what replaces them (a stale YAML gets told, not ignored)
@@ -370,12 +372,13 @@ def _safety(node: Node, robot: RobotConfig) -> SafetyConfig:
     wrist = node.number("max_wrist_speed_percent", max_speed, gt=0, max=100)  # the inertia part's fast wrist moves
     wrist_accel = (math.radians(node.number("max_wrist_accel_deg_s2", gt=0, max=10000))
                    if node.has("max_wrist_accel_deg_s2") else None)
+    tool_r = node.number("tool_radius_mm", min=0, max=2000) / 1000.0 if node.has("tool_radius_mm") else None
     node.reject_unknown()
     if approach > max_speed:
         raise node.error("approach_speed_percent", f"{approach:g} % exceeds max_speed_percent ({max_speed:g} %)")
     return SafetyConfig(math.radians(margin), max_speed, approach, floor / 1000.0, tuple(axes), timeout,
                         None if gap_ms is None else gap_ms / 1000.0, ack_s, pose_mm / 1000.0, math.radians(pose_deg),
-                        no_pose_ok, wrist, wrist_accel)
+                        no_pose_ok, wrist, wrist_accel, tool_r)
 
 
 def _storage(node: Node | None, base_dir: Path | None, robot_name: str) -> StorageConfig:

@@ -19,6 +19,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import SafetyError
+from payload_agent.motion import workspace
 from payload_agent.motion.planner import Move, Plan, move_duration_s
 from payload_agent.recording.resting_pose import RestingPose
 
@@ -78,7 +79,6 @@ class SafetyGate:
         wrist_accel_key = ("safety.max_wrist_accel_deg_s2" if s.max_wrist_accel_rad_s2 is not None
                            else "robot.max_joint_accel_deg_s2; safety.max_wrist_accel_deg_s2 not set")
         margin = s.joint_limit_margin_rad
-        (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
         if not plan.moves:
             problems.append("the plan has no moves")
         elif plan.moves[0].kind != "approach":
@@ -118,16 +118,10 @@ class SafetyGate:
                 problems.append(f"{where}: a joint turns {math.degrees(np.max(np.abs(tgt - prev))):.0f}° in one "
                                 f"move (more than {math.degrees(MAX_SINGLE_MOVE_RAD):.0f}°)")
             for k in range(PATH_CHECK_POINTS + 1):
-                q = prev + (tgt - prev) * k / PATH_CHECK_POINTS
-                x, y, z = self.kin.flange(q)[:3, 3]
-                if z < s.floor_z_m:
-                    problems.append(f"{where}: flange at z = {1000 * z:.0f} mm, below the floor "
-                                    f"({1000 * s.floor_z_m:.0f} mm); narrow procedure.sweep_deg or change "
-                                    "procedure.base_deg, or check safety.floor_z_mm")
-                    break
-                if not (xlo <= x <= xhi and ylo <= y <= yhi and zlo <= z <= zhi):
-                    problems.append(f"{where}: flange at ({1000 * x:.0f}, {1000 * y:.0f}, {1000 * z:.0f}) mm leaves "
-                                    f"the reach box")
+                out = workspace.outside(s, self.kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3])
+                if out is not None:
+                    problems.append(f"{where}: {out[1]}" + ("; narrow procedure.sweep_deg or change procedure.base_deg, "
+                                                            "or check safety.floor_z_mm" if out[0] == "floor" else ""))
                     break
             prev = tgt
         checks = [
@@ -136,7 +130,8 @@ class SafetyGate:
             f"{first_pct:g} %" + (f" ({first_what})" if first_pct > s.approach_speed_percent else "")
             + (f"; wrist moves <= {wrist_pct:g} % and <= {math.degrees(wrist_accel):.1f}°/s²" if plan.wrist_moves
                else ""),
-            f"flange above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every path",
+            f"{workspace.body(s)} above floor z = {1000 * s.floor_z_m:.0f} mm and inside the reach box along every "
+            "path" + ("" if s.tool_radius_m else " (the tool not checked: no safety.tool_radius_mm)"),
         ]
         return Verdict(not problems, problems, checks if not problems else [])
 

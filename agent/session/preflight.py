@@ -22,6 +22,7 @@ import numpy as np
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError, PayloadAgentError
+from payload_agent.motion import workspace
 from payload_agent.motion.planner import Plan, make_plan
 from payload_agent.motion.safety import APPROACH_UNKNOWN, PATH_CHECK_POINTS, SafetyGate, Verdict
 
@@ -56,29 +57,24 @@ def _as_config_error(exc: PayloadAgentError, key: str, source: str) -> ConfigErr
 def sweep_envelope_problems(config: Config, plan: Plan) -> list[ConfigError]:
     """A sweep whose path leaves the floor or the reach box: the error names ``procedure.sweep_deg``."""
     s, kin = config.safety, config.robot.kinematics
-    (xlo, xhi), (ylo, yhi), (zlo, zhi) = s.reach_box_m
     pc = config.procedure
-    out: list[ConfigError] = []
+    problems: list[ConfigError] = []
     prev = None
     for m in plan.moves:
         tgt = np.asarray(m.target_rad, float)
         if m.sweep is not None and prev is not None:
             for k in range(PATH_CHECK_POINTS + 1):
-                x, y, z = kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3]
+                out = workspace.outside(s, kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3])
+                if out is None:
+                    continue
                 where = (f"the sweep {m.label} over procedure.sweep_deg [{pc.sweep_from_deg:g}, {pc.sweep_to_deg:g}]° "
                          f"(joint 1 at procedure.base_deg {pc.base_deg:g}°)")
-                if z < s.floor_z_m:
-                    out.append(ConfigError("procedure.sweep_deg", f"{where} takes the flange to z = {1000 * z:.0f} mm, "
-                                           f"below safety.floor_z_mm ({1000 * s.floor_z_m:.0f} mm): narrow the range "
-                                           "(a smaller lower elevation keeps the flange higher)", config.source))
-                    break
-                if not (xlo <= x <= xhi and ylo <= y <= yhi and zlo <= z <= zhi):
-                    out.append(ConfigError("procedure.sweep_deg", f"{where} takes the flange to ({1000 * x:.0f}, "
-                                           f"{1000 * y:.0f}, {1000 * z:.0f}) mm, outside safety.reach_box_mm",
-                                           config.source))
-                    break
+                hint = ("safety.floor_z_mm: narrow the range (a smaller lower elevation keeps the flange higher)"
+                        if out[0] == "floor" else "safety.reach_box_mm")
+                problems.append(ConfigError("procedure.sweep_deg", f"{where}: {out[1]}; see {hint}", config.source))
+                break
         prev = tgt
-    return out
+    return problems
 
 
 def capability_problems(config: Config, capabilities: frozenset[str], *, apply: bool, watch: bool) -> list[ConfigError]:
