@@ -16,6 +16,8 @@ os.environ["XDG_STATE_HOME"] = str(_XDG / "state")
 os.environ["XDG_CONFIG_HOME"] = str(_XDG / "config")
 os.environ.pop("PAYLOAD_AGENT_ROBOTS", None)
 
+from benchmarks.sim_start import start_at_first_move  # noqa: E402 (tests import it from here)
+
 
 @pytest.fixture
 def sim_ec66_data():
@@ -49,6 +51,27 @@ def tweak(data, path, value):
 
 
 DELETE = object()
+
+
+def fast_start(data):
+    """A copy of a simulated robot's YAML dict for a test whose subject is not the approach: the arm starts at
+    the plan's first move (benchmarks/sim_start.py), and the first move of each phase (the loaded run's, from
+    where the empty run ended: 12-25 s at the shipped 5 % on the EC66) runs at 15 %, still below the travel
+    speed (20 %) so that the two stay told apart."""
+    return start_at_first_move(tweak(data, "safety.approach_speed_percent", 15))
+
+
+def short_session(data):
+    """``fast_start`` with procedures/j2_pair.yaml, for a test whose subject is neither the procedure nor the
+    approach: two joint-2 sweeps a phase instead of paper_bd's four sweeps and three travel moves (23 s of
+    simulated motion a phase instead of 43 s on the EC66).
+
+    j2_pair was chosen for 2 g / 1 mm (1σ) on the EC66 simulator (docs/benchmarks.md), so the sessions' 30 g /
+    5 mm assertions keep their meaning; its two orientations still give the quality gate two poses to compare.
+    The three-step solver needs paper_bd's sweeps: a test that solves with it takes ``fast_start``.
+    """
+    return fast_start(tweak(data, "procedure.name", "j2_pair"))
+
 
 EC66_Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]  # the fakes' tests start the EC66 here
 EC66_TIME_SCALE = 40.0
