@@ -34,6 +34,8 @@ from payload_agent.errors import PayloadAgentError
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
+from benchmarks.sim_start import start_at_first_move
+
 ROOT = Path(__file__).resolve().parents[1]
 SIM_CONFIGS = {"elite_ec": "configs/sim-ec66.yaml", "ur_rtde": "configs/sim-ur5e.yaml",
                "modbus": "configs/sim-ur5e-modbus.yaml", "canopen": "configs/sim-canopen-arm.yaml"}
@@ -75,7 +77,9 @@ class Cell:
     retried: list[str] = dataclasses.field(default_factory=list)  # attempts the host's load tripped before the fault
 
 
-def load_sim_config(driver: str, storage: Path):
+def load_sim_config(driver: str, storage: Path, at_first_move: bool = False):
+    """The driver family's sim config for a cell: ephemeral ports, the matrix's time scale and gap limit;
+    ``at_first_move``: the arm starts where the plan's approach goes (benchmarks.sim_start)."""
     data = yaml.safe_load((ROOT / SIM_CONFIGS[driver]).read_text())
     data["simulation"]["time_scale"] = min(float(data["simulation"]["time_scale"]), TIME_SCALE)
     data["safety"]["max_stream_gap_ms"] = GAP_LIMIT_MS
@@ -87,6 +91,8 @@ def load_sim_config(driver: str, storage: Path):
         if key in data["driver"] and data["driver"].get("transport", "tcp") == "tcp":
             data["driver"][key] = 0
     data.pop("watch", None)
+    if at_first_move:
+        data = start_at_first_move(data, base_dir=ROOT / "configs")
     return parse_config(data, source=SIM_CONFIGS[driver], base_dir=ROOT / "configs")
 
 
@@ -102,7 +108,7 @@ def stop_limit_s(fault: str) -> float:
 
 def run_cell(driver: str, fault: str, storage: Path) -> Cell:
     cell = Cell(driver, fault)
-    config = load_sim_config(driver, storage)
+    config = load_sim_config(driver, storage, at_first_move=True)  # the fault mid-sweep is the subject
     seen: dict = {}
 
     def inject_mid_sweep(sim_cell) -> None:

@@ -4,6 +4,14 @@ import os
 import tempfile
 from pathlib import Path
 
+# One BLAS thread per process: `make test`'s two workers already fill two cores, and OpenBLAS's own threads (one
+# per core by default, spinning while they wait) only compete with them and with the simulated controllers'
+# clocks. Measured on the numeric files (test_systematics, test_stream_gaps, test_segmentation_speeds), load
+# 4-6: 14.6-15.4 s of CPU with the default, 11.6 s with one thread. Set before numpy loads OpenBLAS here, in
+# the xdist workers and in the CLI subprocesses (they inherit it); a value already set is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 import pytest
 import yaml
 
@@ -15,6 +23,8 @@ _XDG = Path(tempfile.mkdtemp(prefix="payload-agent-tests-"))
 os.environ["XDG_STATE_HOME"] = str(_XDG / "state")
 os.environ["XDG_CONFIG_HOME"] = str(_XDG / "config")
 os.environ.pop("PAYLOAD_AGENT_ROBOTS", None)
+
+from benchmarks.sim_start import start_at_first_move  # noqa: E402 (tests import it from here)
 
 
 @pytest.fixture
@@ -50,6 +60,27 @@ def tweak(data, path, value):
 
 DELETE = object()
 
+
+def fast_start(data):
+    """A copy of a simulated robot's YAML dict for a test whose subject is not the approach: the arm starts at
+    the plan's first move (benchmarks/sim_start.py), and the first move of each phase (the loaded run's, from
+    where the empty run ended: 12-25 s at the shipped 5 % on the EC66) runs at 15 %, still below the travel
+    speed (20 %) so that the two stay told apart."""
+    return start_at_first_move(tweak(data, "safety.approach_speed_percent", 15))
+
+
+def short_session(data):
+    """``fast_start`` with procedures/j2_pair.yaml, for a test whose subject is neither the procedure nor the
+    approach: two joint-2 sweeps a phase instead of paper_bd's four sweeps and three travel moves (23 s of
+    simulated motion a phase instead of 43 s on the EC66).
+
+    j2_pair was chosen for 2 g / 1 mm (1σ) on the EC66 simulator (docs/benchmarks.md), so the sessions' 30 g /
+    5 mm assertions keep their meaning; its two orientations still give the quality gate two poses to compare.
+    The three-step solver needs paper_bd's sweeps: a test that solves with it takes ``fast_start``.
+    """
+    return fast_start(tweak(data, "procedure.name", "j2_pair"))
+
+
 EC66_Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]  # the fakes' tests start the EC66 here
 EC66_TIME_SCALE = 40.0
 
@@ -70,11 +101,17 @@ def ec66_sim():
 # `--dist loadfile` a worker takes the next file while its last two tests still run, so a long file collected
 # late leaves the other worker idle at the end. xdist would order files by their number of tests (which puts
 # the few-but-long session files last); `make test` passes --no-loadscope-reorder so this order stands.
-SLOWEST_FIRST = ("test_driver_conformance.py", "test_report.py", "test_report_inertia.py", "test_modbus_rtu.py",
-                 "test_verify.py", "test_minimal_driver.py", "test_workflow.py", "test_ur_driver.py",
-                 "test_cli_session.py", "test_ur_end_to_end.py", "test_end_to_end.py", "test_canopen_driver.py",
-                 "test_canopen_end_to_end.py", "test_durability.py", "test_run_format.py", "test_fault_matrix.py",
-                 "test_quality.py", "test_empty_run_check.py", "test_api.py", "test_plan_target.py")
+# Every file over 5 s, slowest first (junit times of one `make test`-like run, 2026-11-27: ur_driver 44 s,
+# conformance 44, verify 33, workflow 31, modbus_rtu 31, canopen_driver 26, ur_end_to_end 24, cli_session 17,
+# ... empty_run_check 5; the files left, alphabetical, are 4.8 s at most).
+SLOWEST_FIRST = ("test_ur_driver.py", "test_driver_conformance.py", "test_verify.py", "test_workflow.py",
+                 "test_modbus_rtu.py", "test_canopen_driver.py", "test_ur_end_to_end.py", "test_cli_session.py",
+                 "test_minimal_driver.py", "test_end_to_end.py", "test_ur_payload_inertia.py", "test_ur_fake.py",
+                 "test_elite_driver.py", "test_segmentation_speeds.py", "test_modbus_driver.py", "test_elite_fake.py",
+                 "test_canopen_end_to_end.py", "test_session_collision.py", "test_durability.py", "test_report.py",
+                 "test_opcua_server.py", "test_systematics.py", "test_api.py", "test_plan_target.py",
+                 "test_report_inertia.py", "test_ur_controller_gains.py", "test_architecture.py",
+                 "test_empty_run_check.py")
 
 
 def pytest_collection_modifyitems(session, config, items):

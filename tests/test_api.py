@@ -8,7 +8,7 @@ of a simulated EC66's over sockets; the protocols themselves are the end-to-end 
 import pytest
 import yaml
 
-from conftest import ROOT
+from conftest import ROOT, fast_start
 from inproc_driver import InProcessDriver
 import payload_agent
 from payload_agent.drivers import registry
@@ -29,7 +29,7 @@ def sim_robot(tmp_path, **sim):
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}
     data.pop("watch", None)
     path = tmp_path / "cell.yaml"
-    path.write_text(yaml.safe_dump(data))
+    path.write_text(yaml.safe_dump(fast_start(data)))  # nor the approach (conftest.fast_start)
     return path
 
 

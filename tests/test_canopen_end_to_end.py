@@ -6,7 +6,7 @@ import time
 import pytest
 import yaml
 
-from conftest import ROOT, tweak
+from conftest import ROOT, short_session, tweak
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import MotionStopped, SafetyError
 from payload_agent.recording.rundata import load_manifest
@@ -22,7 +22,8 @@ def sim_config(tmp_path, **changes):
     data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
     for path, value in changes.items():
         data = tweak(data, path, value)
-    return parse_config(data, source="sim-canopen-arm.yaml")
+    # the canopen driver is the subject, not the procedure or the approach (conftest.short_session)
+    return parse_config(short_session(data), source="sim-canopen-arm.yaml")
 
 
 def move_batches(ctrl) -> int:

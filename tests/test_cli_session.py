@@ -16,19 +16,21 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import ROOT, tweak
+from conftest import ROOT, fast_start, short_session, tweak
 from payload_agent.configuration.config import load_config
 
 pytest.importorskip("mujoco")
 
 
-def sim_robot(tmp_path: Path, name: str = "clisim") -> Path:
-    """The shipped sim-ec66.yaml, no storage paths (state goes to $XDG_STATE_HOME), a slower clock and a
-    generous stream-gap limit so that a loaded CI machine does not trip the supervision."""
+def sim_robot(tmp_path: Path, name: str = "clisim", short=fast_start) -> Path:
+    """The shipped sim-ec66.yaml, no storage paths (state goes to $XDG_STATE_HOME), a faster clock and a
+    generous stream-gap limit so that a loaded CI machine does not trip the supervision; the command line is the
+    subject, not the approach (conftest.fast_start; ``short=short_session``: nor the procedure)."""
     data = yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text())
     data = tweak(data, "robot.name", name)
     data = tweak(tweak(data, "simulation.time_scale", 25), "safety.max_stream_gap_ms", 1000)
     data = tweak(data, "procedure.inertia", False)  # its wrist moves double a session (tests/test_wrist_*)
+    data = short(data)
     path = tmp_path / "robots" / f"{name}.yaml"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(data))
@@ -220,7 +222,7 @@ def test_readme_calibrate_example_works_on_the_simulator(tmp_path, capsys, monke
     """README: `calibrate --known-mass 3.0 --known-cog 0,0,80` on a simulated robot mounts that reference
     (the YAML's simulated tool weighs something else) and fits the gains: exit 0, the truth is the reference."""
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
-    robot = sim_robot(tmp_path, "calsim")
+    robot = sim_robot(tmp_path, "calsim", short=short_session)
     assert yaml.safe_load(robot.read_text())["simulation"]["payload"]["mass_kg"] != 3.0
     rc, out, err = _main(["calibrate", "--robot", str(robot), "--yes", "--known-mass", "3.0", "--known-cog",
                           "0,0,80"], capsys)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from conftest import ROOT
+from conftest import ROOT, short_session
 from payload_agent.recording.rundata import load_manifest
 
 AGENT = [sys.executable, "-m", "payload_agent.cli"]
@@ -28,6 +28,7 @@ def sim_yaml(tmp_path: Path, time_scale: float | None = 10) -> Path:
         data["simulation"]["time_scale"] = time_scale
     data["storage"] = {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")}
     data.pop("watch", None)
+    data = short_session(data)  # the kill and the resume are the subject (conftest.short_session)
     path = tmp_path / "sim-ec66.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

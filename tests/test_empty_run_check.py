@@ -23,11 +23,11 @@ from payload_agent.recording.rundata import load_manifest
 from payload_agent.recording.state import RobotState
 from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
-from conftest import tweak
+from conftest import short_session, tweak
 
 pytest.importorskip("mujoco")
 
-BROKEN = "b-j2-up"
+BROKEN = "p-j2-up"  # the first sweep of j2_pair (conftest.short_session)
 
 
 def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_repeats_the_live_result(
@@ -35,7 +35,7 @@ def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_rep
     data = tweak(sim_ec66_data, "robot.name", "empty-check")
     data = tweak(data, "storage", {"state_dir": str(tmp_path / "state"), "runs_dir": str(tmp_path / "runs")})
     data = tweak(data, "simulation.payload", {"mass_kg": 1.7, "cog_mm": [25.0, -15.0, 70.0]})
-    config = parse_config(data, "empty-check.yaml")
+    config = parse_config(short_session(data), "empty-check.yaml")  # the checks are the subject, not the procedure
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     scale = np.array([1.0, 1.004, 0.997, 1.0, 1.0, 1.0])
     save_calibration(RobotState.for_config(config), GainCalibration(

@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from conftest import tweak
+from conftest import short_session, tweak
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import MotionAbortedError
@@ -50,12 +50,13 @@ def test_identifies_simulated_payload_over_the_protocol(sim_ec66_data, tmp_path)
 
 
 def test_estop_mid_sweep_stops_and_keeps_data(sim_ec66_data, tmp_path):
-    # slow sweeps (3 %) so that the stop lands mid-sweep; one direction only: half the empty run to wait for
-    cfg = _config(sim_ec66_data, tmp_path, procedure__speed_percent=3, procedure__bidirectional=False)
+    # slow sweeps (3 %) so that the stop lands mid-sweep; one direction only and j2_pair's two sweeps
+    # (conftest.short_session): a quarter of the shipped empty run to wait for
+    cfg = _config(short_session(sim_ec66_data), tmp_path, procedure__speed_percent=3, procedure__bidirectional=False)
     cells = []
 
     def out(line):
-        if "[loaded] 2/8" in line:  # the first loaded sweep has just been commanded
+        if "[loaded] 2/4" in line:  # the first loaded sweep has just been commanded
             cell = cells[0]
             threading.Timer(0.15, cell.controller.press_estop).start()
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import tweak
+from conftest import short_session, start_at_first_move, tweak
 from inproc_driver import CONTROLLERS, InProcessDriver
 from payload_agent.configuration.config import parse_config
 from payload_agent.drivers import registry
@@ -40,7 +40,7 @@ def quiet(config, on_cell=None, **kw):
 
 def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
     data = tweak(sim_ec66_data, "simulation.payload", {"mass_kg": 1.7, "cog_mm": [-30, 45, 60]})
-    outcome = quiet(inproc_config(data, tmp_path, "e2e"))
+    outcome = quiet(inproc_config(short_session(data), tmp_path, "e2e"))  # the driver is the subject
     est = outcome.result.primary
     assert abs(est.mass_kg - 1.7) < 0.03
     assert max(abs(a - b) for a, b in zip(est.cog_mm, (-30, 45, 60))) < 5.0
@@ -54,8 +54,7 @@ def test_runner_drives_the_minimal_driver_end_to_end(sim_ec66_data, tmp_path):
 def test_stalled_stream_stops_the_arm_and_keeps_the_data(sim_ec66_data, tmp_path):
     data = tweak(sim_ec66_data, "simulation.time_scale", 5)  # sweeps long enough to stall in the middle
     # the simulated arm starts where the plan's approach move goes (12 s of simulated travel saved)
-    approach = make_plan(inproc_config(data, tmp_path, "stall")).moves[0].target_rad
-    data = tweak(data, "simulation.start_deg", [math.degrees(a) for a in approach])
+    data = start_at_first_move(data)
     config = inproc_config(data, tmp_path, "stall", max_stream_gap_ms=100)
     first_sweep = next(i for i, m in enumerate(make_plan(config).moves) if m.sweep is not None)
     seen = {}
@@ -106,7 +105,7 @@ def test_effort_unit_must_match_the_driver_before_connecting(sim_ec66_data, tmp_
 
 def test_resume_records_only_the_unfinished_sweeps(sim_ec66_data, tmp_path):
     data = tweak(sim_ec66_data, "simulation.payload", {"mass_kg": 2.2, "cog_mm": [35, -20, 50]})
-    config = inproc_config(data, tmp_path, "resume")
+    config = inproc_config(short_session(data), tmp_path, "resume")  # resume is the subject, not the procedure
     plan = make_plan(config)
 
     def stop_in_loaded_run(cell):
@@ -178,9 +177,7 @@ def test_a_sweep_is_recorded_from_its_start_when_the_sample_reader_joins_late(si
     meanwhile is lost but the newest state (as RTDE's receive interface keeps only its newest package). The
     sweep must still be recorded from its start, at rest: the run does not send the sweep before a sample
     taken after the file opened (seen on a loaded machine: "the sweep started at 87.92°, the plan says 90.00°")."""
-    approach = make_plan(inproc_config(sim_ec66_data, tmp_path, "late")).moves[0].target_rad
-    data = tweak(sim_ec66_data, "simulation.start_deg", [math.degrees(a) for a in approach])
-    config = inproc_config(data, tmp_path, "late")
+    config = inproc_config(short_session(sim_ec66_data), tmp_path, "late")  # the first sweep is the subject
     plan = make_plan(config)
     first = next(i for i, m in enumerate(plan.moves) if m.sweep is not None)
     sweep = plan.moves[first]

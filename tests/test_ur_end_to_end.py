@@ -19,7 +19,7 @@ import yaml
 
 pytest.importorskip("rtde_control", reason="ur-rtde wheel not installed (CPython 3.11/3.12)")
 
-from conftest import ROOT, tweak  # noqa: E402
+from conftest import ROOT, fast_start, tweak  # noqa: E402
 from payload_agent.cli import main  # noqa: E402
 from payload_agent.configuration.config import parse_config  # noqa: E402
 from payload_agent.errors import MotionAbortedError  # noqa: E402
@@ -41,7 +41,9 @@ def _data(sim_ur5e_data, tmp_path: Path, **changes):
     data.pop("watch", None)
     for path, value in changes.items():
         data = tweak(data, path.replace("__", "."), value)
-    return data
+    # the approach is not the subject here (tests/test_end_to_end.py keeps the shipped EC66 start): the arm starts
+    # where the approach goes, and the loaded run's first move runs at 15 % (conftest.fast_start)
+    return fast_start(data)
 
 
 def _largest_recorded_step_s(run_dir: Path, sweep: dict) -> float:
@@ -52,7 +54,8 @@ def _largest_recorded_step_s(run_dir: Path, sweep: dict) -> float:
 
 
 def test_cli_run_identifies_the_simulated_ur5e_payload(sim_ur5e_data, tmp_path):
-    """`payload-agent run --robot sim-ur5e.yaml --yes` as shipped (only host and folders changed)."""
+    """`payload-agent run --robot sim-ur5e.yaml --yes` as shipped (only host, folders, the simulated arm's start
+    and the approach speed changed)."""
     cfg_path = tmp_path / "sim-ur5e.yaml"
     cfg_path.write_text(yaml.safe_dump(_data(sim_ur5e_data, tmp_path)))
     truth = sim_ur5e_data["simulation"]["payload"]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import ROOT, tweak
+from conftest import ROOT, short_session, tweak
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import CommunicationError, RobotBusyError, ToolMismatchError
@@ -37,6 +37,7 @@ def identified(tmp_path_factory):
     data = tweak(data, "simulation.payload", {"mass_kg": TRUTH[0], "cog_mm": list(TRUTH[1])})
     data = tweak(data, "simulation.time_scale", 8)  # lighter on a shared host than the YAML's 15
     data = tweak(data, "procedure.inertia", False)  # verify is about mass and CoM (the wrist part: test_wrist_*.py)
+    data = short_session(data)  # the identifications' procedure is not the subject (conftest.short_session)
     cfg_path = tmp / "robot.yaml"
     cfg_path.write_text(yaml.safe_dump(data))
     config = parse_config(data, source=str(cfg_path))

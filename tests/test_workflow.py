@@ -13,7 +13,7 @@ import shutil
 import numpy as np
 import pytest
 
-from conftest import ROOT, tweak
+from conftest import ROOT, short_session, tweak
 from payload_agent.recording import history
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
@@ -27,9 +27,12 @@ TOOLS = {"gripper-A": (1.2, (10.0, 20.0, 60.0)), "gripper-B": (3.1, (-30.0, 40.0
 
 
 def _data(sim_ec66_data, tmp_path):
+    """The simulated EC66 on ephemeral ports with its own folders; the workflow is the subject, not the
+    procedure or the approach (conftest.short_session: j2_pair, the arm starting at the first move)."""
     data = tweak(sim_ec66_data, "driver.rpc_port", 0)
     data = tweak(data, "driver.monitor_port", 0)
-    return tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    return short_session(data)
 
 
 def _never_ask(prompt):
