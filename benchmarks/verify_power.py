@@ -21,7 +21,6 @@ errors (same centre of mass) and centre-of-mass shifts along x, y and z (same ma
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path

@@ -21,7 +21,7 @@ from payload_agent.evaluation.calibration import GainCalibration, calibration_fi
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.rundata import load_manifest
 from payload_agent.recording.state import RobotState
-from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
+from payload_agent.session.runner import OperatorUI, RunOptions, run_identification
 
 from conftest import short_session, tweak
 

@@ -23,7 +23,6 @@ from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
-from payload_agent.evaluation.systematics import offsets
 from payload_agent.solvers import general
 
 from conftest import tweak

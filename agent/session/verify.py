@@ -17,7 +17,6 @@ match raises ``ToolMismatchError`` (exit 7) saying what differs and by how much;
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field, replace
 from datetime import datetime
