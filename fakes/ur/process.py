@@ -324,9 +324,12 @@ class FakeURController(SimulatedController):
             pass
         try:
             self._proc.wait(timeout=5.0)
-        except Exception:
+        except Exception:  # a busy host: ended now; once killed it is gone whenever the kernel gets to it
             self._proc.kill()
-            self._proc.wait(timeout=2.0)
+            try:
+                self._proc.wait(timeout=10.0)
+            except Exception:
+                pass
         self._conn.close()
         self._proc = self._conn = None
 
