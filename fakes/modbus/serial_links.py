@@ -84,7 +84,8 @@ class PtyLink(SerialLine):
         self.server_path = os.ttyname(self._s_server)
         self.client_path = os.ttyname(self._s_client)
 
-    def start(self, device_port: str | None = None) -> None:
+    def start(self, device_address: tuple[str, int] | None = None) -> None:
+        """Join the two ends (a tty has no device address: the device opens ``server_path``)."""
         self.join(self._m_client, self._m_server, "pty")
 
     def close(self) -> None:
