@@ -42,6 +42,7 @@ from payload_agent.fakes.elite_ec_models import (DEFAULT_JOINT_TEMPS_C, DEFAULT_
 from payload_agent.fakes.elite_ec_monitor import PERIOD_S, MonitorServer, pack_frame
 from payload_agent.fakes.elite_ec_pendant import ElitePendant
 from payload_agent.fakes.elite_ec_rpc import INVALID_PARAMS, METHOD_NOT_FOUND, SERVER_ERROR, LineJsonRpcServer, RpcError
+from payload_agent.fakes.hosted import HostedController
 from payload_agent.fakes.sim_robot import SimRobot
 
 if TYPE_CHECKING:
@@ -129,8 +130,11 @@ class FakeEliteController(ElitePendant, EliteMethods, SimulatedController):
 
     # -- the simulated-controller contract ----------------------------------------------------
     @classmethod
-    def from_config(cls, config: "Config") -> "FakeEliteController":
-        """A fake EC controller and its SimRobot from a robot YAML's ``simulation`` and ``driver`` sections.
+    def from_config(cls, config: "Config", *, in_process: bool = False) -> "FakeEliteController | HostedController":
+        """A fake EC controller and its SimRobot from a robot YAML's ``simulation`` and ``driver`` sections,
+        run in a process of its own (``fakes.hosted``), as the controller is a separate computer: served by
+        threads of the agent's process, its 125 Hz stream stalled for over a second on a busy host, behind the
+        agent's own threads. ``in_process`` builds it here (which is how that process builds it).
 
         Ports of 0 in the driver section mean ephemeral ports (see ``bound_options``); the host must be
         a loopback address (the TCP servers refuse any other), or ``auto``: a 127.0.0.x on which the
@@ -141,6 +145,8 @@ class FakeEliteController(ElitePendant, EliteMethods, SimulatedController):
         sim = config.simulation
         if sim is None:
             raise ValueError("this config has no simulation section")
+        if not in_process:
+            return HostedController(f"{cls.__module__}:{cls.__name__}", config, cls.faults)
         spec = SPECS[sim.arm]()
         robot = SimRobot(spec, tick_s=TICK_S, **sim_robot_kwargs(config))
         opts = config.driver_options

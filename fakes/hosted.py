@@ -4,8 +4,10 @@ A fake served by threads of the agent's process shares its interpreter lock and 
 host with the agent's reader, watchdog and analysis threads: under load it answers late for reasons no
 real controller has (a pty-served Modbus RTU device left requests unanswered for over a second with both
 cores busy), and the agent rightly stops the arm. In a process of its own the fake is scheduled by the
-operating system like the separate device it stands for. (``fakes/ur/process.py`` does the same for UR,
-whose client library holds the lock while it connects.)
+operating system like the separate device it stands for. The Elite EC and the Modbus RTU fakes run
+this way (a simulated EC66 serving its 125 Hz monitor stream from the agent's process stalled it past the
+1 s watchdog once on a busy CI host); ``fakes/ur/process.py`` does the same for UR, whose client library
+holds the lock while it connects.
 
 ``HostedController(factory, config)`` starts ``python -m payload_agent.fakes.hosted FD`` (FD: its end of a
 socket pair, as ``fakes/ur/child.py``; not multiprocessing's spawn, which would re-run the parent's main
@@ -108,6 +110,7 @@ class HostedController(SimulatedController):
         self.faults = faults
         self._lock = threading.Lock()
         self._closed = False
+        self._final: dict[tuple[str, str], Any] = {}  # (op, path) -> value, read before the close
         parent_sock, child_sock = socket.socketpair()
         self._proc = subprocess.Popen([sys.executable, "-m", "payload_agent.fakes.hosted", str(child_sock.fileno())],
                                       pass_fds=(child_sock.fileno(),), close_fds=True)
@@ -140,6 +143,8 @@ class HostedController(SimulatedController):
     def _request(self, op: str, path: str, *args: Any, **kwargs: Any) -> Any:
         with self._lock:
             if self._closed:
+                if (op, path) in self._final:  # what an in-process controller still tells after its close
+                    return self._final[(op, path)]
                 raise RuntimeError(f"the simulated controller is closed ({path})")
             self._conn.send((op, path, args, kwargs))
             return self._reply(REPLY_TIMEOUT_S, path)
@@ -147,7 +152,7 @@ class HostedController(SimulatedController):
     def remote_attr(self, path: str) -> Any:
         """The value of ``path`` in the child, or a function calling it there if it is a method."""
         value = self._request("get", path)
-        if value == _CALLABLE:
+        if isinstance(value, str) and value == _CALLABLE:
             return lambda *args, **kwargs: self._request("call", path, *args, **kwargs)
         return value
 
@@ -163,6 +168,12 @@ class HostedController(SimulatedController):
 
     def close(self) -> None:
         if not self._closed:
+            try:  # the command log and the arm's last state stay readable, as an in-process controller's do
+                for key in (("get", "events"), ("call", "robot.snapshot")):
+                    self._final[key] = self._request(*key)
+                self._final[("get", "robot.snapshot")] = _CALLABLE
+            except Exception:
+                pass
             try:
                 self._request("call", "close")
             except Exception:

@@ -204,9 +204,16 @@ def test_flange_pose_is_the_tcp_pose_less_the_tcp_offset(ur, healthy):
             if tcp is not None:
                 ur.set_tcp_offset(tcp)
                 ur.wait_ticks(3)
-            q = healthy.wait_sample(1.0, after=time.monotonic()).q
-            pose = healthy.flange_pose()
-            T = kin.flange(q)
+            # getTCPOffset answers with the new offset at once, while packages built before it changed may
+            # still be on their way on a busy host: read until the stream has caught up (the arm stands still)
+            deadline = time.monotonic() + 3.0
+            while True:
+                q = healthy.wait_sample(1.0, after=time.monotonic()).q
+                pose = healthy.flange_pose()
+                T = kin.flange(q)
+                if np.allclose(pose.position_m, T[:3, 3], atol=1e-6) or time.monotonic() > deadline:
+                    break
+                time.sleep(0.05)
             assert np.allclose(pose.position_m, T[:3, 3], atol=1e-6)
             assert np.allclose(np.asarray(pose.rotation), T[:3, :3], atol=1e-6)
             tcp_pose = healthy._recv.getActualTCPPose()

@@ -81,7 +81,7 @@ def parse_effects(node: Node | None) -> SimEffects:
 
 @dataclass(frozen=True)
 class SimulationConfig:
-    """Only in sim-*.yaml: the agent starts a fake controller in-process with this truth."""
+    """Only in sim-*.yaml: the agent starts a simulated controller with this truth (fakes/)."""
 
     arm: str
     payload: SimPayload
