@@ -95,11 +95,14 @@ def fresh(ur2):
     ur = ur2
     settle(ur)
     d = make_driver(ur.host)
-    d.connect()
-    d.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
-    yield d
-    d.close()
-    settle(ur)
+    try:
+        d.connect()
+        settle(ur, d)  # a fresh sample first: on a busy host the newest was once 205 ms old (limit 200 ms)
+        d.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
+        yield d
+    finally:  # also when the set-up fails: a driver left open holds the control interface's registers
+        d.close()
+        settle(ur)
 
 
 # -- options and registry ------------------------------------------------------------------------------
