@@ -70,11 +70,11 @@ class ZeroOffsets:
     effort_coupling: tuple[tuple[float, ...], ...] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """The calibration file's ``zero_offsets`` (joints 1-based, degrees)."""
+        """The calibration file's ``zero_offsets`` (joints 1-based; radians, as stored, so that it reads back exactly)."""
         return {"max_gain_correlation": self.max_gain_correlation,
-                "joints": [{"joint": z.joint + 1, "offset_deg": float(np.degrees(z.offset_rad)),
-                            "std_deg": float(np.degrees(z.std_rad)), "prior_std_deg": float(np.degrees(z.prior_std_rad)),
-                            "data_std_deg": float(np.degrees(z.data_std_rad)) if np.isfinite(z.data_std_rad) else None,
+                "joints": [{"joint": z.joint + 1, "offset_rad": z.offset_rad, "std_rad": z.std_rad,
+                            "prior_std_rad": z.prior_std_rad,
+                            "data_std_rad": z.data_std_rad if np.isfinite(z.data_std_rad) else None,
                             **({} if self.corr is None else {"corr": list(self.corr[i])}),
                             **({} if self.effort_coupling is None else
                                {"effort_per_rad": list(self.effort_coupling[i])})}
@@ -86,12 +86,11 @@ class ZeroOffsets:
         rows = d["joints"]
         out = []
         for r in rows:
-            data = r.get("data_std_deg")
-            out.append(ZeroOffset(int(r["joint"]) - 1, float(np.radians(float(r["offset_deg"]))),
-                                  float(np.radians(float(r["std_deg"]))), float(np.radians(float(r["prior_std_deg"]))),
-                                  float("inf") if data is None else float(np.radians(float(data)))))
+            data = r.get("data_std_rad")
+            out.append(ZeroOffset(int(r["joint"]) - 1, float(r["offset_rad"]), float(r["std_rad"]),
+                                  float(r["prior_std_rad"]), float("inf") if data is None else float(data)))
         if any(not 0 <= z.joint < 6 or not z.std_rad >= 0 for z in out):
-            raise ValueError("zero_offsets: joints must be 1–6 and std_deg not negative")
+            raise ValueError("zero_offsets: joints must be 1–6 and std_rad not negative")
         corr = [r.get("corr") for r in rows]
         if any(c is not None and len(c) != len(rows) for c in corr):
             raise ValueError("zero_offsets: each corr must have one entry per joint")
