@@ -16,14 +16,13 @@ unbiased); bidirectional combined sweeps ("both") are preferred, since friction 
 velocity cancels there. Where only one direction was recorded, each (sweep, joint) group
 on the moving joint gets its own offset to absorb the friction the baseline left.
 
-Only joints that carry enough of the payload's torque are fitted (in ``paper_bd``: joints
-2 and 3, sometimes 5); the others keep their nominal gain. A fitted scale outside
-0.8–1.25 is refused: it means a wrong reference mass was typed or the tool was not mounted.
-
+Only joints that carry enough of the payload's torque are fitted (in ``paper_bd``: joints 2 and 3, sometimes 5);
+the others keep their nominal gain. A scale outside 0.8–1.25 is refused (a wrong reference mass, or no tool mounted).
+The fitted gains are then refitted jointly with the zeros of joints 2 and 3 (``zero_offsets``: a zero shifts the
+reference's torque along a sweep where a gain scales it), which are stored with them and corrected by every run.
 The result lives in ``state/<robot>/gains.json`` and is valid only for the configuration
 it was fitted on (robot name, effort unit, nominal gains, kinematics): ``load_calibration``
-refuses it otherwise, rather than silently applying stale gains.
-"""
+refuses it otherwise, rather than silently applying stale gains."""
 
 from __future__ import annotations
 
