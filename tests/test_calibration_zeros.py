@@ -142,3 +142,26 @@ def test_the_plan_predicts_the_runs_zero_term(sim, prior_deg):
     assert plan_cov[0, 0] < 0.25 * declared[0, 0]  # the zero term shrinks: measured 0.14 against 0.62 g (±0.02°)
     if prior_deg < 0.1:  # a wrong sign would fit the gains' errors against the zeros' instead of with them
         assert flipped[0, 0] > 4 * plan_cov[0, 0], (flipped[0, 0], plan_cov[0, 0])
+
+
+def test_a_stored_calibration_with_bad_zeros_is_refused_naming_the_file(sim):
+    """A hand-edited gains.json: a zero on joint 9 is refused with the file named; a file from before (no zeros)
+    still loads, without zeros, and the analysis then keeps the declared zero term."""
+    import json
+
+    from payload_agent.errors import DataError
+    from payload_agent.evaluation.calibration import load_calibration
+
+    config, _, cal = sim
+    state = RobotState.for_config(config)
+    save_calibration(state, cal)
+    data = json.loads(state.gains_path.read_text(encoding="utf-8"))
+    assert load_calibration(state, config) == cal
+    data["zero_offsets"]["joints"][0]["joint"] = 9
+    state.gains_path.write_text(json.dumps(data), encoding="utf-8")
+    with pytest.raises(DataError, match=r"gains\.json: cannot read the drive-gain calibration .*joints must be 1–6"):
+        load_calibration(state, config)
+    del data["zero_offsets"]
+    state.gains_path.write_text(json.dumps(data), encoding="utf-8")
+    assert load_calibration(state, config).zeros is None
+    save_calibration(state, cal)  # as the other tests of this module expect it
