@@ -109,7 +109,8 @@ class ZeroOffsets:
 
     def describe(self) -> str:
         return ", ".join(f"j{z.joint + 1} {np.degrees(z.offset_rad):+.4f}±{np.degrees(z.std_rad):.4f}°"
-                         + ("" if z.measured else " (prior)") for z in self.joints)
+                         + ("" if z.measured else f" (mostly the prior: the data alone ±{np.degrees(z.data_std_rad):.3f}°)")
+                         for z in self.joints)
 
 
 @dataclass(frozen=True)
