@@ -16,8 +16,11 @@ the result is the prior (offset 0, σ declared), and a joint declared exact (0°
 The calibration stores the result (``ZeroOffsets``); ``corrected`` moves every sample of a run to its link
 angle q − z before the analysis, and ``declaration`` gives the joint-zero term the measured σ for those joints
 (the declared one stays for the others), in the run (``evaluation.analyse``) and in the plan
-(``session.target.noise_for`` → ``design``), so that the two predict alike. The k–z correlation of the
-calibration is stored; the analysis treats the gain and zero uncertainties as independent (docs/analysis.md).
+(``session.target.noise_for`` → ``design``), so that the two predict alike. The whole posterior reaches σ: the
+zeros' correlation, and the gains' errors that go with the zeros' errors (``effort_coupling``: the joint-zero
+term shifts the angles and changes the efforts together), the gains keeping their σ given the zeros. On the
+calibration's 0–55° sweeps the zeros one by one are hardly better than the declared 0.02°, but their effect on a
+payload measured with similar sweeps is: the coupled gains cancel most of it (docs/benchmarks.md, issue 22).
 """
 
 from __future__ import annotations
