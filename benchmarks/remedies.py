@@ -50,16 +50,20 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
     separately) after the calibration."""
     from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
-    from payload_agent.evaluation import systematics
+    from payload_agent.evaluation import systematics, zero_offsets
     from payload_agent.evaluation.systematics import gain_scatter
 
     decl = declaration(declared)
     scale, gain_rel_std, fitted = calibrate(ref, empty, config, unfitted_std, decl)
-    stood = gain_scatter.standing_angles(systematics.prepare(ref, empty, decl).deltas, config.robot.kinematics)
+    ref_deltas = systematics.prepare(ref, empty, decl).deltas
+    # as ``calibration.fit_gains``: the zeros of joints 2, 3 fitted with the gains where zero uncertainty is declared
+    scale, gain_rel_std, zeros = zero_offsets.refit(ref_deltas, config.robot.kinematics, theta_reference(), fitted,
+                                                    scale, gain_rel_std, decl.zero_offset_std_rad)
+    stood = gain_scatter.standing_angles(ref_deltas, config.robot.kinematics)
     options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
     gains = Gains(tuple(float(g) for g in np.asarray(config.effort.gains_nm_per_unit) * scale),
                   "calibrated on the benchmark's reference run", None, tuple(float(v) for v in gain_rel_std),
-                  (tuple(theta_reference()), tuple(fitted), stood))
+                  (tuple(theta_reference()), tuple(fitted), stood), zeros)
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=())
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 

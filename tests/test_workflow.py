@@ -245,3 +245,6 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
     assert np.max(np.abs(np.array(out.result.primary.cog_mm) - tool_cog)) < 3.0
     assert "calibration" in out.result.extra["gains_source"]
     assert any(line.startswith("Drive gains: drive gains from calibration") for line in lines)
+    # the zeros of joints 2 and 3 were fitted with the gains, shown, and the tool run corrected its angles by them
+    assert any(line.startswith("Joint zeros (controller − link angle") and "j2 " in line for line in lines), lines
+    assert [z["joint"] for z in out.result.extra["zero_offsets"]["joints"]] == [2, 3]

@@ -34,10 +34,9 @@ DEFAULT_LENGTH_UNCERTAINTY_MM = 0.5
 # Gearbox friction falls markedly as the joints warm up from cold; a baseline recorded on a cold
 # robot does not describe a warm one. 10 °C is roughly cold start vs. after an hour of work.
 DEFAULT_BASELINE_MAX_TEMPERATURE_DELTA_C = 10.0
-# A real arm's joints (docs/sources.md "Physics core: error sources"): the catalogue stiffness of a
-# strain-wave gear is "an average of numerous tests", taken as ±20 % uniform: 20/√3 = 11.5 % standard
-# uncertainty; encoder zeroing leaves "a few hundredths of a degree"; Coulomb friction differs by
-# direction by up to ±15 % (uniform): 15/√3 = 8.7 % standard uncertainty of the asymmetry
+# A real arm's joints (docs/sources.md "Physics core: error sources"): a strain-wave gear's catalogue stiffness is
+# "an average of numerous tests", ±20 % uniform: 20/√3 = 11.5 % standard uncertainty; encoder zeroing leaves "a few
+# hundredths of a degree"; Coulomb friction differs by direction by up to ±15 % (uniform): 15/√3 = 8.7 %
 DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT = 12.0
 DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG = 0.02
 DEFAULT_FRICTION_ASYMMETRY_PERCENT = 8.7
@@ -51,18 +50,19 @@ MIN_STIFFNESS_NM_PER_RAD = 100.0  # softer than this twists a joint by 0.6° per
 
 @dataclass(frozen=True)
 class JointSystematicsConfig:
-    """What the robot YAML declares about its joints' systematic errors (``evaluation.systematics``).
-
+    """What the robot YAML declares about its joints' systematic errors (``evaluation.systematics``):
     ``robot.kinematics.stiffness_nm_per_rad`` (absent: rigid), ``stiffness_uncertainty_percent``,
-    ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent`` and ``robot.friction_change_percent``,
-    in SI / fractions (all standard deviations).
-    """
-
+    ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent``, ``robot.friction_change_percent``, in SI /
+    fractions (standard deviations). The zeros' correlation and their coupling to the drive gains ([i][j]: joint j's
+    relative effort change that goes with joint i's angles shifted by 1 rad) exist only where a calibration measured
+    the zeros (``evaluation.zero_offsets.declaration``), never in YAML; None: independent, uncoupled."""
     stiffness_nm_per_rad: tuple[float, ...] | None = None  # None, or 0 on a joint: rigid, not compensated
     stiffness_rel_std: float = DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT / 100.0
     zero_offset_std_rad: tuple[float, ...] = (math.radians(DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG),) * N_JOINTS
     friction_asymmetry_std: float = DEFAULT_FRICTION_ASYMMETRY_PERCENT / 100.0  # of the Coulomb level, by direction
     friction_change_std: float = DEFAULT_FRICTION_CHANGE_PERCENT / 100.0  # of the baseline's friction level
+    zero_offset_corr: tuple[tuple[float, ...], ...] | None = None  # 6×6
+    zero_gain_coupling: tuple[tuple[float, ...], ...] | None = None  # 6×6
 
 
 @dataclass(frozen=True)

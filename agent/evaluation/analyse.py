@@ -3,8 +3,9 @@
 ``analyse`` is what ``payload-agent run`` / ``solve`` (through ``pipeline.analyse_run``, which reads the run
 folder), the report's residual figure and the accuracy benchmark all call, so the three can never drift:
 
-1. the declared joint stiffness is compensated in the loaded and the empty run alike, then the baseline
-   is subtracted and the two directions combined (``systematics.prepare``);
+1. the joint zeros a calibration measured are corrected (``zero_offsets``) and the declared joint stiffness is
+   compensated in the loaded and the empty run alike, then the baseline is subtracted and the two directions
+   combined (``systematics.prepare``);
 2. ONE fitted model of those deltas is made (``general.fit_model``: the weighted fit, its per-pose fits
    and the fits with nuisance offsets, each made once) and handed to every consumer;
 3. every solver of ``solvers.SOLVERS`` solves on it (the chosen one first), the real arm's systematic
@@ -22,7 +23,8 @@ from typing import Any, Mapping, Sequence
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.errors import DataError
-from payload_agent.evaluation import quality, systematics
+from payload_agent.evaluation import quality, systematics, zero_offsets
+from payload_agent.evaluation.zero_offsets import ZeroOffsets
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import SOLVERS, general
@@ -55,6 +57,7 @@ class Gains:
     note: str | None = None  # added to the primary estimate's notes
     rel_std: tuple[float, ...] | None = None  # a calibration's relative uncertainty per joint
     reference: tuple | None = None  # (θ_ref, fitted joints[, standing angles]) of the calibration (GainCalibration.reference)
+    zeros: ZeroOffsets | None = None  # the joint zeros the calibration measured with the gains (``zero_offsets``)
 
 
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,
@@ -70,19 +73,24 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     for name in (options.solver, *(solvers or ())):
         if name not in SOLVERS:
             raise DataError(f"unknown solver {name!r}; available: {', '.join(SOLVERS)}")
-    prepared = systematics.prepare(loaded, empty, options.joints, commands)
+    # the calibration's measured zeros: every angle corrected, their σ in the joint-zero term (the declared elsewhere)
+    joints = zero_offsets.declaration(options.joints, gains.zeros)
+    loaded, empty = zero_offsets.corrected(loaded, gains.zeros), zero_offsets.corrected(empty, gains.zeros)
+    prepared = systematics.prepare(loaded, empty, joints, commands)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
-    syst = systematics.evaluate(prepared, kin, options.joints, gains.rel_std, model=model,
-                                gain_reference=gains.reference)
+    syst = systematics.evaluate(prepared, kin, joints, gains.rel_std, model=model, gain_reference=gains.reference)
     primary, others = solve_all(model, options, gains, syst, solvers)
-    primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []))
+    zero_note = [] if gains.zeros is None else [zero_offsets.note(gains.zeros, "the drive-gain calibration")]
+    primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []), *zero_note)
     quality_result = quality.evaluate(deltas, kin, primary, gain_rel_std=gains.rel_std,
                                       length_std_m=options.length_std_m, gain_reference=gains.reference,
                                       others=others, systematics=syst, model=model)
     extra: dict[str, Any] = {"gains_nm_per_unit": [float(g) for g in gains.nm_per_unit], "gains_source": gains.source}
     if gains.rel_std is not None:
         extra["gains_rel_std"] = list(gains.rel_std)
+    if gains.zeros is not None:
+        extra["zero_offsets"] = gains.zeros.to_json()
     return RunResult(robot, run_dir, primary, others, quality=quality_result, extra=extra)
 
 

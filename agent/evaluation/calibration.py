@@ -16,14 +16,13 @@ unbiased); bidirectional combined sweeps ("both") are preferred, since friction 
 velocity cancels there. Where only one direction was recorded, each (sweep, joint) group
 on the moving joint gets its own offset to absorb the friction the baseline left.
 
-Only joints that carry enough of the payload's torque are fitted (in ``paper_bd``: joints
-2 and 3, sometimes 5); the others keep their nominal gain. A fitted scale outside
-0.8–1.25 is refused: it means a wrong reference mass was typed or the tool was not mounted.
-
+Only joints that carry enough of the payload's torque are fitted (in ``paper_bd``: joints 2 and 3, sometimes 5);
+the others keep their nominal gain. A scale outside 0.8–1.25 is refused (a wrong reference mass, or no tool mounted).
+The fitted gains are then refitted jointly with the zeros of joints 2 and 3 (``zero_offsets``: a zero shifts the
+reference's torque along a sweep where a gain scales it), which are stored with them and corrected by every run.
 The result lives in ``state/<robot>/gains.json`` and is valid only for the configuration
 it was fitted on (robot name, effort unit, nominal gains, kinematics): ``load_calibration``
-refuses it otherwise, rather than silently applying stale gains.
-"""
+refuses it otherwise, rather than silently applying stale gains."""
 
 from __future__ import annotations
 
@@ -40,7 +39,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.analysis.run_deltas import phases_for
-from payload_agent.evaluation import systematics
+from payload_agent.evaluation import systematics, zero_offsets
 from payload_agent.evaluation.systematics import gain_scatter
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
@@ -77,6 +76,7 @@ class GainCalibration:
     # (joint 0-based, angle rad) where joints stood while others swept (``gain_scatter.standing_angles``): which
     # still-joint gain errors the calibration absorbed; None in files written before it was recorded
     standing_angles: tuple[tuple[int, float], ...] | None = None
+    zeros: zero_offsets.ZeroOffsets | None = None  # joint zeros fitted with the gains (None: not measured)
 
     @property
     def reference(self) -> tuple:
@@ -103,7 +103,8 @@ class GainCalibration:
                 "nominal_fingerprint": self.nominal_fingerprint, "run_dir": self.run_dir,
                 "created_utc": self.created_utc,
                 **({} if self.standing_angles is None else
-                   {"standing_angles_rad": [[j + 1, float(a)] for j, a in self.standing_angles]})}
+                   {"standing_angles_rad": [[j + 1, float(a)] for j, a in self.standing_angles]}),
+                **({} if self.zeros is None else {"zero_offsets": self.zeros.to_json()})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -120,9 +121,10 @@ class GainCalibration:
             raise ValueError("reference_cog_mm must have 3 components")
         stood = d.get("standing_angles_rad")
         angles = None if stood is None else tuple((int(j) - 1, float(a)) for j, a in stood)
+        zeros = None if d.get("zero_offsets") is None else zero_offsets.ZeroOffsets.from_json(d["zero_offsets"])
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
-                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles)
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -297,7 +299,9 @@ def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: 
     deltas = systematics.prepare(loaded, empty, config.robot.joints, commands).deltas
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics, nominal,
                                                      known_mass_kg, known_cog_m)
-    c = tuple(float(v) for v in known_cog_m)
+    c = tuple(float(v) for v in known_cog_m)  # then the zeros of joints 2, 3 with the gains (``zero_offsets``)
+    scale, scale_std, zeros = zero_offsets.refit(deltas, config.robot.kinematics, [known_mass_kg, *(
+        known_mass_kg * np.asarray(c))], fitted, scale, scale_std, config.robot.joints.zero_offset_std_rad)
     return GainCalibration(
         gains_nm_per_unit=tuple(float(v) for v in nominal * scale), fitted_joints=fitted,
         scale=tuple(float(v) for v in scale), scale_std=tuple(float(v) for v in scale_std),
@@ -305,7 +309,7 @@ def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: 
         robot=config.robot.name, effort_unit=config.effort.unit,
         nominal_fingerprint=calibration_fingerprint(config), run_dir=str(run_dir),
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        standing_angles=gain_scatter.standing_angles(deltas, config.robot.kinematics))
+        standing_angles=gain_scatter.standing_angles(deltas, config.robot.kinematics), zeros=zeros)
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

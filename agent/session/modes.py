@@ -127,6 +127,9 @@ class Calibrate(Mode):
         out("Drive-gain calibration (fitted / nominal): " + ", ".join(
             f"J{j + 1} {calibration.scale[j]:.4f} ± {1.96 * calibration.scale_std[j]:.4f}"
             for j in calibration.fitted_joints) + f"; stored in {path}")
+        if calibration.zeros is not None:  # fitted with the gains; every later run corrects its angles by them
+            out("Joint zeros (controller − link angle, ±1σ, fitted with the gains; the declared "
+                f"robot.kinematics.zero_offset_uncertainty_deg is the prior): {calibration.zeros.describe()}")
         return calibration
 
 

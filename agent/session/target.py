@@ -96,8 +96,13 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     gains = run_gains(config, None)
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
+    if gains.zeros is not None and noise.joints is not None:  # the run's zero term: the measured σ (zero_offsets)
+        from payload_agent.evaluation.zero_offsets import declaration
+
+        noise = dataclasses.replace(noise, joints=declaration(noise.joints, gains.zeros))
+    zeros = "" if gains.zeros is None else " and the joint zeros it measured"
     return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
-            source + "; the stored drive-gain calibration's uncertainty")
+            source + "; the stored drive-gain calibration's uncertainty" + zeros)
 
 
 def _effort_noise(config: Config) -> tuple[NoiseModel, str]:

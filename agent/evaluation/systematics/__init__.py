@@ -78,7 +78,8 @@ GainReference = tuple  # (θ_ref, fitted joints[, standing angles]) of a drive-g
 
 
 def joint_declaration(decl: JointSystematicsConfig) -> compliance.JointSystematics:
-    return compliance.JointSystematics(decl.stiffness_nm_per_rad, decl.stiffness_rel_std, decl.zero_offset_std_rad)
+    return compliance.JointSystematics(decl.stiffness_nm_per_rad, decl.stiffness_rel_std, decl.zero_offset_std_rad,
+                                       decl.zero_gain_coupling)
 
 
 def deltas_of(loaded: Sweeps, empty: Sweeps, commands: Mapping | None = None,
@@ -263,8 +264,15 @@ def joint_terms(ctx: Context) -> list[Term]:
                         "joint elasticity compensated (k = " + "/".join(f"{v:.3g}" for v in k) + " N·m/rad), "
                         f"its ±{100 * jd.stiffness_rel_std:.0f} % uncertainty in σ"))
     if zstd.any():
-        out.append(Term("joint zeros", zstd, ctx.split(d_z),
-                        f"joint zero uncertainty {np.degrees(zstd.max()):.3g}° in σ"))
+        if ctx.decl.zero_offset_corr is None:
+            out.append(Term("joint zeros", zstd, ctx.split(d_z),
+                            f"joint zero uncertainty {np.degrees(zstd.max()):.3g}° in σ"))
+        else:  # measured jointly by a calibration: the whole covariance, as independent principal parameters
+            js = np.flatnonzero(zstd > 0)
+            V, s = compliance.principal(compliance.zero_covariance(zstd, ctx.decl.zero_offset_corr), js)
+            out.append(Term("joint zeros", s, {k: A[:, js] @ V for k, A in ctx.split(d_z).items()},
+                            "joint zero uncertainty " + ", ".join(f"j{j + 1} {np.degrees(zstd[j]):.3g}°" for j in js)
+                            + " in σ (correlated as the calibration measured them)"))
     return out
 
 

@@ -41,6 +41,9 @@ class JointSystematics:
     stiffness_nm_per_rad: tuple[float, ...] | None = None  # None or 0 on a joint: rigid, no compensation
     stiffness_rel_std: float = 0.0  # relative standard uncertainty of every declared stiffness
     zero_offset_std_rad: float | Sequence[float] = 0.0  # standard uncertainty of each joint's zero
+    # [i][j]: joint j's relative effort change that goes with joint i's angles shifted by 1 rad (a calibration's
+    # gain errors correlated with its zero errors: ``evaluation.zero_offsets``); None: none
+    zero_effort_coupling: Sequence[Sequence[float]] | None = None
 
     def compliance(self) -> np.ndarray:
         if self.stiffness_nm_per_rad is None:
@@ -57,6 +60,21 @@ class JointSystematics:
 
 
 Sweeps = Mapping[SweepKey, SweepData]
+
+
+def zero_covariance(zero_std_rad: float | Sequence[float], corr: Sequence[Sequence[float]] | None = None) -> np.ndarray:
+    """The 6×6 covariance of the joint zeros, σ_i·σ_j·ρ_ij (ρ the identity unless a calibration measured them
+    jointly: ``JointSystematicsConfig.zero_offset_corr``)."""
+    std = np.broadcast_to(np.asarray(zero_std_rad, float), (N_JOINTS,))
+    return np.outer(std, std) * (np.eye(N_JOINTS) if corr is None else np.asarray(corr, float))
+
+
+def principal(cov: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(V, σ) with cov[joints][:, joints] = V·diag(σ²)·Vᵀ: independent parameters for a correlated block, so that a
+    term of independent parameters (σ, sensitivities A·V) carries the whole covariance."""
+    block = cov[np.ix_(joints, joints)]
+    lam, V = np.linalg.eigh(block)
+    return V, np.sqrt(np.maximum(lam, 0.0))
 
 
 def compensate(sweeps: Sweeps, compliance_rad_per_nm: Sequence[float],
@@ -84,7 +102,8 @@ def sensitivities(loaded: Sweeps, empty: Sweeps, decl: JointSystematics, theta_o
 
     ``theta_of(loaded, empty)`` runs the caller's whole analysis (subtract, combine, solve) on
     sweeps and returns θ. A zero offset shifts the agent's picture of the arm, not the data's
-    timing, so it is applied to both runs alike; a compliance error changes each run by its own torque.
+    timing, so it is applied to both runs alike (with the drive-gain change coupled to it, where a calibration
+    measured the two together); a compliance error changes each run by its own torque.
     """
     c = decl.compliance()
     zstd = decl.zero_std()
@@ -101,9 +120,18 @@ def sensitivities(loaded: Sweeps, empty: Sweeps, decl: JointSystematics, theta_o
         if zstd[j] > 0:
             shift = np.zeros(N_JOINTS)
             shift[j] = ZERO_STEP_RAD
-            th = theta_of(compensate(loaded, c, shift), compensate(empty, c, shift))
+            gain = None if decl.zero_effort_coupling is None else \
+                1.0 + ZERO_STEP_RAD * np.asarray(decl.zero_effort_coupling[j], float)
+            th = theta_of(_scaled(compensate(loaded, c, shift), gain), _scaled(compensate(empty, c, shift), gain))
             d_z[j] = (np.asarray(th) - theta0) / ZERO_STEP_RAD
     return d_c, d_z
+
+
+def _scaled(sweeps: Mapping[SweepKey, SweepData], gain: np.ndarray | None) -> dict[SweepKey, SweepData]:
+    """Every sample's effort × ``gain`` per joint (None: unchanged)."""
+    if gain is None:
+        return dict(sweeps)
+    return {k: replace(s, effort_nm=np.asarray(s.effort_nm, float) * gain) for k, s in sweeps.items()}
 
 
 def with_covariance(est: Estimate, cov: np.ndarray, note: str | None = None) -> Estimate:

@@ -26,7 +26,8 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
 
     ``sweeps``: the plan's synthetic sweeps at the samples the analysis will use (Δτ unused), ``theta``
     a nominal payload, ``weights`` the fit's row weights (1/σ², in ``build_groups`` order). Predicted:
-    the joint zeros (θ̂ = (YᵀWY)⁻¹YᵀW·Y(q + z)θ, by a finite step) and the residual friction with the
+    the joint zeros (θ̂ = (YᵀWY)⁻¹YᵀW·Y(q + z)θ, by a finite step; their covariance as ``decl`` gives it, measured
+    and correlated where a calibration measured them, ``evaluation.zero_offsets``) and the residual friction with the
     declared change only (``friction_change_std`` × ``friction_level_nm`` per moving joint, e.g. what the
     stored baseline shows): the run measures the change and reports the posterior, whose expectation
     before the run is this prior. Not predictable: the stiffness term
@@ -38,13 +39,19 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
     Y = np.vstack([g.Y for g in groups])
     w = np.asarray(weights, float)
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
-    cov = np.zeros((4, 4))
     zstd = np.broadcast_to(np.asarray(decl.zero_offset_std_rad, float), (6,))
+    S = np.zeros((4, 6))
+    row_joint = np.concatenate([np.full(len(g.y), g.joint) for g in groups])
+    coupling = np.zeros((6, 6)) if decl.zero_gain_coupling is None else np.asarray(decl.zero_gain_coupling, float)
     for j in np.flatnonzero(zstd > 0):
         shifted = [replace(d, q=d.q + np.eye(6)[j] * compliance.ZERO_STEP_RAD) for d in sweeps]
         Y1 = np.vstack([g.Y for g in general.build_groups(shifted, kin)])
-        s = inv @ (Y.T @ (w * ((Y1 - Y) @ theta))) / compliance.ZERO_STEP_RAD
-        cov += zstd[j] ** 2 * np.outer(s, s)
+        # the data at link angles shifted by h against the model at the reported ones: as the model's angles shifted
+        # by −h (``compliance.sensitivities``), so the drive gains coupled to the zero change the effort by −h·c
+        change = (Y1 - Y) @ theta - compliance.ZERO_STEP_RAD * coupling[j, row_joint] * (Y @ theta)
+        S[:, j] = inv @ (Y.T @ (w * change)) / compliance.ZERO_STEP_RAD
+    # the zeros' covariance: declared independent, or as a calibration measured them (correlated)
+    cov = S @ compliance.zero_covariance(zstd, decl.zero_offset_corr) @ S.T
     rel = float(decl.friction_asymmetry_std) * float(decl.friction_change_std)
     if rel > 0 and friction_level_nm:
         s = offsets.offset_sensitivities(sweeps, groups, w, inv, lambda g, d: (
