@@ -425,6 +425,9 @@ def test_flange_pose_matches_forward_kinematics_of_the_simulated_arm(ctrl, sim, 
 
 GAP_LIMIT_S = 0.2  # generous against a loaded scheduler; the stop must still reach the controller within 0.5 s
 STOP_DEADLINE_S = 0.5
+# the unanswered-command tests are not about the stream: a 200 ms stall of the in-process fake's stream at load 9
+# once tripped first (the stop then went over the command channel, not over the new connection the test checks)
+REPLY_TESTS_GAP_S = 1.0
 
 
 @pytest.fixture
@@ -490,7 +493,7 @@ def test_stream_or_connection_fault_mid_move_stops_the_arm_within_half_a_second(
 
 
 def test_slow_replies_trip_the_supervision_and_say_the_stop_was_not_acknowledged(rt_ctrl):
-    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S, stop_ack_timeout_s=0.6),
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=REPLY_TESTS_GAP_S, stop_ack_timeout_s=0.6),
                               reply_timeout_s=0.2))
     try:
         err, fault_t, target = move_with_fault(rt_ctrl, d, "slow_reply", delay_s=0.5)
@@ -505,7 +508,7 @@ def test_slow_replies_trip_the_supervision_and_say_the_stop_was_not_acknowledged
 
 
 def test_a_hung_command_session_trips_and_the_stop_goes_over_a_new_connection(rt_ctrl):
-    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S, stop_ack_timeout_s=0.6),
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=REPLY_TESTS_GAP_S, stop_ack_timeout_s=0.6),
                               reply_timeout_s=0.2))
     try:
         err, fault_t, target = move_with_fault(rt_ctrl, d, "no_reply")
