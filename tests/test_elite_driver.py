@@ -425,9 +425,9 @@ def test_flange_pose_matches_forward_kinematics_of_the_simulated_arm(ctrl, sim, 
 
 GAP_LIMIT_S = 0.2  # generous against a loaded scheduler; the stop must still reach the controller within 0.5 s
 STOP_DEADLINE_S = 0.5
-# the unanswered-command tests are not about the stream: a 200 ms stall of the in-process fake's stream at load 9
+# the tests of other faults are not about the stream: a 200 ms stall of the in-process fake's stream at load 9
 # once tripped first (the stop then went over the command channel, not over the new connection the test checks)
-REPLY_TESTS_GAP_S = 1.0
+OTHER_FAULTS_GAP_S = 1.0
 
 
 @pytest.fixture
@@ -478,7 +478,7 @@ def assert_stopped_in_time(ctrl, fault_t: float, target) -> None:
 def test_stream_or_connection_fault_mid_move_stops_the_arm_within_half_a_second(rt_ctrl, fault, via):
     # only a stall needs the gap watchdog; the others show in the data or the socket at once, so their gap limit
     # is loose (a loaded host that starves the in-process simulator 0.2 s must not trip before the fault)
-    gap_s = GAP_LIMIT_S if fault == "stall_stream" else 1.0
+    gap_s = GAP_LIMIT_S if fault == "stall_stream" else OTHER_FAULTS_GAP_S
     d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=gap_s)))
     try:
         err, fault_t, target = move_with_fault(rt_ctrl, d, fault)
@@ -493,7 +493,7 @@ def test_stream_or_connection_fault_mid_move_stops_the_arm_within_half_a_second(
 
 
 def test_slow_replies_trip_the_supervision_and_say_the_stop_was_not_acknowledged(rt_ctrl):
-    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=REPLY_TESTS_GAP_S, stop_ack_timeout_s=0.6),
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=OTHER_FAULTS_GAP_S, stop_ack_timeout_s=0.6),
                               reply_timeout_s=0.2))
     try:
         err, fault_t, target = move_with_fault(rt_ctrl, d, "slow_reply", delay_s=0.5)
@@ -508,7 +508,7 @@ def test_slow_replies_trip_the_supervision_and_say_the_stop_was_not_acknowledged
 
 
 def test_a_hung_command_session_trips_and_the_stop_goes_over_a_new_connection(rt_ctrl):
-    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=REPLY_TESTS_GAP_S, stop_ack_timeout_s=0.6),
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=OTHER_FAULTS_GAP_S, stop_ack_timeout_s=0.6),
                               reply_timeout_s=0.2))
     try:
         err, fault_t, target = move_with_fault(rt_ctrl, d, "no_reply")
@@ -524,7 +524,7 @@ def test_a_hung_command_session_trips_and_the_stop_goes_over_a_new_connection(rt
 @pytest.mark.parametrize("fault,words", [("protective_stop", "collision"), ("emergency_stop", "emergency stop"),
                                          ("leave_remote", "REMOTE")])
 def test_controller_side_stops_abort_the_move_with_what_to_do(rt_ctrl, fault, words):
-    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=GAP_LIMIT_S)))
+    d = connected(make_driver(rt_ctrl, Supervision(max_stream_gap_s=OTHER_FAULTS_GAP_S)))
     try:
         err, _, target = move_with_fault(rt_ctrl, d, fault, after_s=0.2)
         assert type(err) is MotionAbortedError and words in str(err), err
