@@ -15,7 +15,7 @@ the fitted κ̂ (covariance C) onto κ ≥ 0 in C's metric. Under κ = 0 T is ch
 computed for this C by a fixed-seed draw. The term is the cable's effect on θ as measured, β̂ = A·M·κ*, and
 that effect's uncertainty D = A·M·C·Mᵀ·Aᵀ (M: the levers): all of β̂β̂ᵀ + D where T exceeds the quantile
 (the cable is found), else the share the data show beyond noise, (T − E₀[T])⁺/T of it. The weak cable of the
-benchmark (10–20 mN·m/rad) is found in about half the runs; the other half still err by 2–4 σ of mass the
+benchmark (10–20 mN·m/rad) was found in 3 of 6 runs; the other 3 still erred by 2–4 σ of mass the
 same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md, session 12).
 """
 
