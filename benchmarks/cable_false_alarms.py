@@ -7,7 +7,11 @@ significance test claims a false-alarm rate of ``cable_check.ALPHA`` (χ² of th
 χ²_k quantile). Printed: the mean χ² against k, the share above the χ²_k 90 %, 99 % and 1 − ALPHA
 quantiles, and the share of runs the check refused (significant and moving the result); and, since the
 same deltas feed the estimate, the general fit's rms(err/σ) of mass and centre of mass with its own (noise)
-covariance against the simulated tool.
+covariance against the simulated tool. Then the tool-cable term's own presence test (``systematics.cable_spring``:
+a spring relaxed where the loaded run started, its chi-bar-squared statistic T against the drawn 1 − ALPHA
+quantile): the share of runs it finds a cable, the share whose σ gets a chance term ((T − E₀[T])⁺/T of the
+effect), and that term's mass σ against the fit's own and against the free wrist offsets' term a run without
+the record gets (``systematics.wrist``).
 
 ``--gap-rate`` drops samples as a busy host's simulated stream does (a gap of 10–29 samples starts after
 any sample with this probability; 0.05 keeps about half), in the empty and the loaded run alike.
@@ -71,10 +75,12 @@ def one(config, plan, seed: int, gap_rate: float, kernel_only: bool = False) -> 
     p = sim.payload
     robot.set_payload(PayloadTruth.from_tensor(p.mass_kg, [c / 1000.0 for c in p.cog_mm], p.inertia_com_kgm2)
                       if p.inertia_com_kgm2 is not None else PayloadTruth.point(p.mass_kg, p.cog_mm))
+    mount = np.asarray(robot.snapshot().q, float)  # where the loaded run starts, as the agent records it
     robot.set_friction_scale(1.0 + sim.friction_drift)  # as the simulated cell does on a tool change
     loaded, _ = record_plan(robot, plan)
     rng = np.random.default_rng(1000 + seed)
-    prepared = systematics.prepare(thin(loaded, rng, gap_rate), thin(empty, rng, gap_rate), config.robot.joints)
+    prepared = systematics.prepare(thin(loaded, rng, gap_rate), thin(empty, rng, gap_rate), config.robot.joints,
+                                   mount_rad=mount)
     deltas = prepared.deltas
     if kernel_only:  # the covariance before the noise maps: the residuals' Bartlett kernel alone
         deltas = {key: dataclasses.replace(d, noise_map=None) for key, d in deltas.items()}
@@ -82,7 +88,35 @@ def one(config, plan, seed: int, gap_rate: float, kernel_only: bool = False) -> 
     est = general.solve(deltas, config.robot.kinematics)  # noise σ only: the fit's own covariance
     err = np.r_[est.mass_kg - p.mass_kg, np.asarray(est.cog_m) - np.asarray(p.cog_mm) / 1000.0]
     out["z"] = err / np.r_[est.mass_std_kg, est.cog_std_m]
+    out["spring"] = spring_on(prepared, config.robot.kinematics)
+    out["mass_std_g"] = 1000.0 * est.mass_std_kg
     return out
+
+
+def spring_on(prepared, kin) -> dict:
+    """The tool-cable term's test on a prepared run: T, its quantile, the weight and the term's mass σ (g)."""
+    from payload_agent.evaluation import systematics
+    from payload_agent.evaluation.systematics import cable_spring
+    from payload_agent.solvers import general
+
+    model = general.fit_model(prepared.deltas, kin)
+    syst = systematics.evaluate(prepared, kin, systematics.RIGID, terms=[systematics.wrist_terms], model=model)
+    labels = sorted({lab for lab in (offsets_label(g, model) for g in model.groups) if lab is not None})
+    s = cable_spring.fit_spring(model, labels, prepared.mount_rad) if labels else None
+    if s is None:
+        return {}
+    free = systematics.evaluate(dataclasses.replace(prepared, mount_rad=None), kin, systematics.RIGID,
+                                terms=[systematics.wrist_terms], model=model)  # what a run without the record gets
+    return {"T": s.statistic, "critical": s.critical, "present": s.present, "weight": s.weight,
+            "term_mass_g": 1000.0 * float(np.sqrt(syst.covariance()[0, 0])),
+            "free_term_mass_g": 1000.0 * float(np.sqrt(free.covariance()[0, 0]))}
+
+
+def offsets_label(group, model):
+    from payload_agent.evaluation.systematics import offsets
+
+    sweep = next(d for d in model.sweeps if d.key.name == group.sweep)
+    return offsets.wrist_joint(group, sweep)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     lo, hi = (float(v) for v in args.sweep_deg.split(":"))
     cand = design.Candidate(args.speed, 25.0, lo, hi, 1, 100.0, args.procedure)
     plan = make_plan(design.with_candidate(config, cand))
-    chi2, refused, k, z = [], 0, 0, []
+    chi2, refused, k, z, springs, std = [], 0, 0, [], [], []
     for seed in range(1, args.seeds + 1):
         c = one(config, plan, seed, args.gap_rate, args.kernel_only)
         if "chi2" not in c:
@@ -113,10 +147,14 @@ def main(argv: list[str] | None = None) -> int:
             continue
         chi2.append(c["chi2"])
         z.append(c["z"])
+        springs.append(c["spring"])
+        std.append(c["mass_std_g"])
         refused += not c["passed"]
         k = c["dof"]
         print(f"seed {seed:3d}: χ² {c['chi2']:6.1f} (k {k}, limit {c['chi2_limit']:.1f}), shift {c['mass_shift_g']:+7.1f} g "
-              f"{c['cog_shift_mm']:6.1f} mm{'  REFUSED' if not c['passed'] else ''}", flush=True)
+              f"{c['cog_shift_mm']:6.1f} mm{'  REFUSED' if not c['passed'] else ''}"
+              + (f"; cable T {c['spring']['T']:.1f} (limit {c['spring']['critical']:.1f}), term {c['spring']['term_mass_g']:.2f} g"
+                 if c["spring"] else ""), flush=True)
     x = np.array(chi2)
     q = {p: cable_check.chi2_quantile(p, k) for p in (0.9, 0.99, 1.0 - cable_check.ALPHA)}
     print(f"\n{args.robot}, {cand.describe()}, gap rate {args.gap_rate:g}{', kernel only' if args.kernel_only else ''}, {len(x)} runs without a cable: mean χ² "
@@ -126,6 +164,17 @@ def main(argv: list[str] | None = None) -> int:
     rms = np.sqrt(np.mean(np.square(z), axis=0))
     print(f"the general fit's own σ (noise only) against its error, rms(err/σ) m / cx / cy / cz: "
           f"{' / '.join(f'{v:.2f}' for v in rms)}")
+    sp = [s for s in springs if s]
+    if sp:
+        found = np.mean([s["present"] for s in sp])
+        chance = np.mean([s["weight"] > 0 for s in sp])
+        term = np.array([s["term_mass_g"] for s in sp])
+        free = np.array([s["free_term_mass_g"] for s in sp])
+        print(f"tool-cable term (spring relaxed where the loaded run started), {len(sp)} runs: found (T > its 95 % "
+              f"quantile) in {found:.3f}; a chance term in {chance:.3f}; its mass σ mean {term.mean():.2f} g, "
+              f"rms {np.sqrt(np.mean(term ** 2)):.2f} g (the fit's own mass σ {np.mean(std):.2f} g); the free wrist "
+              f"offsets' term (runs without the record) in {np.mean(free > 0):.3f}, mass σ rms "
+              f"{np.sqrt(np.mean(free ** 2)):.2f} g")
     return 0
 
 

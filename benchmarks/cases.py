@@ -244,6 +244,7 @@ def run_case(args: tuple) -> list[dict]:
     robot = _robot(draws, start, int(round(proc.speed * 100)) + 7919 * int(round(proc.travel * 100 + proc.accel)))
     empty, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
     robot.set_payload(PayloadTruth.point(mass, cog_mm))
+    mount = np.asarray(robot.snapshot().q, float)  # where the loaded run starts, as the agent records it
     robot.set_friction_scale(1.0 + draws["drift_load"])
     loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
 
@@ -283,7 +284,7 @@ def run_case(args: tuple) -> list[dict]:
                 est, plan = general.solve(gate_deltas, kin, name="general-bi-cal", **gate_kw), plan_bi
             elif method in (COMP, COMP3):
                 est, gate_cols = comp_estimate(loaded, empty, ref_run(), draws["declared"], config_bi, unfitted_std,
-                                               kin_kw, "general" if method == COMP else "three-step")
+                                               kin_kw, "general" if method == COMP else "three-step", mount)
                 rows.append(dict(_row(dict(base, method=method), est, mass, cog_mm, motion_time_s(plan_bi)), **gate_cols))
                 continue
             else:

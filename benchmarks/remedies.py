@@ -44,10 +44,11 @@ def scaled(sweeps: dict, scale: np.ndarray) -> dict:
 
 
 def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict,
-                  solver: str = "general"):
+                  solver: str = "general", mount_rad=None):
     """(Estimate, gate columns) of general-bi-cal-comp (``solver`` "three-step": three-step-bi-cal-comp) on one
     case's recorded sweeps: the agent's own ``analyse`` (that solver only, as the other methods are compared
-    separately) after the calibration."""
+    separately) after the calibration; ``mount_rad``: the angles the loaded run started from (the tool cable's
+    rest), as the agent records them."""
     from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
     from payload_agent.evaluation import systematics, zero_offsets
@@ -64,7 +65,7 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
     gains = Gains(tuple(float(g) for g in np.asarray(config.effort.gains_nm_per_unit) * scale),
                   "calibrated on the benchmark's reference run", None, tuple(float(v) for v in gain_rel_std),
                   (tuple(theta_reference()), tuple(fitted), stood), zeros)
-    result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=())
+    result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=(), mount_rad=mount_rad)
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 
 

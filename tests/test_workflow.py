@@ -78,6 +78,7 @@ def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(s
         for i, (tool, (mass, cog)) in enumerate(TOOLS.items()):
             cell.change_tool(mass, cog)
             moves_before = cell.robot.snapshot().move_id
+            standing = np.asarray(cell.robot.snapshot().q, float)  # where this tool goes on
             first = i == 0  # no stored baseline yet: an attended run records the empty flange first
             out = run_identification(cfg, RunOptions(unattended=not first, assume_yes=first, apply=True, tool=tool, report=False),
                                           OperatorUI(ask=_never_ask, out=lines.append),
@@ -94,6 +95,11 @@ def test_first_run_stores_baseline_then_two_tool_changes_unattended_with_apply(s
                 assert manifest["baseline"]["plan_fingerprint"]
                 assert all((out.run_dir / s["file"]).exists() for s in manifest["phases"]["empty"]["sweeps"])
             assert cell.robot.snapshot().move_id > moves_before
+            # the loaded phase records where it started, the tool cable's rest (systematics.cable_spring)
+            assert "start_joint_angles_rad" not in manifest["phases"]["empty"]
+            mount = manifest["phases"]["loaded"]["start_joint_angles_rad"]
+            if not first:  # the arm stood where the last run left it when this tool went on
+                assert np.allclose(mount, standing, atol=1e-3), (mount, standing)
             est = out.result.primary
             assert abs(est.mass_kg - mass) < 0.03, (tool, est.mass_kg)
             assert np.max(np.abs(np.array(est.cog_mm) - cog)) < 5.0, (tool, est.cog_mm)

@@ -62,21 +62,24 @@ class Gains:
 
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,
             gains: Gains, *, commands: Mapping | None = None, notes: Sequence[str] = (), robot: str = "",
-            run_dir: str = "", solvers: Sequence[str] | None = None) -> RunResult:
+            run_dir: str = "", solvers: Sequence[str] | None = None,
+            mount_rad: Sequence[float] | None = None) -> RunResult:
     """Compensate, subtract, combine, fit once, solve, add the systematic terms and check (module docstring).
 
     ``loaded``/``empty``: the raw sweeps, effort in N·m at ``gains``; ``commands``: the plan's sweep commands
     (constant-speed windows); ``notes``: what loading the sweeps found, added to the primary estimate's notes;
     ``robot``/``run_dir``: recorded in the result as given; ``solvers``: the solvers besides the primary
-    (default: every one of ``solvers.SOLVERS``).
+    (default: every one of ``solvers.SOLVERS``); ``mount_rad``: the joint angles the loaded run started from,
+    where the tool was mounted (the rest angles of the tool-cable term; None: not recorded).
     """
     for name in (options.solver, *(solvers or ())):
         if name not in SOLVERS:
             raise DataError(f"unknown solver {name!r}; available: {', '.join(SOLVERS)}")
     # the calibration's measured zeros: every angle corrected, their σ in the joint-zero term (the declared elsewhere)
+    # (the cable's rest, mount_rad, is on the wrist joints, whose zeros are not measured)
     joints = zero_offsets.declaration(options.joints, gains.zeros)
     loaded, empty = zero_offsets.corrected(loaded, gains.zeros), zero_offsets.corrected(empty, gains.zeros)
-    prepared = systematics.prepare(loaded, empty, joints, commands)
+    prepared = systematics.prepare(loaded, empty, joints, commands, mount_rad)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
     syst = systematics.evaluate(prepared, kin, joints, gains.rel_std, model=model, gain_reference=gains.reference)

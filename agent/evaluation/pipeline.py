@@ -20,7 +20,7 @@ from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_cal
                                                   run_calibration)
 from payload_agent.evaluation.wrist_inertia import identify_or_none
 from payload_agent.output.payload_forms import payload_forms
-from payload_agent.recording.rundata import load_manifest, load_wrist_moves
+from payload_agent.recording.rundata import load_manifest, load_wrist_moves, mount_angles
 from payload_agent.solvers.results import RunResult
 
 __all__ = ["analyse_run", "add_inertia", "run_gains", "check_baseline_segmentation"]
@@ -43,14 +43,15 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     The DH lengths' uncertainty (``robot.kinematics.length_uncertainty_mm``) is always part of it,
     and so are a real arm's systematic errors (``evaluation.systematics``): the declared joint
     stiffness is compensated in both runs before the subtraction, and its uncertainty, the joint
-    zeros', the friction the two-direction average leaves and constant wrist torques go into the
-    general solver's covariance and into the quality gate's pose comparison.
+    zeros', the friction the two-direction average leaves and a tool cable's torques on the wrist (a spring
+    relaxed where the loaded phase started, ``rundata.mount_angles``, where the manifest records it) go into
+    the general solver's covariance and into the quality gate's pose comparison.
     """
     gains_used = run_gains(config, run_dir, gains)
     notes: list[str] = []
     loaded, empty, commands = phases_for(run_dir, np.asarray(gains_used.nm_per_unit, float), baseline_dir, notes=notes)
     result = analyse(loaded, empty, AnalysisOptions.from_config(config, solver), gains_used, commands=commands,
-                     notes=notes, robot=config.robot.name, run_dir=str(run_dir))
+                     notes=notes, robot=config.robot.name, run_dir=str(run_dir), mount_rad=mount_angles(run_dir))
     return add_inertia(config, result, run_dir, baseline_dir, gains_used)
 
 

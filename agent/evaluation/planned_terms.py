@@ -11,7 +11,11 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
   E[s²·β̂β̂ᵀ] = D · E[(χ²_r − r)⁺]/r, with β̂'s true spread (``SPREAD_RATIO``: below). D is computed here
   from the planned sweeps exactly as the run computes it (offset sensitivities of the plain fit, the
   offsets' covariance of the fit with them, drive-gain part included). A real cable adds to that;
-  it is not predicted (the gate's cable check refuses strong ones).
+  it is not predicted (the gate's cable check refuses strong ones). A run whose manifest records where the
+  loaded phase started gets the tool-cable term instead (``systematics.cable_spring``); on clean simulated
+  arms it was no larger than this one (100 seeded runs each, ``benchmarks.cable_false_alarms``: mass σ rms
+  1.43 against 1.54 g on sim-ec66, 0.59 against 1.13 g on sim-ur5e), so the free offsets' expectation is
+  kept as the prediction: the cable term's rests on where the tool will be mounted, which a plan does not know.
 - **residual friction** (``systematics.friction_terms``): asymmetry a (declared) × √E[Δ²], where the run's
   Δ combines the constant friction part's change it measures (precision v_m, from the split of each
   sweep's half gap into a constant and a load-proportional part, ``systematics.friction``) with the

@@ -207,3 +207,22 @@ def load_wrist_moves(run_dir: Path, phase: str, gains_nm_per_unit: np.ndarray,
         t, q, effort = read_sweep_csv(run_dir / str(entry["file"]))
         out[entry["name"]] = WristRecord(entry["name"], t, q, effort * np.asarray(gains_nm_per_unit, float))
     return out
+
+
+MOUNT_KEY = "start_joint_angles_rad"  # the loaded phase's first start, where the tool went on (session.phases)
+
+
+def mount_angles(run_dir: Path, manifest: dict[str, Any] | None = None) -> np.ndarray | None:
+    """The joint angles (rad) the loaded phase first started from, where the tool was mounted (the rest of a tool
+    cable, ``systematics.cable_spring``); None for a run recorded without them (older runs, other tools)."""
+    manifest = manifest or load_manifest(Path(run_dir))
+    info = (manifest.get("phases") or {}).get("loaded") or {}
+    value = info.get(MOUNT_KEY) if isinstance(info, Mapping) else None
+    if value is None:
+        return None
+    q = np.asarray(value, float) if isinstance(value, list) and all(isinstance(v, (int, float)) for v in value) else None
+    if q is None or q.shape != (6,) or not np.all(np.isfinite(q)):
+        raise DataError(f"{Path(run_dir) / 'manifest.json'}: phases.loaded.{MOUNT_KEY} must be 6 joint angles in "
+                        f"rad, got {value!r}")
+    return q
+

@@ -28,6 +28,7 @@ from payload_agent.motion.safety import SafetyGate
 from payload_agent.output.stop_text import stop_sentence
 from payload_agent.recording import resting_pose
 from payload_agent.recording.recorder import RunRecorder
+from payload_agent.recording.rundata import MOUNT_KEY
 from payload_agent.recording.state import RobotState
 
 SAMPLE_WAIT_S = 5.0
@@ -114,7 +115,9 @@ class PhaseRunner:
         check_kinematics(self.config, self.driver, start_q, f"before the {name} run")
         state_root = RobotState.for_config(self.config).root
         resting_pose.clear(state_root)  # the arm is about to leave it
-        self.recorder.begin_phase(name, resume, joint_temperatures_c={"start": joint_temperatures(self.driver)})
+        # where the loaded phase first starts is where the tool went on: a tool cable's rest (systematics.cable_spring)
+        mount = {} if resume or name != "loaded" else {MOUNT_KEY: [float(v) for v in start_q]}
+        self.recorder.begin_phase(name, resume, joint_temperatures_c={"start": joint_temperatures(self.driver)}, **mount)
         if self.progress is not None:
             self.progress.begin_phase(name)
         n = len(plan.moves)

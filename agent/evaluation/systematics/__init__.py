@@ -37,10 +37,11 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      from one standing angle to the next (gear ripple growing with load): its measured effect on θ, less
      what a drive-gain calibration at the same angles absorbed (``gain_reference``), shrunk to the size the
      data show beyond noise (``systematics.gain_scatter``);
-   - wrist torques: constant torques on the still wrist the model lacks (a weak tool cable), one per (pose,
-     wrist joint), estimated with θ beside a nuisance gain column per still (joint, angle) of joints 1–3;
-     their measured effect on θ, shrunk likewise, is the term (``systematics.wrist``); a strong one
-     fails the gate's cable check instead;
+   - tool cable / wrist torques: where the loaded run's start is known, a spring on the wrist relaxed there,
+     tested and, when present, its measured effect on θ with that effect's uncertainty (``cable_spring``);
+     else one constant per (pose, wrist joint) beside a nuisance gain column per still (joint, angle) of
+     joints 1–3, their measured effect shrunk likewise (``systematics.wrist``); a strong one fails the
+     gate's cable check instead;
 3. ``Systematics.apply``: the general solver's estimate with Σ_terms A·diag(σ²)·Aᵀ added and a note
    per term; ``quality.evaluate(systematics=...)`` adds the same terms to the pose comparison. The
    three-step solver's estimate gets the same terms through its own sensitivities (``THREE_STEP``, by
@@ -62,7 +63,8 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.evaluation.systematics import compliance, friction, gain_scatter, offsets, three_step_response, wrist
+from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
+                                                  three_step_response, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
 from payload_agent.solvers import general, wls
@@ -102,16 +104,21 @@ class Prepared:
     deltas: Deltas  # of the compensated sweeps, combined where both directions were recorded
     commands: Mapping | None = None
     notes: list[str] = field(default_factory=list)
+    # the joint angles (rad, as reported) the loaded run started from, where the tool was mounted: the rest
+    # angles of a tool cable's spring (``cable_spring``); None: not recorded (the free wrist offsets then)
+    mount_rad: np.ndarray | None = None
 
 
-def prepare(loaded: Sweeps, empty: Sweeps, decl: JointSystematicsConfig, commands: Mapping | None = None
-            ) -> Prepared:
-    """Step 1: compensate the declared stiffness in both runs, subtract, combine."""
+def prepare(loaded: Sweeps, empty: Sweeps, decl: JointSystematicsConfig, commands: Mapping | None = None,
+            mount_rad: Sequence[float] | None = None) -> Prepared:
+    """Step 1: compensate the declared stiffness in both runs, subtract, combine (``mount_rad``: where the
+    loaded run started, kept for the cable term)."""
     c = joint_declaration(decl).compliance()
     lo, em = compliance.compensate(loaded, c), compliance.compensate(empty, c)
     notes: list[str] = []
     deltas = deltas_of(lo, em, commands, notes)
-    return Prepared(loaded, empty, lo, em, deltas, commands, notes)
+    mount = None if mount_rad is None else np.asarray(mount_rad, float)
+    return Prepared(loaded, empty, lo, em, deltas, commands, notes, mount)
 
 
 @dataclass(frozen=True)
@@ -316,13 +323,17 @@ def friction_terms(ctx: Context) -> list[Term]:
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
-    """Constant torques on the still wrist, one per (pose, wrist joint): their effect on θ as the data show it
-    (``systematics.wrist``), one parameter along the measured offsets."""
+    """Torques on the still wrist the model lacks (a tool cable). Where the loaded run's start (where the tool
+    was mounted) is known: a spring relaxed there, its presence tested and, when present, its measured effect
+    on θ and that effect's uncertainty (``systematics.cable_spring``). Else one free offset per (pose, wrist
+    joint), their effect on θ shrunk to what the data show beyond noise (``systematics.wrist``)."""
     by_name = {d.key.name: d for d in ctx.sweeps}
     labels = sorted({offsets.wrist_joint(g, by_name[g.sweep]) for g in ctx.groups[ALL]} - {None})
     if not labels:
         return []
     sens = ctx.offset_sens(offsets.wrist_joint, labels)
+    if ctx.prepared.mount_rad is not None:
+        return _spring_terms(ctx, labels, sens)
     try:
         w = wrist.measure(ctx.model, sens[ALL], labels)
     except (DataError, np.linalg.LinAlgError):
@@ -332,6 +343,17 @@ def wrist_terms(ctx: Context) -> list[Term]:
     return [Term("wrist torques", np.array([w.shrink]), wrist.along(w.offsets_nm, sens),
                  f"constant wrist torques (up to {1000 * float(np.max(np.abs(w.offsets_nm))):.0f} mN·m, from the data; "
                  f"their effect on the result {w.shrink:.2f} × as measured, q = {w.q:.1f}) in σ")]
+
+
+def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) -> list[Term]:
+    try:
+        s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad)
+    except (DataError, np.linalg.LinAlgError):
+        return []
+    if s is None or s.weight <= 0:
+        return []
+    return [Term("tool cable", np.full(1 + len(s.joints), np.sqrt(s.weight)), cable_spring.effect(s, sens),
+                 cable_spring.note(s))]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
