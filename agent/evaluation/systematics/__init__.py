@@ -3,8 +3,8 @@
 Every systematic-error term lives in this package (issue 22 reworks them here): this module is the recipe
 and ``TERMS``; ``compliance`` the joint stiffness and zeros (compensation, finite-difference sensitivities),
 ``offsets`` the torques the model lacks (friction gaps, nuisance-offset fits, wrist torques),
-``gain_scatter`` the torque-gain scatter between standing angles. Every term is evaluated on the analysis'
-one fitted model (``solvers.fitted``).
+``gain_scatter`` the torque-gain scatter between standing angles, ``terms`` the Term and Systematics types. Every
+term is evaluated on the analysis' one fitted model (``solvers.fitted``).
 
 A real arm has errors no amount of averaging removes, the same on every sample of a run. This
 module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``calibrate``
@@ -52,7 +52,7 @@ To add an error source, append a function ``(Context) -> list[Term]`` to ``TERMS
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -66,10 +66,10 @@ from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
                                                   three_step_response, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
+from payload_agent.evaluation.systematics.terms import Systematics, Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
 from payload_agent.solvers import general, wls
 from payload_agent.solvers.fitted import ALL, FittedModel  # ALL: the combined fit's key (others: poses)
-from payload_agent.solvers.results import Estimate
 from payload_agent.types import SweepKey
 
 RIGID = JointSystematicsConfig(None, 0.0, (0.0,) * 6, 0.0, 0.0)  # nothing declared: no compensation, no term
@@ -119,57 +119,6 @@ def prepare(loaded: Sweeps, empty: Sweeps, decl: JointSystematicsConfig, command
     deltas = deltas_of(lo, em, commands, notes)
     mount = None if mount_rad is None else np.asarray(mount_rad, float)
     return Prepared(loaded, empty, lo, em, deltas, commands, notes, mount)
-
-
-@dataclass(frozen=True)
-class Term:
-    """One systematic error source: P parameters' standard deviations and θ's response to each."""
-
-    name: str
-    std: np.ndarray  # (P,)
-    sens: Mapping[str, np.ndarray]  # ALL or a pose -> (4, P) ∂θ/∂p (θ = [m, m·c] of that fit)
-    note: str
-
-    def covariance(self, which: str = ALL) -> np.ndarray:
-        A = self.sens.get(which)
-        if A is None:
-            return np.zeros((4, 4))
-        return (A * self.std ** 2) @ A.T
-
-
-@dataclass
-class Systematics:
-    """Every term of a run; what the estimate and the quality gate add to their covariance."""
-
-    terms: list[Term] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)  # terms that could not be evaluated, and why
-
-    def covariance(self, which: str = ALL) -> np.ndarray:
-        return sum((t.covariance(which) for t in self.terms), np.zeros((4, 4)))
-
-    def sensitivities(self, which: str) -> tuple[np.ndarray, np.ndarray]:
-        """(A, σ): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it)."""
-        if not self.terms:
-            return np.zeros((4, 0)), np.zeros(0)
-        blocks = [t.sens.get(which, np.zeros((4, len(t.std)))) for t in self.terms]
-        return np.hstack(blocks), np.concatenate([t.std for t in self.terms])
-
-    def apply(self, est: Estimate, which: str = ALL) -> Estimate:
-        """``est`` with every term in its covariance and notes: a general fit on the prepared deltas (``which``
-        ALL), or the three-step solver's on them (``THREE_STEP``: each term's three-step sensitivities)."""
-        if est.covariance is None or not (self.terms or self.notes):
-            return est
-        cov = np.asarray(est.covariance, float).copy()
-        cov[:4, :4] += self.covariance(which)
-        out = compliance.with_covariance(est, cov)
-        missing = [t.name for t in self.terms if which not in t.sens]
-        lost = [f"the {' and '.join(missing)} term could not be propagated to {which} (not solvable on the shifted "
-                "data); its σ leaves it out"] if missing else []
-        return replace(out, notes=list(out.notes) + [t.note for t in self.terms if which in t.sens] + lost
-                       + list(self.notes))
-
-    def describe(self) -> str:
-        return " + ".join(t.name for t in self.terms)
 
 
 # -- the fits every term is evaluated on ------------------------------------------------------------------

@@ -1,0 +1,64 @@
+"""A systematic error term and a run's set of them: what the recipe (``evaluation.systematics``) makes and what
+the estimate and the quality gate add to their covariance."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+import numpy as np
+
+from payload_agent.evaluation.systematics import compliance
+from payload_agent.solvers.fitted import ALL
+from payload_agent.solvers.results import Estimate
+
+
+@dataclass(frozen=True)
+class Term:
+    """One systematic error source: P parameters' standard deviations and θ's response to each."""
+
+    name: str
+    std: np.ndarray  # (P,)
+    sens: Mapping[str, np.ndarray]  # ALL or a pose -> (4, P) ∂θ/∂p (θ = [m, m·c] of that fit)
+    note: str
+
+    def covariance(self, which: str = ALL) -> np.ndarray:
+        A = self.sens.get(which)
+        if A is None:
+            return np.zeros((4, 4))
+        return (A * self.std ** 2) @ A.T
+
+
+@dataclass
+class Systematics:
+    """Every term of a run; what the estimate and the quality gate add to their covariance."""
+
+    terms: list[Term] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # terms that could not be evaluated, and why
+
+    def covariance(self, which: str = ALL) -> np.ndarray:
+        return sum((t.covariance(which) for t in self.terms), np.zeros((4, 4)))
+
+    def sensitivities(self, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """(A, σ): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it)."""
+        if not self.terms:
+            return np.zeros((4, 0)), np.zeros(0)
+        blocks = [t.sens.get(which, np.zeros((4, len(t.std)))) for t in self.terms]
+        return np.hstack(blocks), np.concatenate([t.std for t in self.terms])
+
+    def apply(self, est: Estimate, which: str = ALL) -> Estimate:
+        """``est`` with every term in its covariance and notes: a general fit on the prepared deltas (``which``
+        ALL), or the three-step solver's on them (``THREE_STEP``: each term's three-step sensitivities)."""
+        if est.covariance is None or not (self.terms or self.notes):
+            return est
+        cov = np.asarray(est.covariance, float).copy()
+        cov[:4, :4] += self.covariance(which)
+        out = compliance.with_covariance(est, cov)
+        missing = [t.name for t in self.terms if which not in t.sens]
+        lost = [f"the {' and '.join(missing)} term could not be propagated to {which} (not solvable on the shifted "
+                "data); its σ leaves it out"] if missing else []
+        return replace(out, notes=list(out.notes) + [t.note for t in self.terms if which in t.sens] + lost
+                       + list(self.notes))
+
+    def describe(self) -> str:
+        return " + ".join(t.name for t in self.terms)
