@@ -184,20 +184,78 @@ def test_the_prediction_carries_the_stored_calibration_as_the_run_will(monkeypat
         config, cand, nominal, theta).mass_std_g
 
 
-def test_the_sample_density_of_a_gappy_baseline_is_what_the_plan_assumes():
-    """A stream that dropped samples (a busy host's simulation, a congested network) keeps fewer constant-speed
-    samples per second; the prediction must assume what the run will have: per sweep pair the sparser leg."""
-    from payload_agent.recording.rundata import SweepData
-    from payload_agent.session.target import measured_sample_period_s
-    from payload_agent.types import SweepKey
+def _stored_run(folder, keep_every: int, time_scale: float = 1.0, period_s: float = 0.008):
+    """A stored run's manifest whose sweeps' streams kept every ``keep_every``-th sample (``StreamStats`` as a
+    driver fills them: controller clock in robot seconds, receive times ``time_scale`` times faster)."""
+    from payload_agent.types import StreamStats
 
-    def leg(direction, keep_every):
-        t = np.arange(0.0, 2.0, 0.002)[::keep_every]
-        q = np.zeros((len(t), 6))
-        q[:, 1] = 0.3 * t if direction == "up" else 0.6 - 0.3 * t
-        return SweepData(SweepKey("b", 2, direction, 10.0), t, q, np.zeros((len(t), 6)), direction)
+    sweeps = []
+    for k, name in enumerate(("b-j2-up", "b-j2-down", "d-j2-up", "d-j2-down")):
+        stats = StreamStats(period_s)
+        for t in np.arange(0.0, 3.0, period_s)[::keep_every]:
+            stats.add(100.0 + t / time_scale, t, 0.05)
+        sweeps.append({"name": name, "status": "complete", "samples": stats.count, "stream": stats.to_json()})
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text(json.dumps({"phases": {"empty": {"sweeps": sweeps}}}))
 
-    dense = {s.key: s for s in (leg("up", 1), leg("down", 1))}
-    gappy = {s.key: s for s in (leg("up", 1), leg("down", 4))}
-    assert measured_sample_period_s(dense) == pytest.approx(0.002, rel=0.01)
-    assert measured_sample_period_s(gappy) == pytest.approx(0.008, rel=0.01)
+
+def test_a_thinned_stream_in_the_stored_runs_gives_a_proportionally_larger_noise_term(monkeypatch, tmp_path):
+    """The plan assumes the samples per second of sweep the stored runs delivered (their manifests' stream
+    statistics, in robot time), and says so; a stream that kept a quarter of its samples doubles the noise
+    term's σ (four times its variance); without a stored run the nominal rate, said so."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.recording.state import RobotState
+    from payload_agent.session import stream_density, target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    nominal, source = target.noise_for(config)
+    assert nominal.sample_period_s == pytest.approx(0.008) and "nominal 125 per s (no stored run" in source
+    _stored_run(RobotState.for_config(config).baseline_dir, keep_every=4, time_scale=config.simulation.time_scale)
+    thinned, source = target.noise_for(config)
+    assert thinned.sample_period_s == pytest.approx(0.032, rel=0.02)
+    assert "31 of the nominal 125 samples per s" in source and "drops samples" in source
+    cand, theta = design.Candidate(10, 25, 0, 40, 1, 100, "j2_triple"), design.nominal_theta(2.0, (40, -25, 70))
+    plan = design.plan_for(config, cand)
+    a = design.covariance_terms(config, plan, nominal, theta)[0]["noise"]
+    b = design.covariance_terms(config, plan, thinned, theta)[0]["noise"]
+    assert b[0, 0] / a[0, 0] == pytest.approx(4.0, rel=0.05)
+    # a dense stored stream: the nominal rate again, reported as measured
+    dense = stream_density.delivered(config, 0.008, [_dense(tmp_path)])
+    assert dense.kept_share == pytest.approx(1.0, abs=0.01) and "dense" in dense.describe()
+
+
+def _dense(tmp_path):
+    _stored_run(tmp_path / "dense-run", keep_every=1)
+    return tmp_path / "dense-run"
+
+
+def test_a_stream_the_agent_paces_in_a_faster_simulation_has_fewer_samples_per_robot_second(monkeypatch, tmp_path):
+    """CANopen SYNC comes from the agent's clock: the simulated arm at time_scale 4 gets a quarter of the SYNC rate
+    per simulated second, and the plan counts its samples so; a sweep too short for the quality gate's samples at
+    that rate is not a candidate (the plan chose one before, and every run was refused)."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.session import target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-canopen-arm.yaml")
+    noise, source = target.noise_for(config)
+    assert noise.sample_period_s == pytest.approx(4 / 250) and "nominal 62 per s" in source
+    theta = design.nominal_theta(1.5, (25, -15, 50))
+    short = design.predict(config, design.Candidate(12, 25, 0, 15, 1, 100), noise, theta, check_safety=False)
+    long = design.predict(config, design.Candidate(5, 25, 0, 15, 1, 100), noise, theta, check_safety=False)
+    assert not short.usable and "quality gate needs 50" in short.problems[-1]
+    assert long.usable and long.samples >= 4 * 50
+
+
+def test_plan_for_a_target_without_a_calibration_on_a_robot_reporting_currents(capsys, monkeypatch, tmp_path):
+    """A robot whose effort is motor current (UR over Modbus) and no stored calibration or baseline: the plan
+    predicts with the nominal gains the run will use (it failed with a TypeError before)."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    rc = cli.main(["plan", "--robot", str(ROOT / "configs" / "sim-ur5e-modbus.yaml"), "--target-std", "15,5", "--json"])
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert rc == 0 and "nominal drive gains" in doc["target"]["noise_source"]
+    assert doc["target"]["chosen"]["mass_std_g"] <= 15

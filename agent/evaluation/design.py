@@ -33,46 +33,17 @@ of a prediction apart (``benchmarks.plan_budget``). The CLI hook is ``plan --tar
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
+from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
+                                                 SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
 from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_covariance, wrist_covariance
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
-
-# sweep speeds above safety.max_speed_percent are refused by the gate, as ``plan`` would refuse them
-SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 22.5, 25.0)
-TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
-# long ranges pay where the wrist-torque term binds the centre of mass: the wrist offsets of a pose are
-# separable from m·c only through the change of the wrist's gravity torque along the sweep (issue 22)
-RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0), (0.0, 70.0), (0.0, 90.0))
-ACCELS_PERCENT = (40.0, 100.0)
-# The product's grid runs each procedure once: a run has no repetition key, so a chosen "×2" could not be run
-# as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
-REPETITIONS = (1,)
-# "" = the configured procedure; the others are bundled (procedures/*.yaml)
-PROCEDURES = ("", "j2_pair", "j2_triple")
-
-
-@dataclass(frozen=True)
-class Candidate:
-    speed_percent: float
-    travel_percent: float
-    sweep_from_deg: float
-    sweep_to_deg: float
-    repetitions: int = 1
-    accel_percent: float = 20.0
-    procedure: str = ""  # procedure name or file; "" = the configured one
-
-    def describe(self) -> str:
-        reps = f" ×{self.repetitions}" if self.repetitions > 1 else ""
-        proc = f"{self.procedure}: " if self.procedure else ""
-        return (f"{proc}sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, "
-                f"accel {self.accel_percent:g} %, {self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
 
 
 @dataclass(frozen=True)
@@ -180,6 +151,23 @@ def planned_sweeps(plan: Plan, period_s: float):
         direction = "both" if both else key.direction
         out.append(DeltaSweep(SweepKey(key.pose, key.joint, direction, key.speed_percent), q, np.zeros((n, 6)), speed))
     return out
+
+
+# the quality gate's fewest constant-speed samples per sweep (``quality.MIN_SWEEP_SAMPLES``), with room for the
+# sparser of the two legs (the combined sweep has as many points as it) and the stream's scatter about its mean
+SAMPLE_MARGIN = 1.25
+
+
+def too_few_samples(plan: Plan, period_s: float) -> tuple[str, ...]:
+    """Why the run would be refused for too few constant-speed samples in a sweep at ``period_s`` (the sample
+    density the run will have), or nothing: a short fast sweep on a thin stream is not a usable candidate."""
+    from payload_agent.evaluation.quality import MIN_SWEEP_SAMPLES
+
+    fewest = min(planned_sweeps(plan, period_s), key=lambda d: len(d.q), default=None)
+    if fewest is None or len(fewest.q) >= SAMPLE_MARGIN * MIN_SWEEP_SAMPLES:
+        return ()
+    return (f"{fewest.key.name}: about {len(fewest.q)} constant-speed samples at {1.0 / period_s:.0f} per s, and "
+            f"the quality gate needs {MIN_SWEEP_SAMPLES} (planned with a margin of {SAMPLE_MARGIN:g}×)",)
 
 
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
@@ -308,6 +296,7 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             begin = plan.moves[0].target_rad if start is None else start
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
+        problems += too_few_samples(plan, noise.sample_period_s)
         noise_cov, sys_cov, n = covariance_parts(cfg, plan, noise, theta)
         out: tuple = (robot_time_s(plan), noise_cov, sys_cov, n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
@@ -316,21 +305,6 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
         _RUNS.clear()
     _RUNS[key] = out
     return out
-
-
-def candidates(speeds: Iterable[float] = SPEEDS_PERCENT, travels: Iterable[float] = TRAVEL_PERCENT,
-               ranges: Iterable[tuple[float, float]] = RANGES_DEG, reps: Iterable[int] = REPETITIONS,
-               accels: Iterable[float] = ACCELS_PERCENT, procedures: Iterable[str] = PROCEDURES) -> list[Candidate]:
-    return [Candidate(s, t, lo, hi, r, a, p)
-            for p, s, t, (lo, hi), r, a in itertools.product(procedures, speeds, travels, ranges, reps, accels)]
-
-
-def candidates_for(config: Config) -> list[Candidate]:
-    """The default grid for a robot: travel at most its speed cap, the configured procedure and the
-    bundled ones (without a duplicate of the configured one)."""
-    travel = tuple(sorted({min(t, config.safety.max_speed_percent) for t in TRAVEL_PERCENT}))
-    procs = tuple(p for p in PROCEDURES if not p or p != config.procedure.name)
-    return candidates(travels=travel, procedures=procs)
 
 
 @dataclass(frozen=True)
