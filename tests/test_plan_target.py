@@ -259,3 +259,46 @@ def test_plan_for_a_target_without_a_calibration_on_a_robot_reporting_currents(c
     doc = json.loads(out.out)
     assert rc == 0 and "nominal drive gains" in doc["target"]["noise_source"]
     assert doc["target"]["chosen"]["mass_std_g"] <= 15
+
+
+def test_a_standing_joints_noise_is_measured_and_predicted_apart_from_a_sweeping_ones(monkeypatch, tmp_path):
+    """In a joint-2 sweep joint 3 stands but carries the payload's torque; a UR's standing joints are several
+    times quieter than moving ones. The baseline's noise is measured per joint sweeping and standing apart, and
+    a joint-2-only candidate's noise term follows the standing joint 3's noise (the plan took every joint's
+    in-motion noise before: 9.6 g predicted, 5.9 g reported on sim-ur5e-modbus)."""
+    import dataclasses
+
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.evaluation.effort_noise import moving_and_standing_std
+    from payload_agent.recording.rundata import SweepData
+    from payload_agent.types import SweepKey
+
+    rng = np.random.default_rng(3)
+    sigma = {True: np.array([1.8, 2.1, 1.4, 0.7, 0.6, 0.4]), False: np.array([0.6, 0.5, 0.3, 0.2, 0.15, 0.14])}
+
+    def sweep(joint, direction):
+        t = np.arange(0.0, 2.0, 0.002)
+        q = np.zeros((len(t), 6))
+        q[:, joint - 1] = 0.3 * t if direction == "up" else 0.6 - 0.3 * t
+        moving = np.arange(6) == joint - 1
+        effort = rng.normal(size=(len(t), 6)) * np.where(moving, sigma[True], sigma[False])
+        return SweepData(SweepKey("b", joint, direction, 10.0), t, q, effort, direction)
+
+    sweeps = {s.key: s for s in (sweep(j, d) for j in (2, 3) for d in ("up", "down"))}
+    moving, standing = moving_and_standing_std(sweeps)
+    assert moving[1] == pytest.approx(2.1, rel=0.1) and moving[2] == pytest.approx(1.4, rel=0.1)
+    assert standing[1] == pytest.approx(0.5, rel=0.1) and standing[2] == pytest.approx(0.3, rel=0.1)
+    assert standing[0] == pytest.approx(0.6, rel=0.1) and moving[0] == standing[0]  # never swept: as standing
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ur5e-modbus.yaml")
+    from payload_agent.session import target
+
+    noise, _ = target.noise_for(config)
+    assert noise.effort_rest_std_nm == tuple(config.simulation.noise_rest_nm)
+    theta = design.nominal_theta(2.5, (30, -20, 60))
+    plan = design.plan_for(config, design.Candidate(7, 25, 0, 40, 1, 100, "j2_pair"))
+    quiet = design.covariance_terms(config, plan, noise, theta)[0]["noise"]
+    loud = design.covariance_terms(config, plan, dataclasses.replace(noise, effort_rest_std_nm=None), theta)[0]["noise"]
+    assert quiet[0, 0] < 0.25 * loud[0, 0]

@@ -6,7 +6,7 @@ as ``plan`` would make it; every sweep's constant-speed samples are placed where
 find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
 the controller's period), and the general solver's regressor is evaluated there for a nominal
 payload. With white effort noise σ_j per joint (declared, or measured in the stored baseline by
-``measured_effort_std``), present in the loaded and the empty run alike (variance doubled by the
+``measured_effort_std``; a joint standing while another sweeps has its own, lower on a UR), present in the loaded and the empty run alike (variance doubled by the
 subtraction), the two legs of a bidirectional sweep averaged (halved) and ``repetitions`` runs of
 the procedure, the information matrix is Σ YᵀY/σ², and
 
@@ -40,6 +40,7 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
+from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F401
 from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
                                                  SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
 from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_covariance, wrist_covariance
@@ -68,7 +69,7 @@ class Prediction:
 class NoiseModel:
     """What the prediction assumes about the data."""
 
-    effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m
+    effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m (the joint sweeping)
     sample_period_s: float
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
@@ -82,6 +83,9 @@ class NoiseModel:
     friction_level_nm: tuple[float, ...] | None = None
     # an earlier run's measured friction change (``planned_terms.earlier_friction_change``; None: the prior)
     friction_known: FrictionKnowledge | None = None
+    # the noise of a joint standing while another one sweeps (a UR's is 2-5x lower: docs/sources.md); its rows
+    # carry the payload's torque too. None: as while it moves
+    effort_rest_std_nm: tuple[float, ...] | None = None
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -186,12 +190,16 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     sweeps = planned_sweeps(plan, noise.sample_period_s)
     groups = general.build_groups(sweeps, kin)
     std = np.broadcast_to(np.asarray(noise.effort_std_nm, float), (6,))
+    rest = std if noise.effort_rest_std_nm is None else np.broadcast_to(np.asarray(noise.effort_rest_std_nm, float), (6,))
     by_name = {d.key.name: d for d in sweeps}
     w_rows = []
     for g in groups:
         # loaded minus empty: both runs' noise (the empty run's, interpolated, a little less: taken as
-        # equal); the two legs of a bidirectional sweep averaged: half of it
-        var = 2.0 * std[g.joint] ** 2 * (0.5 if by_name[g.sweep].key.direction == "both" else 1.0)
+        # equal); the two legs of a bidirectional sweep averaged: half of it. The sweeping joint's noise, or
+        # a standing joint's
+        d = by_name[g.sweep]
+        sigma = std[g.joint] if g.joint == d.moving else rest[g.joint]
+        var = 2.0 * sigma ** 2 * (0.5 if d.key.direction == "both" else 1.0)
         w_rows.append(np.full(len(g.y), 1.0 / max(var, 1e-30)))
     w = np.concatenate(w_rows)
     Y = np.vstack([g.Y for g in groups])
@@ -351,23 +359,3 @@ def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseMod
     preds.sort(key=lambda p: (not p.usable, p.robot_time_s))
     ok = [p for p in preds if p.meets(mass_std_g, cog_std_mm)]
     return Choice(ok[0] if ok else None, preds)
-
-
-def measured_effort_std(sweeps) -> tuple[float, ...]:
-    """White effort noise per joint from recorded sweeps (e.g. the stored baseline): the second
-    differences of each joint's effort inside the constant-speed windows, std/√6, median over sweeps."""
-    from payload_agent.analysis.delta import window_of
-    from payload_agent.errors import DataError
-
-    per_joint: list[list[float]] = [[] for _ in range(6)]
-    for s in sweeps.values():
-        try:
-            win = window_of(s)
-        except DataError:
-            continue
-        e = np.asarray(s.effort_nm, float)[win.slice]
-        if len(e) < 10:
-            continue
-        for j in range(6):
-            per_joint[j].append(float(np.std(np.diff(e[:, j], 2)) / math.sqrt(6.0)))
-    return tuple(float(np.median(v)) if v else float("nan") for v in per_joint)

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
-from payload_agent.evaluation.design import Choice, NoiseModel, choose, measured_effort_std
+from payload_agent.evaluation.design import Choice, NoiseModel, choose
+from payload_agent.evaluation.effort_noise import moving_and_standing_std
 from payload_agent.recording.state import RobotState
 from payload_agent.session import stream_density
 from payload_agent.session.connection import build_driver
@@ -115,15 +116,18 @@ def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
             manifest = load_manifest(state.baseline_dir)
             gains = np.asarray(manifest.get("gains_nm_per_unit") or config.effort.gains_nm_per_unit, float)
             empty = load_phase(state.baseline_dir, "empty", gains, manifest)
-            std = measured_effort_std(empty)
-            source = f"effort noise and friction measured in the stored baseline ({state.baseline_dir}); {rate}"
-            return (NoiseModel(std, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
-                               friction_level_nm=baseline_friction_nm(empty)), source)
+            moving, standing = moving_and_standing_std(empty)
+            source = (f"effort noise (sweeping and standing joints apart) and friction measured in the stored "
+                      f"baseline ({state.baseline_dir}); {rate}")
+            return (NoiseModel(moving, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
+                               friction_level_nm=baseline_friction_nm(empty), effort_rest_std_nm=standing), source)
         except DataError:
             pass
     if config.simulation is not None:
-        return (NoiseModel(tuple(config.simulation.noise_nm), period, length_std_m=config.robot.length_uncertainty_m,
-                           joints=config.robot.joints, friction_level_nm=tuple(config.simulation.coulomb_nm)),
+        sim = config.simulation
+        return (NoiseModel(tuple(sim.noise_nm), period, length_std_m=config.robot.length_uncertainty_m,
+                           joints=config.robot.joints, friction_level_nm=tuple(sim.coulomb_nm),
+                           effort_rest_std_nm=None if sim.noise_rest_nm is None else tuple(sim.noise_rest_nm)),
                 f"effort noise and friction declared in the simulation section (no stored baseline); {rate}")
     raise ConfigError("--target-std", "no stored empty-flange baseline to measure the effort noise from: record one "
                                       "with `payload-agent baseline`, then plan for a target accuracy", config.source)
