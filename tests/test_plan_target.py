@@ -224,6 +224,10 @@ def test_a_thinned_stream_in_the_stored_runs_gives_a_proportionally_larger_noise
     # a dense stored stream: the nominal rate again, reported as measured
     dense = stream_density.delivered(config, 0.008, [_dense(tmp_path)])
     assert dense.kept_share == pytest.approx(1.0, abs=0.01) and "dense" in dense.describe()
+    # a manifest without the controller clock's rate: the receive rate in real time, nothing in a time-scaled
+    # simulation (its samples arrive in bursts)
+    entry = {"status": "complete", "stream": {"count": 100, "achieved_rate_hz": 60.0}}
+    assert stream_density.sweep_rate_hz(entry, 1.0) == 60.0 and stream_density.sweep_rate_hz(entry, 15.0) is None
 
 
 def _dense(tmp_path):

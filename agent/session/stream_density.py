@@ -9,10 +9,10 @@ stream delivers: per complete sweep, the samples per second of robot time in the
 (``types.StreamStats``). Their harmonic mean over the sweeps is what the prediction assumes: a run's variance
 goes as 1/rate, so the mean of 1/rate is its expectation. Without a stored run: the nominal rate, said so.
 
-Everything is in robot time (the time the sweeps' speeds are in). A simulation running ``time_scale`` times
-faster than the wall clock delivers 1/``time_scale`` of its wall-clock samples per robot second; where the
-agent's own clock paces the samples (CANopen SYNC), the nominal rate per robot second is the SYNC rate divided
-by ``time_scale`` too.
+Everything is in robot time (the time the sweeps' speeds are in): the controller clock's rate where the stream
+stamps samples, else the receive rate (a real robot: robot time is wall time). Where the agent's own clock
+paces the samples (CANopen SYNC), a simulation running ``time_scale`` times faster than the wall clock gets
+1/``time_scale`` of the SYNC rate per simulated second, and that is its nominal rate.
 """
 
 from __future__ import annotations
@@ -62,7 +62,9 @@ def nominal_period_s(config: Config, driver: Any) -> float:
 
 def sweep_rate_hz(entry: Mapping[str, Any], time_scale: float = 1.0) -> float | None:
     """Samples per robot second of one recorded sweep (its manifest entry), or None when it cannot tell: the
-    controller clock's rate where the stream has one, else the receive rate over ``time_scale``."""
+    controller clock's rate where the stream has one, else the receive rate in real time. A time-scaled
+    simulation's receive rate says nothing without its clock (its samples arrive in bursts), nor does a manifest
+    written before ``controller_rate_hz`` was recorded."""
     stream = entry.get("stream") or {}
     if entry.get("status") != "complete" or int(stream.get("count") or 0) < MIN_SWEEP_COUNT:
         return None
@@ -70,7 +72,7 @@ def sweep_rate_hz(entry: Mapping[str, Any], time_scale: float = 1.0) -> float | 
     if ctrl:
         return float(ctrl)
     wall = stream.get("achieved_rate_hz")
-    return float(wall) / time_scale if wall else None
+    return float(wall) if wall and time_scale == 1.0 else None
 
 
 def stored_runs(config: Config) -> list[Path]:
