@@ -249,9 +249,9 @@ def test_a_stream_the_agent_paces_in_a_faster_simulation_has_fewer_samples_per_r
     assert noise.sample_period_s == pytest.approx(4 / 250) and "nominal 62 per s" in source
     theta = design.nominal_theta(1.5, (25, -15, 50))
     short = design.predict(config, design.Candidate(12, 25, 0, 15, 1, 100), noise, theta, check_safety=False)
-    long = design.predict(config, design.Candidate(5, 25, 0, 15, 1, 100), noise, theta, check_safety=False)
+    long = design.predict(config, design.Candidate(12, 25, 0, 40, 1, 100), noise, theta, check_safety=False)
     assert not short.usable and "quality gate needs 50" in short.problems[-1]
-    assert long.usable and long.samples >= 4 * 50
+    assert long.usable and long.samples >= 4 * 100  # four sweeps: the gate's 50 in half of each
 
 
 def test_plan_for_a_target_without_a_calibration_on_a_robot_reporting_currents(capsys, monkeypatch, tmp_path):
