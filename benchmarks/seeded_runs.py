@@ -7,12 +7,14 @@ mean error (a bias shows here), its standard error, rms(error/σ) and the share 
 hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
-        [--target-std G,MM [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
+        [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
         [--driver-option KEY=VALUE]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
 chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22).
+``--baseline``: each seed's state gets an empty-flange baseline of the YAML's procedure first (the plan measures
+the effort noise and the stream's samples per second in it; the run still records its own empty run).
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
@@ -51,8 +53,9 @@ def parse_reference(text: str | None) -> tuple:
 
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
-                calibrate_speed: float | None = None, retry_sweeps: int = 0):
-    """The shipped simulated robot's config for one seed, its state in ``storage`` (calibrated first when asked)."""
+                calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False):
+    """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
+    YAML's procedure stored, then calibrated, first when asked)."""
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
@@ -61,6 +64,8 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
     if DRIVER_OVERRIDES:  # ``--driver-option KEY=VALUE``: a harness setting for a loaded host, printed with the results
         data["driver"].update(DRIVER_OVERRIDES)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
+    if baseline:  # `payload-agent baseline`: the plan then measures the noise and the stream in it
+        run_identification(config, RunOptions(mode="baseline", **_quiet(retry_sweeps)), _silent())
     if calibrate:
         import dataclasses
 
@@ -84,8 +89,9 @@ def _silent() -> OperatorUI:
 
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
-            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
-    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps)
+            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
+            baseline: bool = False) -> dict:
+    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     if target:
@@ -140,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-seed", type=int, default=1)
     p.add_argument("--json", metavar="OUT", help="also write the runs and the summary as JSON")
     p.add_argument("--target-std", metavar="G,MM", help="run the procedure `plan --target-std` chooses")
+    p.add_argument("--baseline", action="store_true",
+                   help="store an empty-flange baseline of the YAML's procedure first (each seed), as `baseline` does")
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
@@ -159,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
-                            args.calibrate_speed, args.retry_sweeps)
+                            args.calibrate_speed, args.retry_sweeps, args.baseline)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
