@@ -306,3 +306,26 @@ def test_a_standing_joints_noise_is_measured_and_predicted_apart_from_a_sweeping
     quiet = design.covariance_terms(config, plan, noise, theta)[0]["noise"]
     loud = design.covariance_terms(config, plan, dataclasses.replace(noise, effort_rest_std_nm=None), theta)[0]["noise"]
     assert quiet[0, 0] < 0.25 * loud[0, 0]
+
+
+def test_the_controllers_own_constants_count_for_the_joints_a_run_sweeps():
+    """Without a calibration a UR run fits the current-to-torque constants from the controller's target signals for
+    the joints its sweeps move, and carries their uncertainty for those only (sim-ur5e, j2_pair: joint 2's alone).
+    A joint-2-only candidate's gain term then leaves joint 3's out; paper_bd sweeps both, so its term is whole."""
+    import dataclasses
+
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+
+    config = load_config(ROOT / "configs" / "sim-ur5e.yaml")
+    theta = design.nominal_theta(2.5, (30, -20, 60))
+    # a UR's noise: joint 3 standing in a joint-2 sweep is the quiet one, so its rows (and its gain) weigh most
+    whole = design.NoiseModel(tuple(config.simulation.noise_nm), 0.002, gain_rel_std=(0.0, 0.016, 0.016, 0.0, 0.0, 0.0),
+                              effort_rest_std_nm=tuple(config.simulation.noise_rest_nm))
+    swept = dataclasses.replace(whole, gain_swept_only=True)
+    for proc, smaller in (("j2_pair", True), ("", False)):
+        cand = design.Candidate(10, 25, 0, 40, 1, 100, proc)
+        plan = design.plan_for(config, cand)
+        a = design.covariance_terms(design.with_candidate(config, cand), plan, whole, theta)[0]["gains"][0, 0]
+        b = design.covariance_terms(design.with_candidate(config, cand), plan, swept, theta)[0]["gains"][0, 0]
+        assert (b < 0.2 * a) if smaller else b == pytest.approx(a)

@@ -73,6 +73,9 @@ class NoiseModel:
     sample_period_s: float
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
+    # the gains are the controller's own current-to-torque constants (a UR without a calibration,
+    # ``controller_gains``): a run fits them, and carries their uncertainty, for the joints that sweep in it only
+    gain_swept_only: bool = False
     length_std_m: float = 0.0  # DH-length standard uncertainty
     # (θ_ref, fitted joints) of the drive-gain calibration, whose fit absorbed part of the length errors
     gain_reference: tuple | None = None
@@ -208,7 +211,11 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     terms = {"noise": inv * noise.inflation ** 2}
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
-    terms["wrist"] = wrist_covariance(sweeps, groups, w, noise.inflation, theta, noise.gain_rel_std)
+    rel = noise.gain_rel_std
+    if rel is not None and noise.gain_swept_only:
+        swept = {m.sweep.joint - 1 for m in plan.sweeps}
+        rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
+    terms["wrist"] = wrist_covariance(sweeps, groups, w, noise.inflation, theta, rel)
     terms["friction"] = np.zeros((4, 4))
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
@@ -221,11 +228,11 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
     key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,
-           tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints))
+           tuple(theta), rel, noise.length_std_m, ref, repr(noise.joints))
     if key not in _SYSTEMATIC:
         fixed = {name: np.zeros((4, 4)) for name in ("gains", "lengths", "zeros")}
-        if noise.gain_rel_std is not None:
-            fixed["gains"] = wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
+        if rel is not None:
+            fixed["gains"] = wls.gain_covariance(groups, Y, w, inv, theta, rel)
         if noise.length_std_m > 0:
             fixed["lengths"] = general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
                                                             noise.gain_reference)

@@ -88,6 +88,7 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     will carry (a stored calibration's, else none: nominal gains are reported without it)."""
     import dataclasses
 
+    from payload_agent.evaluation.calibration import effective_calibration
     from payload_agent.evaluation.pipeline import run_gains
 
     from payload_agent.evaluation.planned_terms import earlier_friction_change
@@ -97,6 +98,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     if known is not None:
         noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source
     gains = run_gains(config, None)
+    if gains.rel_std is not None and effective_calibration(config) is None:  # the controller's constants (a UR)
+        return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_swept_only=True),
+                source + f"; {gains.source} in the stored baseline, whose uncertainty a run carries for the joints "
+                         "it sweeps")
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
     return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
