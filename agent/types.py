@@ -126,7 +126,10 @@ class StreamStats:
 
     def to_json(self) -> dict:
         return {"nominal_period_s": self.nominal_period_s, "count": self.count,
-                "achieved_rate_hz": round(self.achieved_rate_hz, 3), "largest_gap_s": round(self.largest_gap_s, 6),
+                "achieved_rate_hz": round(self.achieved_rate_hz, 3),
+                # samples per second of the controller's clock: robot time also in a time-scaled simulation
+                "controller_rate_hz": None if self.controller_rate_hz is None else round(self.controller_rate_hz, 3),
+                "largest_gap_s": round(self.largest_gap_s, 6),
                 "largest_wall_gap_s": round(self.largest_wall_gap_s, 6),
                 "gaps": [[round(a, 6), round(b, 6)] for a, b in self.gaps]}
 

@@ -7,11 +7,14 @@ mean error (a bias shows here), its standard error, rms(error/σ) and the share 
 hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
-        [--target-std G,MM [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
+        [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
+        [--driver-option KEY=VALUE]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
 chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22).
+``--baseline``: each seed's state gets an empty-flange baseline of the YAML's procedure first (the plan measures
+the effort noise and the stream's samples per second in it; the run still records its own empty run).
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
@@ -38,6 +41,7 @@ NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
 
 
 DEFAULT_REFERENCE = (3.0, (0.0, 0.0, 80.0))  # kg, mm
+DRIVER_OVERRIDES: dict = {}  # driver keys set for every seed (``--driver-option``)
 
 
 def parse_reference(text: str | None) -> tuple:
@@ -49,14 +53,19 @@ def parse_reference(text: str | None) -> tuple:
 
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
-                calibrate_speed: float | None = None, retry_sweeps: int = 0):
-    """The shipped simulated robot's config for one seed, its state in ``storage`` (calibrated first when asked)."""
+                calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False):
+    """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
+    YAML's procedure stored, then calibrated, first when asked)."""
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
+    if DRIVER_OVERRIDES:  # ``--driver-option KEY=VALUE``: a harness setting for a loaded host, printed with the results
+        data["driver"].update(DRIVER_OVERRIDES)
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
+    if baseline:  # `payload-agent baseline`: the plan then measures the noise and the stream in it
+        run_identification(config, RunOptions(mode="baseline", **_quiet(retry_sweeps)), _silent())
     if calibrate:
         import dataclasses
 
@@ -80,8 +89,9 @@ def _silent() -> OperatorUI:
 
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
-            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0) -> dict:
-    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps)
+            reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
+            baseline: bool = False) -> dict:
+    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     if target:
@@ -99,12 +109,24 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         config = design.with_candidate(config, best.candidate)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm]}
+    planned_share = stream_share(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
+    plan.update(kept_share=stream_share(config, outcome.run_dir), planned_share=planned_share)
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
             "passed": bool(outcome.result.quality.get("passed")), **plan}
+
+
+def stream_share(config, run_dir: Path | None = None) -> float:
+    """The share of its nominal samples per robot second the run's stream kept (``run_dir``), or that the plan
+    assumes from the stored runs (None): a plan that misses on a thin stream shows here."""
+    from payload_agent.session import stream_density
+    from payload_agent.session.connection import build_driver
+
+    nominal = stream_density.nominal_period_s(config, build_driver(config))
+    return stream_density.delivered(config, nominal, None if run_dir is None else [run_dir]).kept_share
 
 
 def summarise(runs: list[dict]) -> list[dict]:
@@ -124,19 +146,28 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-seed", type=int, default=1)
     p.add_argument("--json", metavar="OUT", help="also write the runs and the summary as JSON")
     p.add_argument("--target-std", metavar="G,MM", help="run the procedure `plan --target-std` chooses")
+    p.add_argument("--baseline", action="store_true",
+                   help="store an empty-flange baseline of the YAML's procedure first (each seed), as `baseline` does")
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
+    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a driver key for every seed (a Modbus timeout_s on a loaded host); printed with the results")
     args = p.parse_args(argv)
     reference = parse_reference(args.calibrate_with)
+    for item in args.driver_option:
+        key, _, value = item.partition("=")
+        DRIVER_OVERRIDES[key] = yaml.safe_load(value)
+    if DRIVER_OVERRIDES:
+        print(f"driver keys set for this benchmark: {DRIVER_OVERRIDES}", flush=True)
     runs, failed = [], []
     for seed in range(args.first_seed, args.first_seed + args.runs):
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
-                            args.calibrate_speed, args.retry_sweeps)
+                            args.calibrate_speed, args.retry_sweeps, args.baseline)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
@@ -145,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed:3d}: " + "  ".join(f"{n} {e:+7.2f} ± {s:5.2f}" for n, e, s in zip(NAMES, r["error"], r["std"]))
               + ("" if r["passed"] else "  (quality gate failed)")
               + (f"  | {r['procedure']}: {r['robot_time_s']:.0f} s ({r['approach_s']:.0f} s approach), predicted "
-                 f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm" if "procedure" in r else ""), flush=True)
+                 f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm" if "procedure" in r else "")
+              + f"  | stream kept {100 * r['kept_share']:.0f} % (planned {100 * r['planned_share']:.0f} %)", flush=True)
     if len(runs) < 2:
         print("fewer than two runs ended in a result: no summary")
         return 1

@@ -184,20 +184,148 @@ def test_the_prediction_carries_the_stored_calibration_as_the_run_will(monkeypat
         config, cand, nominal, theta).mass_std_g
 
 
-def test_the_sample_density_of_a_gappy_baseline_is_what_the_plan_assumes():
-    """A stream that dropped samples (a busy host's simulation, a congested network) keeps fewer constant-speed
-    samples per second; the prediction must assume what the run will have: per sweep pair the sparser leg."""
+def _stored_run(folder, keep_every: int, time_scale: float = 1.0, period_s: float = 0.008):
+    """A stored run's manifest whose sweeps' streams kept every ``keep_every``-th sample (``StreamStats`` as a
+    driver fills them: controller clock in robot seconds, receive times ``time_scale`` times faster)."""
+    from payload_agent.types import StreamStats
+
+    sweeps = []
+    for k, name in enumerate(("b-j2-up", "b-j2-down", "d-j2-up", "d-j2-down")):
+        stats = StreamStats(period_s)
+        for t in np.arange(0.0, 3.0, period_s)[::keep_every]:
+            stats.add(100.0 + t / time_scale, t, 0.05)
+        sweeps.append({"name": name, "status": "complete", "samples": stats.count, "stream": stats.to_json()})
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text(json.dumps({"phases": {"empty": {"sweeps": sweeps}}}))
+
+
+def test_a_thinned_stream_in_the_stored_runs_gives_a_proportionally_larger_noise_term(monkeypatch, tmp_path):
+    """The plan assumes the samples per second of sweep the stored runs delivered (their manifests' stream
+    statistics, in robot time), and says so; a stream that kept a quarter of its samples doubles the noise
+    term's σ (four times its variance); without a stored run the nominal rate, said so."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.recording.state import RobotState
+    from payload_agent.session import stream_density, target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    nominal, source = target.noise_for(config)
+    assert nominal.sample_period_s == pytest.approx(0.008) and "nominal 125 per s (no stored run" in source
+    _stored_run(RobotState.for_config(config).baseline_dir, keep_every=4, time_scale=config.simulation.time_scale)
+    thinned, source = target.noise_for(config)
+    assert thinned.sample_period_s == pytest.approx(0.032, rel=0.02)
+    assert "31 of the nominal 125 samples per s" in source and "drops samples" in source
+    cand, theta = design.Candidate(10, 25, 0, 40, 1, 100, "j2_triple"), design.nominal_theta(2.0, (40, -25, 70))
+    plan = design.plan_for(config, cand)
+    a = design.covariance_terms(config, plan, nominal, theta)[0]["noise"]
+    b = design.covariance_terms(config, plan, thinned, theta)[0]["noise"]
+    assert b[0, 0] / a[0, 0] == pytest.approx(4.0, rel=0.05)
+    # a dense stored stream: the nominal rate again, reported as measured
+    dense = stream_density.delivered(config, 0.008, [_dense(tmp_path)])
+    assert dense.kept_share == pytest.approx(1.0, abs=0.01) and "dense" in dense.describe()
+    # a manifest without the controller clock's rate: the receive rate in real time, nothing in a time-scaled
+    # simulation (its samples arrive in bursts)
+    entry = {"status": "complete", "stream": {"count": 100, "achieved_rate_hz": 60.0}}
+    assert stream_density.sweep_rate_hz(entry, 1.0) == 60.0 and stream_density.sweep_rate_hz(entry, 15.0) is None
+
+
+def _dense(tmp_path):
+    _stored_run(tmp_path / "dense-run", keep_every=1)
+    return tmp_path / "dense-run"
+
+
+def test_a_stream_the_agent_paces_in_a_faster_simulation_has_fewer_samples_per_robot_second(monkeypatch, tmp_path):
+    """CANopen SYNC comes from the agent's clock: the simulated arm at time_scale 4 gets a quarter of the SYNC rate
+    per simulated second, and the plan counts its samples so; a sweep too short for the quality gate's samples at
+    that rate is not a candidate (the plan chose one before, and every run was refused)."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.session import target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-canopen-arm.yaml")
+    noise, source = target.noise_for(config)
+    assert noise.sample_period_s == pytest.approx(4 / 250) and "nominal 62 per s" in source
+    theta = design.nominal_theta(1.5, (25, -15, 50))
+    short = design.predict(config, design.Candidate(12, 25, 0, 15, 1, 100), noise, theta, check_safety=False)
+    long = design.predict(config, design.Candidate(12, 25, 0, 40, 1, 100), noise, theta, check_safety=False)
+    assert not short.usable and "quality gate needs 50" in short.problems[-1]
+    assert long.usable and long.samples >= 4 * 100  # four sweeps: the gate's 50 in half of each
+
+
+def test_plan_for_a_target_without_a_calibration_on_a_robot_reporting_currents(capsys, monkeypatch, tmp_path):
+    """A robot whose effort is motor current (UR over Modbus) and no stored calibration or baseline: the plan
+    predicts with the nominal gains the run will use (it failed with a TypeError before)."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    rc = cli.main(["plan", "--robot", str(ROOT / "configs" / "sim-ur5e-modbus.yaml"), "--target-std", "15,5", "--json"])
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert rc == 0 and "nominal drive gains" in doc["target"]["noise_source"]
+    assert doc["target"]["chosen"]["mass_std_g"] <= 15
+
+
+def test_a_standing_joints_noise_is_measured_and_predicted_apart_from_a_sweeping_ones(monkeypatch, tmp_path):
+    """In a joint-2 sweep joint 3 stands but carries the payload's torque; a UR's standing joints are several
+    times quieter than moving ones. The baseline's noise is measured per joint sweeping and standing apart, and
+    a joint-2-only candidate's noise term follows the standing joint 3's noise (the plan took every joint's
+    in-motion noise before: 9.6 g predicted, 5.9 g reported on sim-ur5e-modbus)."""
+    import dataclasses
+
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.evaluation.effort_noise import moving_and_standing_std
     from payload_agent.recording.rundata import SweepData
-    from payload_agent.session.target import measured_sample_period_s
     from payload_agent.types import SweepKey
 
-    def leg(direction, keep_every):
-        t = np.arange(0.0, 2.0, 0.002)[::keep_every]
-        q = np.zeros((len(t), 6))
-        q[:, 1] = 0.3 * t if direction == "up" else 0.6 - 0.3 * t
-        return SweepData(SweepKey("b", 2, direction, 10.0), t, q, np.zeros((len(t), 6)), direction)
+    rng = np.random.default_rng(3)
+    sigma = {True: np.array([1.8, 2.1, 1.4, 0.7, 0.6, 0.4]), False: np.array([0.6, 0.5, 0.3, 0.2, 0.15, 0.14])}
 
-    dense = {s.key: s for s in (leg("up", 1), leg("down", 1))}
-    gappy = {s.key: s for s in (leg("up", 1), leg("down", 4))}
-    assert measured_sample_period_s(dense) == pytest.approx(0.002, rel=0.01)
-    assert measured_sample_period_s(gappy) == pytest.approx(0.008, rel=0.01)
+    def sweep(joint, direction):
+        t = np.arange(0.0, 2.0, 0.002)
+        q = np.zeros((len(t), 6))
+        q[:, joint - 1] = 0.3 * t if direction == "up" else 0.6 - 0.3 * t
+        moving = np.arange(6) == joint - 1
+        effort = rng.normal(size=(len(t), 6)) * np.where(moving, sigma[True], sigma[False])
+        return SweepData(SweepKey("b", joint, direction, 10.0), t, q, effort, direction)
+
+    sweeps = {s.key: s for s in (sweep(j, d) for j in (2, 3) for d in ("up", "down"))}
+    moving, standing = moving_and_standing_std(sweeps)
+    assert moving[1] == pytest.approx(2.1, rel=0.1) and moving[2] == pytest.approx(1.4, rel=0.1)
+    assert standing[1] == pytest.approx(0.5, rel=0.1) and standing[2] == pytest.approx(0.3, rel=0.1)
+    assert standing[0] == pytest.approx(0.6, rel=0.1) and moving[0] == standing[0]  # never swept: as standing
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ur5e-modbus.yaml")
+    from payload_agent.session import target
+
+    noise, _ = target.noise_for(config)
+    assert noise.effort_rest_std_nm == tuple(config.simulation.noise_rest_nm)
+    theta = design.nominal_theta(2.5, (30, -20, 60))
+    plan = design.plan_for(config, design.Candidate(7, 25, 0, 40, 1, 100, "j2_pair"))
+    quiet = design.covariance_terms(config, plan, noise, theta)[0]["noise"]
+    loud = design.covariance_terms(config, plan, dataclasses.replace(noise, effort_rest_std_nm=None), theta)[0]["noise"]
+    assert quiet[0, 0] < 0.25 * loud[0, 0]
+
+
+def test_the_controllers_own_constants_count_for_the_joints_a_run_sweeps():
+    """Without a calibration a UR run fits the current-to-torque constants from the controller's target signals for
+    the joints its sweeps move, and carries their uncertainty for those only (sim-ur5e, j2_pair: joint 2's alone).
+    A joint-2-only candidate's gain term then leaves joint 3's out; paper_bd sweeps both, so its term is whole."""
+    import dataclasses
+
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+
+    config = load_config(ROOT / "configs" / "sim-ur5e.yaml")
+    theta = design.nominal_theta(2.5, (30, -20, 60))
+    # a UR's noise: joint 3 standing in a joint-2 sweep is the quiet one, so its rows (and its gain) weigh most
+    whole = design.NoiseModel(tuple(config.simulation.noise_nm), 0.002, gain_rel_std=(0.0, 0.016, 0.016, 0.0, 0.0, 0.0),
+                              effort_rest_std_nm=tuple(config.simulation.noise_rest_nm))
+    swept = dataclasses.replace(whole, gain_swept_only=True)
+    for proc, smaller in (("j2_pair", True), ("", False)):
+        cand = design.Candidate(10, 25, 0, 40, 1, 100, proc)
+        plan = design.plan_for(config, cand)
+        a = design.covariance_terms(design.with_candidate(config, cand), plan, whole, theta)[0]["gains"][0, 0]
+        b = design.covariance_terms(design.with_candidate(config, cand), plan, swept, theta)[0]["gains"][0, 0]
+        assert (b < 0.2 * a) if smaller else b == pytest.approx(a)

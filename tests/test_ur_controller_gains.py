@@ -146,6 +146,25 @@ def test_without_a_calibration_the_run_uses_the_controller_constants_and_says_so
     assert run_gains(_config(tmp_path, nominal), run_dir, gains=nominal).source == gains.source
 
 
+def test_before_a_run_the_gains_are_the_stored_baselines_controller_constants(recorded, tmp_path):
+    """``plan --target-std`` asks the gains a run started now would use (no run folder yet): without a calibration
+    and a stored baseline, the nominal ones (it raised a TypeError before); with a stored baseline recorded with
+    the controller's target signals, its constants and their uncertainty, as the run will fit them."""
+    import shutil
+
+    from payload_agent.recording.state import RobotState
+
+    run_dir, _ = recorded
+    config = _config(tmp_path, [12.0] * 6)
+    fresh = run_gains(config, None)
+    assert fresh.rel_std is None and fresh.nm_per_unit == (12.0,) * 6
+    shutil.copytree(run_dir, RobotState.for_config(config).baseline_dir)
+    stored = run_gains(config, None)
+    assert stored.source == run_gains(config, run_dir).source and stored.source.startswith(SOURCE)
+    assert stored.nm_per_unit[1] == pytest.approx(DEFAULT_GAINS_NM_PER_A[1], rel=TOL_REL)
+    assert 0.015 <= stored.rel_std[1] < 0.03
+
+
 def test_a_run_without_target_columns_keeps_the_nominal_gains(tmp_path):
     run_dir = tmp_path / "run"
     rec = RunRecorder(run_dir, {"format": "payload-agent-run/1", "config": {}, "effort_unit": "A"})

@@ -6,7 +6,7 @@ as ``plan`` would make it; every sweep's constant-speed samples are placed where
 find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
 the controller's period), and the general solver's regressor is evaluated there for a nominal
 payload. With white effort noise σ_j per joint (declared, or measured in the stored baseline by
-``measured_effort_std``), present in the loaded and the empty run alike (variance doubled by the
+``measured_effort_std``; a joint standing while another sweeps has its own, lower on a UR), present in the loaded and the empty run alike (variance doubled by the
 subtraction), the two legs of a bidirectional sweep averaged (halved) and ``repetitions`` runs of
 the procedure, the information matrix is Σ YᵀY/σ², and
 
@@ -33,46 +33,18 @@ of a prediction apart (``benchmarks.plan_budget``). The CLI hook is ``plan --tar
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
+from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F401
+from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
+                                                 SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
 from payload_agent.evaluation.planned_terms import FrictionKnowledge, friction_covariance, wrist_covariance
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
-
-# sweep speeds above safety.max_speed_percent are refused by the gate, as ``plan`` would refuse them
-SPEEDS_PERCENT = (3.0, 5.0, 7.0, 10.0, 12.0, 15.0, 20.0, 22.5, 25.0)
-TRAVEL_PERCENT = (25.0,)  # capped by safety.max_speed_percent in ``candidates_for``
-# long ranges pay where the wrist-torque term binds the centre of mass: the wrist offsets of a pose are
-# separable from m·c only through the change of the wrist's gravity torque along the sweep (issue 22)
-RANGES_DEG = ((0.0, 15.0), (0.0, 20.0), (0.0, 30.0), (0.0, 40.0), (0.0, 55.0), (0.0, 70.0), (0.0, 90.0))
-ACCELS_PERCENT = (40.0, 100.0)
-# The product's grid runs each procedure once: a run has no repetition key, so a chosen "×2" could not be run
-# as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
-REPETITIONS = (1,)
-# "" = the configured procedure; the others are bundled (procedures/*.yaml)
-PROCEDURES = ("", "j2_pair", "j2_triple")
-
-
-@dataclass(frozen=True)
-class Candidate:
-    speed_percent: float
-    travel_percent: float
-    sweep_from_deg: float
-    sweep_to_deg: float
-    repetitions: int = 1
-    accel_percent: float = 20.0
-    procedure: str = ""  # procedure name or file; "" = the configured one
-
-    def describe(self) -> str:
-        reps = f" ×{self.repetitions}" if self.repetitions > 1 else ""
-        proc = f"{self.procedure}: " if self.procedure else ""
-        return (f"{proc}sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, "
-                f"accel {self.accel_percent:g} %, {self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
 
 
 @dataclass(frozen=True)
@@ -97,10 +69,13 @@ class Prediction:
 class NoiseModel:
     """What the prediction assumes about the data."""
 
-    effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m
+    effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m (the joint sweeping)
     sample_period_s: float
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
+    # the gains are the controller's own current-to-torque constants (a UR without a calibration,
+    # ``controller_gains``): a run fits them, and carries their uncertainty, for the joints that sweep in it only
+    gain_swept_only: bool = False
     length_std_m: float = 0.0  # DH-length standard uncertainty
     # (θ_ref, fitted joints) of the drive-gain calibration, whose fit absorbed part of the length errors
     gain_reference: tuple | None = None
@@ -111,6 +86,9 @@ class NoiseModel:
     friction_level_nm: tuple[float, ...] | None = None
     # an earlier run's measured friction change (``planned_terms.earlier_friction_change``; None: the prior)
     friction_known: FrictionKnowledge | None = None
+    # the noise of a joint standing while another one sweeps (a UR's is 2-5x lower: docs/sources.md); its rows
+    # carry the payload's torque too. None: as while it moves
+    effort_rest_std_nm: tuple[float, ...] | None = None
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -182,6 +160,24 @@ def planned_sweeps(plan: Plan, period_s: float):
     return out
 
 
+def too_few_samples(plan: Plan, period_s: float) -> tuple[str, ...]:
+    """Why the run could be refused for too few constant-speed samples in a sweep at ``period_s`` (the sample
+    density the run will have), or nothing. The quality gate needs ``quality.MIN_SWEEP_SAMPLES`` per combined
+    sweep, and the segmenter may keep as little as ``segmenter.MIN_VERIFIED_FRACTION`` of the planned cruise
+    interval where the data do not confirm a constant speed (a stream timed on receipt, with gaps): measured on
+    sim-ur5e-modbus, a j2_pair 15 %, 0–20° planned at 67 samples per sweep kept 37-44, and the gate refused
+    every run. So a candidate needs the gate's count in that fraction of its planned samples."""
+    from payload_agent.analysis.segmenter import MIN_VERIFIED_FRACTION
+    from payload_agent.evaluation.quality import MIN_SWEEP_SAMPLES
+
+    fewest = min(planned_sweeps(plan, period_s), key=lambda d: len(d.q), default=None)
+    if fewest is None or MIN_VERIFIED_FRACTION * len(fewest.q) >= MIN_SWEEP_SAMPLES:
+        return ()
+    return (f"{fewest.key.name}: about {len(fewest.q)} constant-speed samples at {1.0 / period_s:.0f} per s; the "
+            f"quality gate needs {MIN_SWEEP_SAMPLES} in the {MIN_VERIFIED_FRACTION:g} of them the segmentation may "
+            f"keep: a slower sweep or a wider range",)
+
+
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
 NOISE_TERMS = ("noise", "wrist")
 SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros")
@@ -198,12 +194,16 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     sweeps = planned_sweeps(plan, noise.sample_period_s)
     groups = general.build_groups(sweeps, kin)
     std = np.broadcast_to(np.asarray(noise.effort_std_nm, float), (6,))
+    rest = std if noise.effort_rest_std_nm is None else np.broadcast_to(np.asarray(noise.effort_rest_std_nm, float), (6,))
     by_name = {d.key.name: d for d in sweeps}
     w_rows = []
     for g in groups:
         # loaded minus empty: both runs' noise (the empty run's, interpolated, a little less: taken as
-        # equal); the two legs of a bidirectional sweep averaged: half of it
-        var = 2.0 * std[g.joint] ** 2 * (0.5 if by_name[g.sweep].key.direction == "both" else 1.0)
+        # equal); the two legs of a bidirectional sweep averaged: half of it. The sweeping joint's noise, or
+        # a standing joint's
+        d = by_name[g.sweep]
+        sigma = std[g.joint] if g.joint == d.moving else rest[g.joint]
+        var = 2.0 * sigma ** 2 * (0.5 if d.key.direction == "both" else 1.0)
         w_rows.append(np.full(len(g.y), 1.0 / max(var, 1e-30)))
     w = np.concatenate(w_rows)
     Y = np.vstack([g.Y for g in groups])
@@ -211,7 +211,11 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     terms = {"noise": inv * noise.inflation ** 2}
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
-    terms["wrist"] = wrist_covariance(sweeps, groups, w, noise.inflation, theta, noise.gain_rel_std)
+    rel = noise.gain_rel_std
+    if rel is not None and noise.gain_swept_only:
+        swept = {m.sweep.joint - 1 for m in plan.sweeps}
+        rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
+    terms["wrist"] = wrist_covariance(sweeps, groups, w, noise.inflation, theta, rel)
     terms["friction"] = np.zeros((4, 4))
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
@@ -224,11 +228,11 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
     key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,
-           tuple(theta), noise.gain_rel_std, noise.length_std_m, ref, repr(noise.joints))
+           tuple(theta), rel, noise.length_std_m, ref, repr(noise.joints))
     if key not in _SYSTEMATIC:
         fixed = {name: np.zeros((4, 4)) for name in ("gains", "lengths", "zeros")}
-        if noise.gain_rel_std is not None:
-            fixed["gains"] = wls.gain_covariance(groups, Y, w, inv, theta, noise.gain_rel_std)
+        if rel is not None:
+            fixed["gains"] = wls.gain_covariance(groups, Y, w, inv, theta, rel)
         if noise.length_std_m > 0:
             fixed["lengths"] = general.kinematic_covariance(sweeps, kin, groups, w, inv, theta, noise.length_std_m,
                                                             noise.gain_reference)
@@ -308,6 +312,7 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             begin = plan.moves[0].target_rad if start is None else start
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
+        problems += too_few_samples(plan, noise.sample_period_s)
         noise_cov, sys_cov, n = covariance_parts(cfg, plan, noise, theta)
         out: tuple = (robot_time_s(plan), noise_cov, sys_cov, n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
@@ -316,21 +321,6 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
         _RUNS.clear()
     _RUNS[key] = out
     return out
-
-
-def candidates(speeds: Iterable[float] = SPEEDS_PERCENT, travels: Iterable[float] = TRAVEL_PERCENT,
-               ranges: Iterable[tuple[float, float]] = RANGES_DEG, reps: Iterable[int] = REPETITIONS,
-               accels: Iterable[float] = ACCELS_PERCENT, procedures: Iterable[str] = PROCEDURES) -> list[Candidate]:
-    return [Candidate(s, t, lo, hi, r, a, p)
-            for p, s, t, (lo, hi), r, a in itertools.product(procedures, speeds, travels, ranges, reps, accels)]
-
-
-def candidates_for(config: Config) -> list[Candidate]:
-    """The default grid for a robot: travel at most its speed cap, the configured procedure and the
-    bundled ones (without a duplicate of the configured one)."""
-    travel = tuple(sorted({min(t, config.safety.max_speed_percent) for t in TRAVEL_PERCENT}))
-    procs = tuple(p for p in PROCEDURES if not p or p != config.procedure.name)
-    return candidates(travels=travel, procedures=procs)
 
 
 @dataclass(frozen=True)
@@ -377,23 +367,3 @@ def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseMod
     preds.sort(key=lambda p: (not p.usable, p.robot_time_s))
     ok = [p for p in preds if p.meets(mass_std_g, cog_std_mm)]
     return Choice(ok[0] if ok else None, preds)
-
-
-def measured_effort_std(sweeps) -> tuple[float, ...]:
-    """White effort noise per joint from recorded sweeps (e.g. the stored baseline): the second
-    differences of each joint's effort inside the constant-speed windows, std/√6, median over sweeps."""
-    from payload_agent.analysis.delta import window_of
-    from payload_agent.errors import DataError
-
-    per_joint: list[list[float]] = [[] for _ in range(6)]
-    for s in sweeps.values():
-        try:
-            win = window_of(s)
-        except DataError:
-            continue
-        e = np.asarray(s.effort_nm, float)[win.slice]
-        if len(e) < 10:
-            continue
-        for j in range(6):
-            per_joint[j].append(float(np.std(np.diff(e[:, j], 2)) / math.sqrt(6.0)))
-    return tuple(float(np.median(v)) if v else float("nan") for v in per_joint)

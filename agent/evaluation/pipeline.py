@@ -82,8 +82,9 @@ def add_inertia(config: Config, result: RunResult, run_dir: Path, baseline_dir: 
 def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | None = None) -> Gains:
     """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``).
 
-    ``run_dir`` None: the gains a run started now would use (the stored calibration, else nominal), which
-    is what ``plan --target-std`` predicts with."""
+    ``run_dir`` None: the gains a run started now would use (the stored calibration, else the controller's
+    constants as the stored baseline's sweeps give them, else nominal), which is what ``plan --target-std``
+    predicts with."""
     gain_rel_std = gain_reference = None
     # the copy the session made when the run began: solve uses the same
     cal = run_calibration(run_dir) if run_dir is not None else None
@@ -97,7 +98,12 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
     else:
         gains_arr, note = effective_gains(config)
         cal = effective_calibration(config) if note is not None else None
-    fitted = controller_gains(gains_arr, run_dir) if cal is None and config.effort.unit == "A" else None
+    fitted = None
+    if cal is None and config.effort.unit == "A":
+        # a run started now fits them from its own sweeps; before it, the stored baseline's are the estimate
+        # (none stored: nothing to fit them from, the nominal gains are what is known)
+        signals = run_dir if run_dir is not None else _stored_baseline(config)
+        fitted = controller_gains(gains_arr, signals) if signals is not None else None
     if fitted is not None:  # no calibration: the controller's own constants (UR target signals) over nominal ones
         return Gains(fitted.nm_per_a, fitted.source, f"drive gains: {fitted.source}", fitted.rel_std)
     if cal is not None:
@@ -115,6 +121,14 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
                  None if gain_reference is None else (tuple(float(v) for v in gain_reference[0]),
                                                       tuple(int(j) for j in gain_reference[1])),
                  None if cal is None else cal.zeros)
+
+
+def _stored_baseline(config: Config) -> Path | None:
+    """The stored empty-flange baseline's folder, or None when none is stored."""
+    from payload_agent.recording.state import RobotState
+
+    folder = RobotState.for_config(config).baseline_dir
+    return folder if (folder / "manifest.json").is_file() else None
 
 
 def check_baseline_segmentation(config: Config, run_dir: Path) -> None:

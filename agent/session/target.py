@@ -2,7 +2,8 @@
 
 The effort noise comes from the stored empty-flange baseline when there is one (measured in its
 constant-speed windows), else from the simulation's declared noise; a real robot without a
-baseline is refused with what to do. The drive gains' uncertainty is the one the run will carry:
+baseline is refused with what to do. The samples per second of sweep are what the stored runs delivered
+(``stream_density``), else the nominal rate. The drive gains' uncertainty is the one the run will carry:
 the stored calibration's (whose fit also absorbs most of the DH-length error), or none with nominal
 gains, exactly as ``pipeline.run_gains`` gives the run. The payload the prediction assumes is the
 user's (``--payload-kg``/``--payload-cog-mm`` or a tool library entry), else a nominal one, and the
@@ -17,8 +18,10 @@ from dataclasses import dataclass
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
-from payload_agent.evaluation.design import Choice, NoiseModel, choose, measured_effort_std
+from payload_agent.evaluation.design import Choice, NoiseModel, choose
+from payload_agent.evaluation.effort_noise import moving_and_standing_std
 from payload_agent.recording.state import RobotState
+from payload_agent.session import stream_density
 from payload_agent.session.connection import build_driver
 
 
@@ -85,6 +88,7 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     will carry (a stored calibration's, else none: nominal gains are reported without it)."""
     import dataclasses
 
+    from payload_agent.evaluation.calibration import effective_calibration
     from payload_agent.evaluation.pipeline import run_gains
 
     from payload_agent.evaluation.planned_terms import earlier_friction_change
@@ -94,6 +98,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     if known is not None:
         noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source
     gains = run_gains(config, None)
+    if gains.rel_std is not None and effective_calibration(config) is None:  # the controller's constants (a UR)
+        return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_swept_only=True),
+                source + f"; {gains.source} in the stored baseline, whose uncertainty a run carries for the joints "
+                         "it sweeps")
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
     if gains.zeros is not None and noise.joints is not None:  # the run's zero term: the measured σ (zero_offsets)
@@ -106,7 +114,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 
 
 def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
-    period = build_driver(config).nominal_period_s
+    """Effort noise and friction (the stored baseline's, else the simulation's declared ones), with the sample
+    density the stored runs delivered (``stream_density``; nominal without one)."""
+    density = stream_density.delivered(config, stream_density.nominal_period_s(config, build_driver(config)))
+    period, rate = density.period_s, density.describe()
     state = RobotState.for_config(config)
     if (state.baseline_dir / "empty").is_dir():
         from payload_agent.recording.rundata import load_manifest, load_phase
@@ -115,48 +126,21 @@ def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
             manifest = load_manifest(state.baseline_dir)
             gains = np.asarray(manifest.get("gains_nm_per_unit") or config.effort.gains_nm_per_unit, float)
             empty = load_phase(state.baseline_dir, "empty", gains, manifest)
-            std = measured_effort_std(empty)
-            dense = measured_sample_period_s(empty)
-            source = f"effort noise and friction measured in the stored baseline ({state.baseline_dir})"
-            if dense is not None and dense > 1.2 * period:
-                source += (f"; its constant-speed samples {1.0 / dense:.0f} per s against the controller's "
-                           f"{1.0 / period:.0f} (stream gaps), as predicted for the run")
-                period = dense
-            return (NoiseModel(std, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
-                               friction_level_nm=baseline_friction_nm(empty)), source)
+            moving, standing = moving_and_standing_std(empty)
+            source = (f"effort noise (sweeping and standing joints apart) and friction measured in the stored "
+                      f"baseline ({state.baseline_dir}); {rate}")
+            return (NoiseModel(moving, period, length_std_m=config.robot.length_uncertainty_m, joints=config.robot.joints,
+                               friction_level_nm=baseline_friction_nm(empty), effort_rest_std_nm=standing), source)
         except DataError:
             pass
     if config.simulation is not None:
-        return (NoiseModel(tuple(config.simulation.noise_nm), period, length_std_m=config.robot.length_uncertainty_m,
-                           joints=config.robot.joints, friction_level_nm=tuple(config.simulation.coulomb_nm)),
-                "effort noise and friction declared in the simulation section (no stored baseline)")
+        sim = config.simulation
+        return (NoiseModel(tuple(sim.noise_nm), period, length_std_m=config.robot.length_uncertainty_m,
+                           joints=config.robot.joints, friction_level_nm=tuple(sim.coulomb_nm),
+                           effort_rest_std_nm=None if sim.noise_rest_nm is None else tuple(sim.noise_rest_nm)),
+                f"effort noise and friction declared in the simulation section (no stored baseline); {rate}")
     raise ConfigError("--target-std", "no stored empty-flange baseline to measure the effort noise from: record one "
                                       "with `payload-agent baseline`, then plan for a target accuracy", config.source)
-
-
-def measured_sample_period_s(sweeps) -> float | None:
-    """The time between the samples a run keeps in its constant-speed windows, as the stored baseline shows it:
-    per sweep pair the sparser leg (the combination of the two legs has no more points than it), median over
-    pairs. A controller that streams without gaps gives its own period; a stream that drops samples (a busy
-    host of a simulation, a congested network) a longer one, which the prediction must use too."""
-    from payload_agent.analysis.delta import window_of
-    from payload_agent.errors import DataError
-
-    per_sweep = {}
-    for key, s in sweeps.items():
-        try:
-            win = window_of(s)
-        except DataError:
-            continue
-        n = win.stop - win.start
-        if n >= 10:
-            t = np.asarray(s.t, float)
-            per_sweep[key] = (t[win.stop - 1] - t[win.start]) / (n - 1)
-    pairs: dict = {}
-    for key, dt in per_sweep.items():
-        pair = (key.pose, key.joint, key.speed_percent)
-        pairs[pair] = max(pairs.get(pair, 0.0), dt)
-    return float(np.median(list(pairs.values()))) if pairs else None
 
 
 def baseline_friction_nm(empty) -> tuple[float, ...] | None:
