@@ -4,7 +4,7 @@ A fake served by threads of the agent's process shares its interpreter lock and 
 host with the agent's reader, watchdog and analysis threads: under load it answers late for reasons no
 real controller has (a pty-served Modbus RTU device left requests unanswered for over a second with both
 cores busy), and the agent rightly stops the arm. In a process of its own the fake is scheduled by the
-operating system like the separate device it stands for. The Elite EC and the Modbus RTU fakes run
+operating system like the separate device it stands for. The Elite EC and the Modbus fakes run
 this way (a simulated EC66 serving its 125 Hz monitor stream from the agent's process stalled it past the
 1 s watchdog once on a busy CI host); ``fakes/ur/process.py`` does the same for UR, whose client library
 holds the lock while it connects.
