@@ -159,7 +159,8 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
     robot.set_friction_scale(1.0 - REF_DROP)
     ref_dropped, _ = record_plan(robot, plan)
     nominal = np.ones(6)
-    joints = dataclasses.replace(config.robot.joints, friction_asymmetry_std=0.087, friction_change_std=0.08)
+    # declared as drawn: asymmetry ±15 %/√3, a friction change of the size the reference run has
+    joints = dataclasses.replace(config.robot.joints, friction_asymmetry_std=0.087, friction_change_std=REF_DROP)
 
     def analysed(ref):
         scale, scale_std, fitted = fit_gains_from_deltas(systematics.prepare(ref, empty, joints).deltas, kin, nominal,
@@ -191,6 +192,7 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
             np.testing.assert_array_equal(fric.sens[which][:, :labels], S)
             assert not fric.sens[which][:, labels:].any()
     assert fric.covariance(ALL) == pytest.approx(fric_plain.covariance(ALL))
-    # and the three-step σ now covers the shift (it did not: the tool run alone shows no friction change)
+    # and the three-step σ is now the size of the shift (it was not: the tool run alone shows no friction change)
     sigma_m = float(np.sqrt(fric.covariance(systematics.THREE_STEP)[0, 0]))
-    assert sigma_m > 0.5 * abs(shift[0]) > 2.0 * float(np.sqrt(fric_plain.covariance(systematics.THREE_STEP)[0, 0]))
+    assert 0.5 * abs(shift[0]) < sigma_m < 2.0 * abs(shift[0])
+    assert float(np.sqrt(fric_plain.covariance(systematics.THREE_STEP)[0, 0])) < 0.1 * abs(shift[0])
