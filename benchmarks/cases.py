@@ -229,6 +229,7 @@ def run_case(args: tuple) -> list[dict]:
     scenario, proc, methods, index, mass, cog_mm, *rest = args
     length_std_mm = declared_length_std_mm(scenario, rest[0] if rest else None)
     unfitted_std = declared_unfitted_gain_std(scenario, rest[1] if len(rest) > 1 else None)
+    replica = int(rest[2]) if len(rest) > 2 else 0  # > 0: the same arm and payload, another sensor-noise draw
     kin_kw = {"length_std_m": length_std_mm / 1000.0}
     from payload_agent.analysis.combine import add_combined
     from payload_agent.analysis.delta import subtract_all
@@ -238,6 +239,8 @@ def run_case(args: tuple) -> list[dict]:
     from payload_agent.solvers import general, three_step
 
     draws = robot_draws(scenario, index)
+    if replica:
+        draws["noise_seed"] = int(np.random.default_rng([draws["noise_seed"], replica]).integers(2**31))
     plan_bi, plan_up, config_bi = plans(proc)
     kin = config_bi.robot.kinematics
     start = np.asarray(plan_bi.moves[0].target_rad)

@@ -247,11 +247,12 @@ def friction_terms(ctx: Context) -> list[Term]:
         return []
     rel = float(ctx.decl.friction_change_std)
     joints = sorted({j for _, j in pairs})
-    change = {}
+    change, constant = {}, {}
     for j in joints:
         mine = [pj for pj in pairs if pj[1] == j]
         level = max(abs(empty[pj].level_nm) for pj in mine)  # the baseline's friction level: the prior's scale
         change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level)
+        constant[j] = friction.constant_level([empty[pj] for pj in mine])  # what the asymmetry multiplies
 
     def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:
         ok = g.joint == d.moving and d.key.direction == "both" and g.joint in change
@@ -259,6 +260,14 @@ def friction_terms(ctx: Context) -> list[Term]:
 
     labels = [str(j) for j in joints]
     std = np.array([asym * change[j].rms_nm for j in joints])
+    sens = ctx.offset_sens(per_joint, labels)
+    calib = None
+    if ctx.three_step is not None and ctx.gain_reference is not None:
+        calib = three_step_response.with_reference_offsets(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
+                                                           per_joint, labels, ctx.gain_reference, ctx.three_step, sens)
+    if calib is not None:  # the same asymmetry in the calibration's reference run: its change the declared prior
+        std = np.concatenate([std, asym * rel * np.array([constant[j] for j in joints])])
+        sens = calib
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
                 if change[j].measured]
     prior = [f"j{j + 1}" for j in joints if not change[j].measured]
@@ -266,9 +275,11 @@ def friction_terms(ctx: Context) -> list[Term]:
     if prior:
         how += ("; " if how else "") + (f"declared ±{100 * rel:.3g} % of the baseline's level where the sweeps' load "
                                         f"torque varies too little to tell ({', '.join(prior)})")
-    return [Term("residual friction", std, ctx.offset_sens(per_joint, labels),
+    ref = (f"; for the three-step solver also in the drive-gain calibration's reference run, whose change is "
+           f"the declared ±{100 * rel:.3g} % of the baseline's constant part" if calib is not None else "")
+    return [Term("residual friction", std, sens,
                  f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
-                 f"the change of the constant friction part between the runs ({how}) in σ")]
+                 f"the change of the constant friction part between the runs ({how}){ref} in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

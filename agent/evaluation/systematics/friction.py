@@ -154,4 +154,12 @@ def coulomb_change(loaded: list[FrictionGap], empty: list[FrictionGap], prior_st
     return CoulombChange(meas, float(np.sqrt(meas_var)), float(prior_std_nm), float(mean), float(np.sqrt(var)))
 
 
-__all__ = ["FrictionGap", "friction_gaps", "CoulombChange", "coulomb_change"]
+def constant_level(gaps: list[FrictionGap]) -> float:
+    """The largest constant part |c₀| of these gaps that the data split from the load-dependent part (N·m), else
+    the largest level: what a direction asymmetry multiplies (Coulomb, with the viscous part at the sweep speed as a
+    margin), without the load-dependent part that the arm's own weight adds to the level."""
+    split = [abs(g.constant_nm) for g in gaps if np.isfinite(g.constant_std_nm)]
+    return max(split) if split else max(abs(g.level_nm) for g in gaps)
+
+
+__all__ = ["FrictionGap", "friction_gaps", "CoulombChange", "coulomb_change", "constant_level"]

@@ -13,7 +13,12 @@ So each term gets the three-step's own ∂θ/∂p (θ = [m, m·c]), under the ke
   deltas, one label at a time, and the three steps re-run (``offset_response``);
 - the torque-gain scatter acts on still joints only, whose rows the three steps do not read, but a drive-gain
   calibration carried a share of it into the gains of joints 2 and 3, which the three steps do read: that
-  share times the three-step's response to a gain error of the joint (``gain_response``).
+  share times the three-step's response to a gain error of the joint (``gain_response``);
+- a constant torque in the calibration's reference run (the friction a direction asymmetry leaves there, when the
+  friction level changed between the baseline and the reference run) is fitted into the gains of joints 2 and 3,
+  which the three steps then read (``reference_offset_response``). The three-step's mass comes from the small
+  difference of two large joint torques, so a per-mille gain error of one of them moves it by as much as the tool
+  run's own residual friction does (docs/benchmarks.md, hard scenario).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.solvers import three_step
+from payload_agent.solvers import general, three_step
 from payload_agent.solvers.wls import Group
 from payload_agent.types import SweepKey
 
@@ -90,4 +95,50 @@ def gain_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, joint:
     return (th - theta0) / GAIN_STEP
 
 
-__all__ = ["THREE_STEP", "STEP_NM", "GAIN_STEP", "theta", "offset_response", "gain_response"]
+def reference_offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
+                              groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
+                              labels: Sequence[str], reference: tuple, theta0: np.ndarray) -> np.ndarray:
+    """(4, P): ∂θ/∂b_k of the three-step solver for a constant torque b_k on the rows ``selector`` names
+    ``labels[k]`` in the drive-gain calibration's REFERENCE run (``reference`` = (θ_ref, fitted joints, ...) as in
+    ``general.absorbed_length_error``; the tool run's sweeps stand in for the calibration's, same procedure).
+
+    The calibration's fit of joint j's scale took the share ε_jk = ⟨Y_jθ_ref, 1_k⟩/⟨Y_jθ_ref, Y_jθ_ref⟩ of b_k
+    (the DH lengths' absorption with the "length derivative" 1_k·θ_refᵀ/|θ_ref|², whose product with θ_ref is
+    the constant on the named rows): the tool data, scaled by the calibrated gain, are off by −ε_jk·b_k
+    relatively. Joints the calibration did not fit, or whose rows the three steps do not read, give zero."""
+    out = np.zeros((4, len(labels)))
+    theta_ref = np.asarray(list(reference[0]), float)
+    fitted = {int(j) for j in reference[1]}
+    by_name = {d.key.name: d for d in sweeps}
+    names = np.repeat(np.array([selector(g, by_name[g.sweep]) for g in groups], dtype=object),
+                      [len(g.y) for g in groups])
+    Y4 = [replace(g, Y=g.Y[:, :4]) for g in groups]
+    unit = theta_ref / float(theta_ref @ theta_ref)
+    dY = [np.outer((names == lab).astype(float), unit) for lab in labels]
+    eps = general.absorbed_length_error(list(sweeps), Y4, dY, (theta_ref, sorted(fitted)))
+    response = {j: gain_response(deltas, kin, j, theta0) for j in sorted(fitted & set(READS_JOINTS) & set(eps))}
+    for j, resp in response.items():
+        out -= np.outer(resp, eps[j])
+    return out
+
+
+def with_reference_offsets(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
+                           groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
+                           labels: Sequence[str], reference: tuple, theta0: np.ndarray,
+                           sens: Mapping[str, np.ndarray]) -> dict[str, np.ndarray] | None:
+    """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
+    the calibration's reference run, which reach the three-step solver (``reference_offset_response``) and none of
+    the general fits (zero columns: their σ does not take this path). None where the three steps have no response."""
+    if THREE_STEP not in sens:
+        return None
+    try:
+        A = reference_offset_response(deltas, kin, sweeps, groups, selector, labels, reference, theta0)
+    except DataError:
+        return None
+    out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
+    out[THREE_STEP] = np.hstack([sens[THREE_STEP], A])
+    return out
+
+
+__all__ = ["THREE_STEP", "STEP_NM", "GAIN_STEP", "theta", "offset_response", "gain_response",
+           "reference_offset_response", "with_reference_offsets"]
