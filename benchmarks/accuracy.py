@@ -94,6 +94,16 @@ def parse_procedure(text: str, label: str, base: Procedure) -> Procedure:
     return Procedure(**values)
 
 
+def speed_or_procedure(parser: argparse.ArgumentParser, speed: float, spec: str | None) -> Procedure:
+    """The one procedure of a ``--speed`` / ``--procedure SPEC`` command line (sigma_budget, noise_replicas): the
+    speed row's (travel, acceleration, range) at ``speed`` %, or ``spec`` over it; a bad spec is the parser's error."""
+    proc = Procedure(f"{speed:g}", speed, SPEED_ROW_TRAVEL, SPEED_ROW_ACCEL, *SWEEP_DEG)
+    try:
+        return parse_procedure(spec, "default", proc) if spec else proc
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="3 payloads at 5 %% speed, the four main scenarios (< 2 min)")

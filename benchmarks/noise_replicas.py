@@ -57,7 +57,7 @@ def summary(per_case: list[np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import parse_procedure
+    from benchmarks.accuracy import speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenario", default="realistic", help="one of benchmarks.cases.ALL_SCENARIOS")
@@ -71,13 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unknown scenario {args.scenario!r}; known: {', '.join(cases.ALL_SCENARIOS)}")
     if args.replicas < 1 or args.payloads < 2:
         p.error("--replicas must be at least 1 and --payloads at least 2")
-    proc = cases.Procedure(f"{args.speed:g}", args.speed, cases.SPEED_ROW_TRAVEL, cases.SPEED_ROW_ACCEL,
-                           *cases.SWEEP_DEG)
-    if args.procedure:
-        try:
-            proc = parse_procedure(args.procedure, "default", proc)
-        except ValueError as exc:
-            p.error(str(exc))
+    proc = speed_or_procedure(p, args.speed, args.procedure)
     per_case = [draws_of(args.scenario, proc, args.method, i, args.payloads, args.replicas)
                 for i in range(args.payloads)]
     s = summary(per_case)

@@ -111,7 +111,7 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import parse_procedure
+    from benchmarks.accuracy import speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", default="realistic,hard", help="comma-separated (benchmarks.cases.ALL_SCENARIOS)")
@@ -122,13 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--solver", choices=("general", "three-step"), default="general")
     p.add_argument("--quantity", choices=tuple(QUANTITIES), default="m", help="mass (g) or one CoM axis (mm)")
     args = p.parse_args(argv)
-    proc = cases.Procedure(f"{args.speed:g}", args.speed, cases.SPEED_ROW_TRAVEL, cases.SPEED_ROW_ACCEL,
-                           *cases.SWEEP_DEG)
-    if args.procedure:
-        try:
-            proc = parse_procedure(args.procedure, "default", proc)
-        except ValueError as exc:
-            p.error(str(exc))
+    proc = speed_or_procedure(p, args.speed, args.procedure)
     for scenario in args.scenarios.split(","):
         if scenario not in cases.ALL_SCENARIOS:
             p.error(f"unknown scenario {scenario!r}; known: {', '.join(cases.ALL_SCENARIOS)}")
