@@ -18,6 +18,7 @@ def measured_effort_std(sweeps, moving: bool | None = None) -> tuple[float, ...]
     of each sweep, False only the standing ones, None every joint of every sweep."""
     from payload_agent.analysis.delta import window_of
     from payload_agent.errors import DataError
+    from payload_agent.evaluation.quality import noise_estimate
 
     per_joint: list[list[float]] = [[] for _ in range(6)]
     for s in sweeps.values():
@@ -30,7 +31,7 @@ def measured_effort_std(sweeps, moving: bool | None = None) -> tuple[float, ...]
             continue
         for j in range(6):
             if moving is None or (j == s.key.joint - 1) == moving:
-                per_joint[j].append(float(np.std(np.diff(e[:, j], 2)) / math.sqrt(6.0)))
+                per_joint[j].append(noise_estimate(e[:, j]))
     return tuple(float(np.median(v)) if v else float("nan") for v in per_joint)
 
 

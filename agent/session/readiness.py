@@ -21,6 +21,7 @@ from payload_agent.drivers.base import Driver
 from payload_agent.errors import BaselineError, DataError, PayloadAgentError, RobotNotReadyError, SafetyError
 from payload_agent.recording.state import RobotState
 from payload_agent.session.connection import SAMPLE_WAIT_S, identify_controller, motion_under_way
+from payload_agent.session.stream_density import nominal_period_s
 from payload_agent.types import ControllerInfo
 
 OK, FAIL, WARN, INFO = "ok", "FAIL", "warn", "info"
@@ -101,7 +102,7 @@ def check_stream(p: Probe) -> Check:
                      {"samples": n}, err or DataError(f"the sample stream delivered {n} samples in {window:g} s"))
     simulated = config.simulation is not None and stats.controller_rate_hz is not None
     if simulated and driver.sampling_clock == "agent":  # the agent paces the samples in wall time:
-        nominal /= config.simulation.time_scale  # fewer per simulated second
+        nominal = 1.0 / nominal_period_s(config, driver)  # fewer per simulated second
     nom = f"nominal {nominal:.0f} Hz" if math.isfinite(nominal) else "nominal rate unknown"
     limit, wall_rate = driver.gap_limit_s, stats.achieved_rate_hz
     if simulated:
