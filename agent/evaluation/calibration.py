@@ -21,7 +21,8 @@ the others keep their nominal gain. A scale outside 0.8–1.25 is refused (a wro
 The fitted gains are then refitted jointly with the zeros of joints 2 and 3 (``zero_offsets``: a zero shifts the
 reference's torque along a sweep where a gain scales it), which are stored with them and corrected by every run.
 The reference run's friction change against the baseline is measured per joint and stored too
-(``systematics.reference_friction``): a direction asymmetry leaves it in the gains, where the three-step solver reads it.
+(``systematics.reference_friction``): a direction asymmetry leaves it in the gains, where the three-step solver
+reads it.
 The result lives in ``state/<robot>/gains.json`` and is valid only for the configuration
 it was fitted on (robot name, effort unit, nominal gains, kinematics): ``load_calibration``
 refuses it otherwise, rather than silently applying stale gains."""

@@ -193,7 +193,8 @@ def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, be
     """(K, 4): β̂'s error per metre of error of each DH length of ``general.length_parameters(kin)``.
 
     The arm's torques follow the true lengths p + δp while the steps' levers use the nominal p; the steps are
-    consistent (right lengths, right β), so β̂'s error is −∂β̂/∂p_k·δp_k, by re-running them with one length moved.
+    consistent (right lengths, right β), so β̂'s error is −∂β̂/∂p_k·δp_k, by re-running them with one length
+    moved.
     A drive-gain calibration on the same procedure (``gain_reference`` = (θ_ref, fitted joints, ...)) absorbed
     the share ε_jk·δp_k of it into joint j's gain (``general.absorbed_length_error``), which the steps read where
     j is joint 2 or 3: −ε_jk·∂β̂/∂g_j more (g_j: a relative gain error of joint j on every sweep)."""
@@ -211,10 +212,10 @@ def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, be
     D = np.array([-(beta_of(deltas, general.perturbed(kin, row, which, LENGTH_STEP_M)) - beta) / LENGTH_STEP_M
                   for row, which in params])  # (K, 4)
     if gain_reference is not None:
-        sweeps = list(model.sweeps) if model is not None else general.select_sweeps(deltas)  # type: ignore[attr-defined]
-        groups = list(model.groups) if model is not None else general.build_groups(sweeps, kin)  # type: ignore[attr-defined]
-        dY = (general.model_length_derivatives(model) if model is not None  # type: ignore[arg-type]
-              else general.length_derivatives(sweeps, kin, groups))
+        if model is None:
+            model = general.fit_model(deltas, kin)  # the rows only: no fit is made here
+        sweeps, groups = list(model.sweeps), list(model.groups)  # type: ignore[attr-defined]
+        dY = general.model_length_derivatives(model)  # type: ignore[arg-type]
         eps = general.absorbed_length_error(sweeps, [replace(g, Y=g.Y[:, :4]) for g in groups],
                                             [d[:, :4] for d in dY], gain_reference)  # type: ignore[arg-type]
         for j in sorted(set(eps) & {1, 2}):  # joints 2 and 3: the only rows the steps read
