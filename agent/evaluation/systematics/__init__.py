@@ -268,8 +268,8 @@ def friction_terms(ctx: Context) -> list[Term]:
     ref = ""
     if calib is not None:  # the same asymmetry in the calibration's reference run: its change as the calibration
         # measured it, else the declared change of the baseline's constant part (``reference_friction``)
-        ref_rms, ref = reference_friction.change_rms_nm(ctx.gain_reference, joints, rel, constant)
-        std, sens = np.concatenate([std, asym * ref_rms]), calib
+        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
+                                                              ctx.gain_reference, joints, rel, constant)
         ref = f"; for the three-step solver also in the drive-gain calibration's reference run, {ref}"
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
                 if change[j].measured]

@@ -134,4 +134,33 @@ def change_rms_nm(reference: Sequence | None, joints: Sequence[int], declared_re
     return np.array(out), note
 
 
-__all__ = ["JointChange", "ReferenceFriction", "measure", "of_reference", "change_rms_nm"]
+def shared_asymmetry(asym_std: float, tool: Sequence[friction.CoulombChange], calib: Mapping[str, np.ndarray],
+                     reference: Sequence | None, joints: Sequence[int], declared_rel: float,
+                     constant_nm: Mapping[int, float]) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
+    """The residual-friction term's (std, sens, note about the reference run) when a calibration's reference run
+    is in play: ONE direction asymmetry a_j per joint acts in both runs, the tool run's change Δt_j and the
+    reference run's Δr_j each as measured (posterior mean μ, std s; ``change_rms_nm`` for the reference run).
+
+    The shift of θ is a_j·(S_j·Δt_j + R_j·Δr_j), S_j the tool run's rows' response, R_j the calibration's
+    (``three_step_response.reference_offset_response``; zero for the general fits): the two cancel where both runs
+    changed alike (the gains then absorbed the very leftover the tool run has) and add where they changed apart,
+    which two independent parameters cannot say. Parameters, per joint: a_j (std ``asym_std``) along S·μt + R·μr,
+    then a_j·(Δt − μt) along S (std asym·st) and a_j·(Δr − μr) along R (std asym·sr), uncorrelated. For the general
+    fits (R = 0) the variance is asym²·S²·(μt² + st²), the same as one parameter of std asym·rms(Δt).
+    ``calib``: {fit: (4, 2P)}, the tool run's P columns then the reference run's (``with_reference_offsets``)."""
+    p = len(joints)
+    rms, note = change_rms_nm(reference, joints, declared_rel, constant_nm)
+    found = of_reference(reference)
+    mu_r, sd_r = np.zeros(p), np.array(rms, float)  # declared: zero mean, the declared size as the std
+    for k, j in enumerate(joints):
+        c = None if found is None else found.of_joint(j)
+        if c is not None:
+            mu_r[k], sd_r[k] = c.change.mean_nm, c.change.std_nm
+    mu_t = np.array([c.mean_nm for c in tool], float)
+    sd_t = np.array([c.std_nm for c in tool], float)
+    std = np.concatenate([np.full(p, float(asym_std)), asym_std * sd_t, asym_std * sd_r])
+    sens = {which: np.hstack([A[:, :p] * mu_t + A[:, p:] * mu_r, A[:, :p], A[:, p:]]) for which, A in calib.items()}
+    return std, sens, note + "; one asymmetry per joint in both runs, with the signs of the measured changes"
+
+
+__all__ = ["JointChange", "ReferenceFriction", "measure", "of_reference", "change_rms_nm", "shared_asymmetry"]
