@@ -11,8 +11,10 @@ legs' half gap split into a constant and a load-dependent part, the constant par
 sweeps), combines it with the declared prior (``robot.friction_change_percent`` × the baseline's constant part,
 the form used before anything was measured) and stores the posterior in gains.json (``reference_friction``).
 
-A tool run's three-step σ then sizes the reference-run parameter a_j·Δ_j with that posterior,
-σ = σ_a·√(E[Δ_j²]) (``change_rms_nm``); a calibration stored without it keeps the declared form.
+A tool run's three-step σ then uses that posterior (``change_rms_nm``; a calibration stored without it keeps the
+declared form), with ONE asymmetry a_j per joint for both runs (``shared_asymmetry``): the reference run's leftover
+went into the gains and takes the tool run's alike-signed leftover back out, so the two cancel where both runs
+changed alike, and add where they changed apart.
 """
 
 from __future__ import annotations
