@@ -63,9 +63,10 @@ def shrunk_share(rank: int, spread: float = SPREAD_RATIO) -> float:
     return (spread * r * float(chi2.sf(c, rank + 2)) - r * float(chi2.sf(c, rank))) / r
 
 
-def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
-                     theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
-    """Expected covariance of the wrist-torque term of a run of the planned sweeps (no wrist torque on the arm)."""
+def wrist_spread(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                 theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
+    """D = A·C·Aᵀ, the covariance of the wrist offsets' effect on θ a run of the planned sweeps fits (as the run
+    computes it: offset sensitivities of the plain fit, the offsets' covariance of the fit with them)."""
     from payload_agent.evaluation.systematics import offsets
 
     sweeps, groups = list(sweeps), list(groups)
@@ -82,8 +83,50 @@ def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], 
     if gain_rel_std is not None:
         cov_a = cov_a + wls.gain_covariance(aug, Ya, w, inv_a, np.concatenate([theta, np.zeros(len(labels))]),
                                             gain_rel_std)
-    D = A @ cov_a[4:, 4:] @ A.T
+    return A @ cov_a[4:, 4:] @ A.T
+
+
+def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                     theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
+    """Expected covariance of the wrist-torque term of a run of the planned sweeps (no wrist torque on the arm)."""
+    D = wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std)
     return shrunk_share(int(np.linalg.matrix_rank(D))) * D
+
+
+# the standard normal draws of β̂'s whitened coordinates that ``reported_sigma_draws`` uses for every candidate (the
+# same draws for all: common random numbers, so two candidates' probabilities differ by their D, not by chance)
+DRAWS, DRAW_SEED = 4000, 22
+_Z: list[np.ndarray] = []
+
+
+def reported_sigma_draws(base_cov: np.ndarray, spread: np.ndarray, theta: np.ndarray,
+                         ratio: float = SPREAD_RATIO) -> tuple[np.ndarray, np.ndarray]:
+    """(σ mass g, σ centre of mass mm, largest axis) a run of the candidate reports, one per seeded draw
+    (``DRAWS``): the covariance ``base_cov`` (every other term) plus the wrist term by the run's own rule
+    (``offsets.shrink``) applied to β̂ ~ N(0, ratio·D), D = ``spread``. Its mean covariance is
+    ``base_cov + shrunk_share(r)·D``, the root of which the plan predicted before (issue 22: the term is 0 in
+    about two thirds of clean runs and large in the rest, so no single number of it is what a user sees)."""
+    if not _Z:
+        _Z.append(np.random.default_rng(DRAW_SEED).standard_normal((DRAWS, 4)))
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    _, base_c = cog_with_covariance(theta, base_cov)
+    J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0] (``cog_with_covariance``)
+    J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
+    var_m = np.full(DRAWS, float(base_cov[0, 0]))
+    var_c = np.tile(np.diag(base_c), (DRAWS, 1))
+    r = int(np.linalg.matrix_rank(spread)) if np.any(spread) else 0
+    if r > 0:
+        lam, vec = np.linalg.eigh(0.5 * (spread + spread.T))
+        lam, vec = np.clip(lam[-r:], 0.0, None), vec[:, -r:]  # the r largest: the rank the run counts
+        z = _Z[0][:, :r]
+        q = ratio * np.sum(z ** 2, axis=1)
+        s2 = np.maximum(q - r, 0.0) / np.maximum(q, 1e-300)
+        beta = (z * np.sqrt(ratio * lam)) @ vec.T  # (DRAWS, 4)
+        var_m = var_m + s2 * beta[:, 0] ** 2
+        var_c = var_c + s2[:, None] * (beta @ J.T) ** 2
+    return (1000.0 * np.sqrt(np.maximum(var_m, 0.0)),
+            1000.0 * np.sqrt(np.maximum(np.max(var_c, axis=1), 0.0)))
 
 
 @dataclass(frozen=True)
@@ -200,5 +243,5 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
     return None
 
 
-__all__ = ["shrunk_share", "wrist_covariance", "FrictionKnowledge", "measurement_variance", "expected_change_square",
+__all__ = ["shrunk_share", "wrist_spread", "wrist_covariance", "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]
