@@ -45,8 +45,8 @@ from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F401
 from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
                                                  SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
-from payload_agent.evaluation.planned_terms import (FrictionKnowledge, friction_covariance, reported_sigma_draws,
-                                                    shrunk_share, wrist_spread)
+from payload_agent.evaluation.planned_terms import (FrictionKnowledge, WristModel, friction_covariance,
+                                                    reported_sigma_draws, wrist_model)
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
 
@@ -211,13 +211,14 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``; the
     wrist term as its expectation), and the constant-speed samples of one run: kept apart so that a benchmark can
     show what binds a candidate (docs/benchmarks.md, issue 22)."""
-    terms, n, _ = terms_and_wrist_spread(config, plan, noise, theta)
+    terms, n, _ = terms_and_wrist_model(config, plan, noise, theta)
     return terms, n
 
 
-def terms_and_wrist_spread(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
-                           ) -> tuple[dict[str, np.ndarray], int, np.ndarray]:
-    """``covariance_terms`` and D, the spread of the wrist offsets' effect the run will shrink (``planned_terms``),
+def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+                          ) -> tuple[dict[str, np.ndarray], int, WristModel]:
+    """``covariance_terms`` and the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
+    relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted),
     from which ``predict`` draws the σ a run reports."""
     from payload_agent.solvers import general, wls
 
@@ -246,8 +247,8 @@ def terms_and_wrist_spread(config: Config, plan: Plan, noise: NoiseModel, theta:
     if rel is not None and noise.gain_swept_only:
         swept = {m.sweep.joint - 1 for m in plan.sweeps}
         rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
-    spread = wrist_spread(sweeps, groups, w, noise.inflation, theta, rel)
-    terms["wrist"] = shrunk_share(int(np.linalg.matrix_rank(spread)) if np.any(spread) else 0) * spread
+    wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel, plan.moves[-1].target_rad)
+    terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
@@ -277,7 +278,7 @@ def terms_and_wrist_spread(config: Config, plan: Plan, noise: NoiseModel, theta:
         if len(_SYSTEMATIC) > 256:
             _SYSTEMATIC.clear()
         _SYSTEMATIC[key] = fixed
-    return {**terms, **_SYSTEMATIC[key]}, sum(len(d.q) for d in sweeps), spread
+    return {**terms, **_SYSTEMATIC[key]}, sum(len(d.q) for d in sweeps), wrist
 
 
 _SYSTEMATIC: dict[tuple, dict[str, np.ndarray]] = {}
@@ -295,11 +296,11 @@ def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, 
     base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety, start_q)
     if isinstance(base, tuple) and len(base) == 1:
         return Prediction(c, float("nan"), float("nan"), float("nan"), 0, base[0])
-    time_s, noise_cov, spread, sys_cov, n, problems = base
+    time_s, noise_cov, wrist, sys_cov, n, problems = base
     cov = noise_cov / c.repetitions + sys_cov
-    spread = spread / c.repetitions
-    sigma_m, sigma_c = reported_sigma_draws(cov, spread, theta)
-    mean_cov = cov + shrunk_share(int(np.linalg.matrix_rank(spread)) if np.any(spread) else 0) * spread
+    wrist = wrist.over(c.repetitions)
+    sigma_m, sigma_c = reported_sigma_draws(cov, wrist, theta)
+    mean_cov = cov + wrist.expected()
     _, cov_c = cog_with_covariance(theta, mean_cov)
     approach = approach_s(config, c, start_q)
     return Prediction(c, c.repetitions * time_s + approach, float(np.median(sigma_m)), float(np.median(sigma_c)), n,
@@ -320,7 +321,7 @@ def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None) ->
 
 def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, check_safety: bool,
              start_q: Sequence[float] | None = None) -> tuple:
-    """One run of the candidate: (robot s, noise covariance, the wrist term's spread D, systematic covariance,
+    """One run of the candidate: (robot s, noise covariance, the wrist term (``WristModel``), systematic covariance,
     samples, the safety gate's problems), or (problems,) when it cannot be predicted; kept for the other
     repetition counts."""
     from payload_agent.errors import PayloadAgentError
@@ -342,8 +343,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
-        terms, n, spread = terms_and_wrist_spread(cfg, plan, noise, theta)
-        out: tuple = (robot_time_s(plan), terms["noise"], spread, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems)
+        terms, n, wrist = terms_and_wrist_model(cfg, plan, noise, theta)
+        out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
         out = ((str(exc),),)
     if len(_RUNS) > 4096:
