@@ -1,5 +1,6 @@
 """What a driver may offer beyond moving and streaming: the flange pose, the payload setting, digital
-inputs, a tool-change trigger, joint temperatures, the controller's target current and moment. The defaults say "not offered"; ``capabilities()``
+inputs, a tool-change trigger, joint temperatures, the controller's target current and moment
+(``records_controller_targets``). The defaults say "not offered"; ``capabilities()``
 lists what a driver overrides, so a session that needs one is refused before its first move."""
 
 from __future__ import annotations

@@ -320,5 +320,6 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
     return None
 
 
-__all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model", "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
+__all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model",
+           "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]
