@@ -99,6 +99,7 @@ class URRTDEDriver(URCapabilities, Driver):
     options_class = URRTDEOptions
     simulator = "payload_agent.fakes.ur:FakeURController"
     reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
+    records_controller_targets = True  # target_current and target_moment in the recipe (``Sample``)
     options: URRTDEOptions
     move_poll_s = 0.002
 
