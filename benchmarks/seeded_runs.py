@@ -108,7 +108,9 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         best = choice.best
         config = design.with_candidate(config, best.candidate)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
-                "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm]}
+                "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
+                "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
+                "p_over_target": best.p_over(*targets.parse_target(target))}
     planned_share = stream_share(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
     plan.update(kept_share=stream_share(config, outcome.run_dir), planned_share=planned_share)
@@ -127,6 +129,10 @@ def stream_share(config, run_dir: Path | None = None) -> float:
 
     nominal = stream_density.nominal_period_s(config, build_driver(config))
     return stream_density.delivered(config, nominal, None if run_dir is None else [run_dir]).kept_share
+
+
+def _list(values) -> str:
+    return " ".join(f"{v:.2f}" for v in values)
 
 
 def summarise(runs: list[dict]) -> list[dict]:
@@ -176,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed:3d}: " + "  ".join(f"{n} {e:+7.2f} ± {s:5.2f}" for n, e, s in zip(NAMES, r["error"], r["std"]))
               + ("" if r["passed"] else "  (quality gate failed)")
               + (f"  | {r['procedure']}: {r['robot_time_s']:.0f} s ({r['approach_s']:.0f} s approach), predicted "
-                 f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm" if "procedure" in r else "")
+                 f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm (rms {r['pred_rms_std'][0]:.2f} / "
+                 f"{r['pred_rms_std'][1]:.2f}, P over {100 * r['p_over_target']:.0f} %)" if "procedure" in r else "")
               + f"  | stream kept {100 * r['kept_share']:.0f} % (planned {100 * r['planned_share']:.0f} %)", flush=True)
     if len(runs) < 2:
         print("fewer than two runs ended in a result: no summary")
@@ -191,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
               f"| {s['coverage_95']:.2f} |")
     if args.target_std:
         pm = np.array([r["pred_std"] for r in runs])
+        pr = np.array([r["pred_rms_std"] for r in runs])
         rep_m = np.array([r["std"][0] for r in runs])
         rep_c = np.array([max(r["std"][1:]) for r in runs])
         t = np.array([r["robot_time_s"] for r in runs])
@@ -199,6 +207,16 @@ def main(argv: list[str] | None = None) -> int:
               f"{t.mean():.1f} s ({a.mean():.1f} s of it the approach); predicted σ mass {pm[:, 0].mean():.2f} g, "
               f"reported {rep_m.mean():.2f} g (ratio {np.mean(pm[:, 0] / rep_m):.2f}); predicted σ CoM (largest "
               f"axis) {pm[:, 1].mean():.2f} mm, reported {rep_c.mean():.2f} mm (ratio {np.mean(pm[:, 1] / rep_c):.2f})")
+        grams, mm = (float(v) for v in args.target_std.split(","))
+        within = lambda pred, rep: int(np.sum(np.abs(pred / rep - 1.0) <= 0.3))  # noqa: E731
+        print(f"predicted = median of the run's σ: ratio pred/rep per seed m {_list(pm[:, 0] / rep_m)}, c "
+              f"{_list(pm[:, 1] / rep_c)}; within ±30 % m {within(pm[:, 0], rep_m)}, c {within(pm[:, 1], rep_c)} of "
+              f"{len(runs)}\npredicted = root of the expected variance (before): mean ratio m "
+              f"{np.mean(pr[:, 0] / rep_m):.2f}, c {np.mean(pr[:, 1] / rep_c):.2f}; within ±30 % m "
+              f"{within(pr[:, 0], rep_m)}, c {within(pr[:, 1], rep_c)}\nthe run's σ over the target: m "
+              f"{int(np.sum(rep_m > grams))}, c {int(np.sum(rep_c > mm))}, either "
+              f"{int(np.sum((rep_m > grams) | (rep_c > mm)))} of {len(runs)} (predicted P over "
+              f"{100 * np.mean([r['p_over_target'] for r in runs]):.0f} %)")
     if args.json:
         Path(args.json).write_text(json.dumps({"robot": args.robot, "runs": runs, "failed": failed, "summary": summary}, indent=2))
     return 0

@@ -1,5 +1,6 @@
 """What a driver may offer beyond moving and streaming: the flange pose, the payload setting, digital
-inputs, a tool-change trigger, joint temperatures. The defaults say "not offered"; ``capabilities()``
+inputs, a tool-change trigger, joint temperatures, the controller's target current and moment
+(``records_controller_targets``). The defaults say "not offered"; ``capabilities()``
 lists what a driver overrides, so a session that needs one is refused before its first move."""
 
 from __future__ import annotations
@@ -14,6 +15,10 @@ class OptionalCapabilities:
     """The optional part of the driver contract (mixed into ``Driver``)."""
 
     name: ClassVar[str] = ""
+    # records, with every sample, the controller's own target current and target moment (UR RTDE), from which a run
+    # without a drive-gain calibration fits the controller's torque constants (``evaluation.controller_gains``);
+    # a class attribute, known before connecting, so ``plan --target-std`` predicts the σ those constants bring
+    records_controller_targets: ClassVar[bool] = False
 
     def flange_pose(self) -> FlangePose | None:
         """The flange pose the controller reports (TCP offset removed), or None if it has none."""

@@ -65,3 +65,76 @@ def test_an_earlier_measurement_of_no_change_lowers_the_predicted_friction_term(
                    planned_terms.friction_covariance(*args, None)[0, 0]]
     assert out[55.0][0] < 0.6 * out[55.0][1]
     assert out[15.0][0] == pytest.approx(out[15.0][1], rel=0.25)
+
+
+def test_the_reported_sigma_draws_follow_the_runs_own_wrist_rule():
+    """The plan's distribution of the reported σ (``reported_sigma_draws``: median, quantiles, chance over a target)
+    against the run's rule itself (``offsets.shrink`` on β̂ ~ N(0, ⅚·D), the shrunk β̂β̂ᵀ added to the rest of the
+    covariance, σ of the mass and the largest CoM axis by the delta method) on independent draws, for a D of rank 4
+    and one of rank 2; and the draws' mean covariance is the expectation the plan predicted before."""
+    from payload_agent.evaluation.systematics import offsets
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    rng = np.random.default_rng(11)
+    theta = np.array([2.5, 2.5 * 0.03, -2.5 * 0.02, 2.5 * 0.06])
+    base = np.diag([4e-6, 2e-7, 2e-7, 3e-7])
+    M = rng.standard_normal((4, 4))
+    for D in (M @ M.T * 1e-6, np.outer(M[0], M[0]) * 2e-6 + np.outer(M[1], M[1]) * 1e-6):
+        plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.offset_model(D), theta)
+        lam, vec = np.linalg.eigh(D)
+        L = vec * np.sqrt(np.clip(lam, 0.0, None))  # D^½ (D of rank 2 has no Cholesky factor)
+        run_m, run_c = [], []
+        for _ in range(4000):
+            beta = np.sqrt(planned_terms.SPREAD_RATIO) * (L @ rng.standard_normal(4))
+            s, _ = offsets.shrink(np.eye(4), beta, D)  # the run's rule: A·b̂ = β̂ here
+            cov = base + s ** 2 * np.outer(beta, beta)
+            _, cov_c = cog_with_covariance(theta, cov)
+            run_m.append(1000 * np.sqrt(cov[0, 0]))
+            run_c.append(1000 * np.sqrt(np.max(np.diag(cov_c))))
+        run_m, run_c = np.array(run_m), np.array(run_c)
+        for plan, run in ((plan_m, run_m), (plan_c, run_c)):
+            for p in (0.5, 0.8, 0.9):
+                assert np.quantile(plan, p) == pytest.approx(np.quantile(run, p), rel=0.08)
+            t = np.quantile(run, 0.85)
+            assert np.mean(plan > t) == pytest.approx(0.15, abs=0.03)
+        r = np.linalg.matrix_rank(D)
+        assert np.mean(plan_m ** 2) == pytest.approx(1e6 * (base[0, 0] + planned_terms.shrunk_share(r) * D[0, 0]),
+                                                     rel=0.05)
+        # the term is 0 in most clean runs: the median is the rest of σ alone
+        assert np.median(plan_m) == pytest.approx(1000 * np.sqrt(base[0, 0]))
+
+
+def test_the_cable_springs_draws_follow_the_runs_own_rule():
+    """Where the run knows where the tool was mounted it fits a spring on the wrist (``systematics.cable_spring``):
+    the plan's draws of that term (``spring_model``) against the run's own presence test, projection and weight
+    (``CableSpring.weight``, ``effect``) on independent draws of κ̂ ~ N(0, ⅚·C), no cable on the arm."""
+    from payload_agent.evaluation.systematics import cable_spring
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    rng = np.random.default_rng(7)
+    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
+    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
+    AM = rng.standard_normal((4, 3)) * 1e-3
+    G = rng.standard_normal((3, 3))
+    C = G @ G.T + 0.5 * np.eye(3)
+    plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.spring_model(AM, C), theta)
+    critical, null_mean = cable_spring.null_distribution(C)
+    L = np.linalg.cholesky(C)
+    run_m, run_c, shown = [], [], 0
+    for _ in range(2000):
+        kappa = np.sqrt(planned_terms.SPREAD_RATIO) * (L @ rng.standard_normal(3))
+        s = cable_spring.CableSpring((3, 4, 5), np.eye(3), cable_spring.project(kappa, C), C,
+                                     cable_spring.statistic(kappa, C), critical, null_mean)
+        cols = cable_spring.effect(s, {"all": AM})["all"]
+        cov = base + s.weight * cols @ cols.T
+        shown += s.weight > 0
+        _, cov_c = cog_with_covariance(theta, cov)
+        run_m.append(1000 * np.sqrt(cov[0, 0]))
+        run_c.append(1000 * np.sqrt(np.max(np.diag(cov_c))))
+    run_m, run_c = np.array(run_m), np.array(run_c)
+    assert 0.15 < shown / 2000 < 0.45  # present in a minority of clean runs
+    for plan, run in ((plan_m, run_m), (plan_c, run_c)):
+        assert np.mean(plan > np.median(run) * 1.0001) == pytest.approx(np.mean(run > np.median(run) * 1.0001),
+                                                                          abs=0.04)
+        for p in (0.8, 0.9, 0.95):
+            assert np.quantile(plan, p) == pytest.approx(np.quantile(run, p), rel=0.08)

@@ -22,6 +22,7 @@ from payload_agent.drivers.base import MotionLimits, Supervision  # noqa: E402
 from payload_agent.drivers.ur_rtde.driver import URRTDEDriver  # noqa: E402
 from payload_agent.evaluation.controller_gains import joint_speeds, read_target_signals, run_constants  # noqa: E402
 from payload_agent.evaluation.pipeline import run_gains  # noqa: E402
+from payload_agent.evaluation.recorded_motion import CONTROLLER_CONSTANT_REL_STD  # noqa: E402
 from payload_agent.evaluation.torque_constants import SOURCE, fit_torque_constants  # noqa: E402
 from payload_agent.fakes.ur import DEFAULT_GAINS_NM_PER_A, FakeURController  # noqa: E402
 from payload_agent.motion.planner import Move  # noqa: E402
@@ -156,13 +157,30 @@ def test_before_a_run_the_gains_are_the_stored_baselines_controller_constants(re
 
     run_dir, _ = recorded
     config = _config(tmp_path, [12.0] * 6)
-    fresh = run_gains(config, None)
-    assert fresh.rel_std is None and fresh.nm_per_unit == (12.0,) * 6
+    fresh = run_gains(config, None)  # no baseline: the driver declares the signals, so their declared σ
+    assert fresh.rel_std == (CONTROLLER_CONSTANT_REL_STD,) * 6 and fresh.nm_per_unit == (12.0,) * 6
+    assert "to be fitted by the run" in fresh.source
     shutil.copytree(run_dir, RobotState.for_config(config).baseline_dir)
     stored = run_gains(config, None)
     assert stored.source == run_gains(config, run_dir).source and stored.source.startswith(SOURCE)
     assert stored.nm_per_unit[1] == pytest.approx(DEFAULT_GAINS_NM_PER_A[1], rel=TOL_REL)
     assert 0.015 <= stored.rel_std[1] < 0.03
+
+
+def test_the_driver_class_says_whether_it_records_the_target_signals(tmp_path, monkeypatch):
+    """The capability is a class attribute read through the driver registry, nothing connected: ur_rtde records
+    target_current/target_moment, the other built-in drivers do not. Before any run of a UR (no calibration, no
+    stored baseline) the plan's gains are the nominal ones with the constants' declared σ; a driver class that
+    does not declare it leaves them nominal, with no σ (what its run will report)."""
+    from payload_agent.evaluation.controller_gains import records_controller_targets
+
+    assert records_controller_targets("ur_rtde")
+    assert not any(records_controller_targets(name) for name in ("modbus", "elite_ec", "canopen"))
+    config = _config(tmp_path, [12.0] * 6)
+    assert run_gains(config, None).rel_std == (CONTROLLER_CONSTANT_REL_STD,) * 6
+    monkeypatch.setattr(URRTDEDriver, "records_controller_targets", False)
+    undeclared = run_gains(config, None)
+    assert undeclared.rel_std is None and undeclared.nm_per_unit == (12.0,) * 6 and "nominal" in undeclared.source
 
 
 def test_a_run_without_target_columns_keeps_the_nominal_gains(tmp_path):

@@ -34,7 +34,8 @@ LIMITS = MotionLimits(max_joint_speed_rad_s=3.0, max_joint_accel_rad_s2=40.0)
 # The fake runs in its own process on a machine the other tests keep busy: a 50 ms gap limit
 # (the default at 500 Hz) would trip on scheduler hiccups that are not the fault under test. Likewise the
 # controller's "finished" may trail the arm's arrival by more than the default 0.5 s when both cores are busy
-# (CI: the first move after a new control script); a move that never reports finished still trips, after 2 s.
+# (seen in CI on the first move after a new control script, before the driver waited for the new script's first
+# answer: tests/test_ur_script_restart.py); a move that never reports finished still trips, after 2 s.
 LOADED = Supervision(max_stream_gap_s=0.2, finish_grace_s=2.0)
 # The module's driver on the healthy controller (``healthy``): none of its tests is about the reply watchdog
 # (the fault tests on ``ur2`` are, with the 0.3 s default). Its 0.3 s tripped at load 18 on a reply the

@@ -10,6 +10,10 @@ others keep the config's nominal gain, and ``gains_source`` says which joints ca
 
 Each joint's relative uncertainty is its fit's σ combined with ``CONTROLLER_CONSTANT_REL_STD``
 (how far the controller's constant may be from the drive's, as for ``payload-agent import``).
+Before any run (``plan --target-std`` on a fresh state) there is nothing to fit; a driver that declares it
+records the signals (``Driver.records_controller_targets``, read from its class without connecting) gets
+``declared_gains``: the nominal gains with the declared σ, which is what the run will carry (the fit's own
+part is a few 0.01 %).
 """
 
 from __future__ import annotations
@@ -42,7 +46,7 @@ class ControllerGains:
     nm_per_a: tuple[float, ...]
     rel_std: tuple[float, ...]  # 0 for a joint left at its nominal gain (its error is not known)
     source: str
-    constants: TorqueConstants
+    constants: TorqueConstants | None  # None: not fitted yet (``declared_gains``)
 
 
 def read_target_signals(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -101,6 +105,23 @@ def run_constants(run_dir: Path, manifest: Mapping[str, Any] | None = None) -> T
         if parts:
             runs.append(tuple(np.concatenate([p[k] for p in parts]) for k in range(3)))
     return fit_torque_constants(runs) if runs else None
+
+
+def records_controller_targets(driver_type: str) -> bool:
+    """Whether the driver named ``driver_type`` records the controller's target current and moment (its class
+    attribute, through the driver registry: nothing is connected)."""
+    from payload_agent.drivers.registry import driver_class
+
+    return bool(getattr(driver_class(driver_type), "records_controller_targets", False))
+
+
+def declared_gains(nominal_nm_per_a) -> ControllerGains:
+    """What a run that will fit the controller's constants is known to carry before it: the nominal gains, each
+    joint's uncertainty the declared ``CONTROLLER_CONSTANT_REL_STD`` (no fit yet: ``constants`` is None)."""
+    gains = tuple(float(g) for g in nominal_nm_per_a)
+    return ControllerGains(gains, (CONTROLLER_CONSTANT_REL_STD,) * len(gains),
+                           f"{SOURCE}, to be fitted by the run (declared uncertainty "
+                           f"{100 * CONTROLLER_CONSTANT_REL_STD:g} %)", None)
 
 
 def controller_gains(nominal_nm_per_a, run_dir: Path) -> ControllerGains | None:

@@ -15,7 +15,7 @@ from payload_agent.analysis.run_deltas import check_segmentation, phases_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
 from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
-from payload_agent.evaluation.controller_gains import controller_gains
+from payload_agent.evaluation.controller_gains import controller_gains, declared_gains, records_controller_targets
 from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
                                                   run_calibration)
 from payload_agent.evaluation.wrist_inertia import identify_or_none
@@ -83,7 +83,8 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
     """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``).
 
     ``run_dir`` None: the gains a run started now would use (the stored calibration, else the controller's
-    constants as the stored baseline's sweeps give them, else nominal), which is what ``plan --target-std``
+    constants as the stored baseline's sweeps give them, else, when the driver records the controller's target
+    signals, nominal ones with the constants' declared σ, else nominal), which is what ``plan --target-std``
     predicts with."""
     gain_rel_std = gain_reference = None
     # the copy the session made when the run began: solve uses the same
@@ -100,10 +101,12 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
         cal = effective_calibration(config) if note is not None else None
     fitted = None
     if cal is None and config.effort.unit == "A":
-        # a run started now fits them from its own sweeps; before it, the stored baseline's are the estimate
-        # (none stored: nothing to fit them from, the nominal gains are what is known)
+        # a run started now fits them from its own sweeps; before it, the stored baseline's are the estimate;
+        # none stored: the declared uncertainty when the driver records the signals, else nominal gains
         signals = run_dir if run_dir is not None else _stored_baseline(config)
         fitted = controller_gains(gains_arr, signals) if signals is not None else None
+        if fitted is None and run_dir is None and records_controller_targets(config.driver_type):
+            fitted = declared_gains(gains_arr)
     if fitted is not None:  # no calibration: the controller's own constants (UR target signals) over nominal ones
         return Gains(fitted.nm_per_a, fitted.source, f"drive gains: {fitted.source}", fitted.rel_std)
     if cal is not None:

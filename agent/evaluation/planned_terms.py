@@ -4,18 +4,18 @@
 run are sized from its own data, and ``plan --target-std`` has to predict what the run will report
 (issue 22: a plan that leaves them out picks a procedure whose reported σ then misses the target):
 
-- **wrist torques** (``systematics.wrist_terms``): the fit with one offset per (pose, wrist joint) gives
-  offsets b̂ (covariance C), whose effect on θ, β̂ = A·b̂ (D = A·C·Aᵀ), goes into σ shrunk by
-  s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D. With no wrist torque on the arm, β̂ = D^½·z with z standard
-  normal, and since z's direction is uniform and independent of |z|², the term's expectation is
-  E[s²·β̂β̂ᵀ] = D · E[(χ²_r − r)⁺]/r, with β̂'s true spread (``SPREAD_RATIO``: below). D is computed here
-  from the planned sweeps exactly as the run computes it (offset sensitivities of the plain fit, the
-  offsets' covariance of the fit with them, drive-gain part included). A real cable adds to that;
-  it is not predicted (the gate's cable check refuses strong ones). A run whose manifest records where the
-  loaded phase started gets the tool-cable term instead (``systematics.cable_spring``); on clean simulated
-  arms it was no larger than this one (100 seeded runs each, ``benchmarks.cable_false_alarms``: mass σ rms
-  1.43 against 1.54 g on sim-ec66, 0.59 against 1.13 g on sim-ur5e), so the free offsets' expectation is
-  kept as the prediction: the cable term's rests on where the tool will be mounted, which a plan does not know.
+- **wrist torques**: a run whose manifest records where the loaded phase started (every run of the product: it
+  starts where the run's own empty run ended, the plan's last pose, and the tool goes on there) fits a tool
+  cable's spring relaxed there (``systematics.cable_spring``): stiffnesses κ̂ (covariance C) move θ by AM·κ; the
+  run projects κ̂ onto κ ≥ 0, tests its presence and puts w·(β̂β̂ᵀ + D) into σ. Without a recorded mount it fits
+  free offsets b̂ (one per pose and wrist joint, ``systematics.wrist_terms``), β̂ = A·b̂, D = A·C·Aᵀ, shrunk by
+  s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D; with no wrist torque its expectation is D·E[(χ²_r − r)⁺]/r
+  (z's direction is uniform and independent of |z|²). Both with β̂'s true spread (``SPREAD_RATIO``: below), C
+  computed here from the planned sweeps as the run computes it (drive-gain part included). Either term is 0
+  in about two thirds of clean runs and large in the rest, so the plan draws it by the run's own rule
+  (``WristModel``, ``reported_sigma_draws``: a seeded draw of the standard normals, the same for every
+  candidate) and predicts the distribution of the σ the run reports, not one number (issue 22). A real cable
+  adds to that; it is not predicted (the gate's cable check refuses strong ones).
 - **residual friction** (``systematics.friction_terms``): asymmetry a (declared) × √E[Δ²], where the run's
   Δ combines the constant friction part's change it measures (precision v_m, from the split of each
   sweep's half gap into a constant and a load-proportional part, ``systematics.friction``) with the
@@ -31,6 +31,7 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,9 +64,10 @@ def shrunk_share(rank: int, spread: float = SPREAD_RATIO) -> float:
     return (spread * r * float(chi2.sf(c, rank + 2)) - r * float(chi2.sf(c, rank))) / r
 
 
-def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
-                     theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
-    """Expected covariance of the wrist-torque term of a run of the planned sweeps (no wrist torque on the arm)."""
+def wrist_spread(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                 theta: np.ndarray, gain_rel_std: Sequence[float] | None) -> np.ndarray:
+    """D = A·C·Aᵀ, the covariance of the wrist offsets' effect on θ a run of the planned sweeps fits (as the run
+    computes it: offset sensitivities of the plain fit, the offsets' covariance of the fit with them)."""
     from payload_agent.evaluation.systematics import offsets
 
     sweeps, groups = list(sweeps), list(groups)
@@ -82,8 +84,126 @@ def wrist_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], 
     if gain_rel_std is not None:
         cov_a = cov_a + wls.gain_covariance(aug, Ya, w, inv_a, np.concatenate([theta, np.zeros(len(labels))]),
                                             gain_rel_std)
-    D = A @ cov_a[4:, 4:] @ A.T
-    return shrunk_share(int(np.linalg.matrix_rank(D))) * D
+    return A @ cov_a[4:, 4:] @ A.T
+
+
+# the standard normal draws of β̂'s whitened coordinates that ``reported_sigma_draws`` uses for every candidate (the
+# same draws for all: common random numbers, so two candidates' probabilities differ by their term, not by chance)
+DRAWS, DRAW_SEED = 2000, 22
+_Z: list[np.ndarray] = []
+
+
+@dataclass(frozen=True)
+class WristModel:
+    """The wrist-torque term a run of the planned sweeps will fit, drawn by the run's own rule.
+
+    Free offsets (``systematics.wrist``, ``spring`` False): β̂ ~ N(0, ratio·D), a·β̂β̂ᵀ in σ with the run's
+    a = s² = (q − r)⁺/q. A tool cable's spring (``systematics.cable_spring``, ``spring`` True: the run knows
+    where the tool was mounted): κ̂ ~ N(0, ratio·C), β̂ = AM·κ*, κ* its projection onto κ ≥ 0, and w·(β̂β̂ᵀ + D)
+    in σ with the run's weight w (1 where its presence test finds a cable, else (T − E₀[T])⁺/T). Per draw the
+    term is a·β̂β̂ᵀ + b·D (offsets: b = 0; spring: a = b = w)."""
+
+    spread: np.ndarray  # D (4, 4): A·C·Aᵀ of the offsets, or AM·C·AMᵀ of the spring
+    spring: bool
+    a: np.ndarray = dataclasses.field(compare=False, repr=False)  # (DRAWS,)
+    beta: np.ndarray = dataclasses.field(compare=False, repr=False)  # (DRAWS, 4)
+    b: np.ndarray = dataclasses.field(compare=False, repr=False)  # (DRAWS,)
+
+    def over(self, runs: int) -> "WristModel":
+        """The same term for ``runs`` repetitions averaged: covariances / runs, the run's a, b unchanged (q, T and the
+        weight do not change with a common scale; κ* scales with κ̂)."""
+        return dataclasses.replace(self, spread=self.spread / runs, beta=self.beta / math.sqrt(runs))
+
+    def expected(self) -> np.ndarray:
+        """The term's expected covariance (what ``covariance_terms`` names "wrist"): exact for the offsets
+        (``shrunk_share``), the draws' mean for the spring."""
+        if not self.spring:
+            r = int(np.linalg.matrix_rank(self.spread)) if np.any(self.spread) else 0
+            return shrunk_share(r) * self.spread
+        return (self.a[:, None] * self.beta).T @ self.beta / len(self.a) + float(np.mean(self.b)) * self.spread
+
+
+def offset_model(D: np.ndarray, ratio: float = SPREAD_RATIO) -> WristModel:
+    """The free offsets' term of a run whose offsets' effect on θ has covariance D, drawn."""
+    z_all = _normal_draws()
+    r = int(np.linalg.matrix_rank(D)) if np.any(D) else 0
+    if r == 0:
+        return WristModel(D, False, np.zeros(DRAWS), np.zeros((DRAWS, 4)), np.zeros(DRAWS))
+    lam, vec = np.linalg.eigh(0.5 * (D + D.T))
+    lam, vec = np.clip(lam[-r:], 0.0, None), vec[:, -r:]  # the r largest: the rank the run counts
+    z = z_all[:, :r]
+    q = ratio * np.sum(z ** 2, axis=1)
+    a = np.maximum(q - r, 0.0) / np.maximum(q, 1e-300)
+    return WristModel(D, False, a, (z * np.sqrt(ratio * lam)) @ vec.T, np.zeros(DRAWS))
+
+
+def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO) -> WristModel:
+    """The cable spring's term of a run whose stiffnesses κ̂ (covariance C) move θ by AM·κ, drawn."""
+    from scipy.optimize import nnls
+
+    from payload_agent.evaluation.systematics import cable_spring
+
+    R = np.linalg.cholesky(np.linalg.inv(C)).T  # RᵀR = C⁻¹, as the run whitens
+    u = np.sqrt(ratio) * _normal_draws()[:, :len(C)]  # R·κ̂
+    T = cable_spring.statistics(R, u)
+    critical, null_mean = cable_spring.null_distribution(C)
+    weight = np.where(T > critical, 1.0, np.maximum(T - null_mean, 0.0) / np.maximum(T, 1e-300))
+    kappa = np.zeros_like(u)
+    for i in np.flatnonzero(weight > 0):  # κ*: the run's projection (``cable_spring.project``) of κ̂ = R⁻¹·u
+        kappa[i] = nnls(R, u[i])[0]
+    return WristModel(AM @ C @ AM.T, True, weight, kappa @ AM.T, weight)
+
+
+def _normal_draws() -> np.ndarray:
+    if not _Z:
+        _Z.append(np.random.default_rng(DRAW_SEED).standard_normal((DRAWS, 4)))
+    return _Z[0]
+
+
+def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                theta: np.ndarray, gain_rel_std: Sequence[float] | None,
+                mount_rad: Sequence[float] | None = None) -> WristModel:
+    """The wrist term of a run of the planned sweeps on an arm without wrist torques: the tool cable's spring
+    relaxed at ``mount_rad`` (where the loaded run starts, as the run records it), else the free offsets."""
+    if mount_rad is None:
+        return offset_model(wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std))
+    from payload_agent.evaluation.systematics import cable_spring, offsets, wrist
+
+    sweeps, groups = list(sweeps), list(groups)
+    aug, names = wrist.columns(sweeps, groups, theta, nuisance_gains=False)  # the run's, no scatter found
+    M, joints = cable_spring.levers(sweeps, groups, names, mount_rad) if names else (None, ())
+    if not joints:  # no wrist joint with a lever: the run has no wrist term
+        return offset_model(np.zeros((4, 4)))
+    k = len(names)
+    spring = [dataclasses.replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M])) for g in aug]
+    Ys = np.vstack([g.Y for g in spring])
+    inv_s = np.linalg.pinv((Ys * w[:, None]).T @ Ys)
+    cov = inv_s * inflation ** 2
+    if gain_rel_std is not None:
+        cov = cov + wls.gain_covariance(spring, Ys, w, inv_s, np.concatenate([theta, np.zeros(len(joints))]),
+                                        gain_rel_std)
+    Y = np.vstack([g.Y for g in groups])
+    sens = offsets.offset_sensitivities(sweeps, groups, w, np.linalg.pinv((Y * w[:, None]).T @ Y), offsets.wrist_joint)
+    AM = np.column_stack([sens.get(lab, np.zeros(4)) for lab in names]) @ M
+    return spring_model(AM, cov[4:, 4:])
+
+
+def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(σ mass g, σ centre of mass mm, largest axis) a run of the candidate reports, one per seeded draw
+    (``DRAWS``): the covariance ``base_cov`` (every other term) plus the wrist term by the run's own rule
+    (``WristModel``). Its mean covariance is ``base_cov + model.expected()``, the root of which the plan predicted
+    before (issue 22: the term is 0 in about two thirds of clean runs and large in the rest, so no single number
+    of it is what a user sees)."""
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    _, base_c = cog_with_covariance(theta, base_cov)
+    J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0] (``cog_with_covariance``)
+    J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
+    a, beta, b, D = model.a, model.beta, model.b, model.spread
+    var_m = float(base_cov[0, 0]) + a * beta[:, 0] ** 2 + b * D[0, 0]
+    var_c = np.diag(base_c)[None, :] + a[:, None] * (beta @ J.T) ** 2 + b[:, None] * np.diag(J @ D @ J.T)[None, :]
+    return (1000.0 * np.sqrt(np.maximum(var_m, 0.0)),
+            1000.0 * np.sqrt(np.maximum(np.max(var_c, axis=1), 0.0)))
 
 
 @dataclass(frozen=True)
@@ -200,5 +320,6 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
     return None
 
 
-__all__ = ["shrunk_share", "wrist_covariance", "FrictionKnowledge", "measurement_variance", "expected_change_square",
+__all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model",
+           "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]

@@ -47,22 +47,25 @@ def plan_json(plan: Plan, durations: Sequence[float]) -> dict[str, Any]:
             "robot_time_s": round(sum(known), 3), "approach_known": len(known) == len(durations)}
 
 
-def format_choice(choice: Any, mass_std_g: float, cog_std_mm: float, limit: int = 12) -> str:
+def format_choice(choice: Any, mass_std_g: float, cog_std_mm: float, risk: float, limit: int = 12) -> str:
     """``plan --target-std``'s trade-off table (``evaluation.design.Choice``): the fastest usable candidates, and
     the chosen one always among its rows (marked), so the last line names a row the user can see. "robot s" is
-    the whole run, the approach move included when it is known ("approach": that part, 0 when unknown)."""
+    the whole run, the approach move included when it is known ("approach": that part, 0 when unknown). σ is what
+    a typical run reports (the median), "P over" the chance that the run's σ exceeds the target (mass or centre of
+    mass), which "meets" keeps at or below ``risk`` (``design.TARGET_RISK``)."""
     rows = [p for p in choice.table if p.usable][:limit]
     gap = choice.best is not None and choice.best not in rows
     if gap:
         rows.append(choice.best)
-    lines = [f"target σ: mass {mass_std_g:g} g, centre of mass {cog_std_mm:g} mm (1σ)",
-             f"{'procedure':<56} {'robot s':>8} {'approach':>8} {'σ m g':>7} {'σ c mm':>7}  meets"]
+    lines = [f"target σ: mass {mass_std_g:g} g, centre of mass {cog_std_mm:g} mm (1σ); σ: a typical run's (median); "
+             f"meets: the run's σ over the target in at most {100 * risk:g} % of runs (P over)",
+             f"{'procedure':<56} {'robot s':>8} {'approach':>8} {'σ m g':>7} {'σ c mm':>7} {'P over':>6}  meets"]
     for p in rows:
         mark = ("yes" if p.meets(mass_std_g, cog_std_mm) else "") + ("  <- chosen" if p is choice.best else "")
         if gap and p is choice.best:
             lines.append("…  (faster rows that miss the target left out)")
         lines.append(f"{p.candidate.describe():<56} {p.robot_time_s:8.0f} {p.approach_s:8.0f} {p.mass_std_g:7.2f} "
-                     f"{p.cog_std_mm:7.2f}  {mark}".rstrip())
+                     f"{p.cog_std_mm:7.2f} {100 * p.p_over(mass_std_g, cog_std_mm):5.0f}%  {mark}".rstrip())
     lines.append("chosen: " + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.0f} s of robot time, "
                                f"{choice.best.approach_s:.0f} s of it the approach)" if choice.best
                                else "none meets the target; slower sweeps, a wider range or a calibration"))

@@ -100,8 +100,7 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     gains = run_gains(config, None)
     if gains.rel_std is not None and effective_calibration(config) is None:  # the controller's constants (a UR)
         return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_swept_only=True),
-                source + f"; {gains.source} in the stored baseline, whose uncertainty a run carries for the joints "
-                         "it sweeps")
+                source + f"; drive gains: {gains.source}, whose uncertainty a run carries for the joints it sweeps")
     if gains.rel_std is None:
         return noise, source + "; nominal drive gains (no calibration stored)"
     if gains.zeros is not None and noise.joints is not None:  # the run's zero term: the measured σ (zero_offsets)
@@ -189,7 +188,8 @@ def plan_target(config: Config, args, start_q, con) -> dict:
     keys = procedure_keys(config, best.candidate)
     path = write_chosen(config, best.candidate, grams, mm,
                         f"payload-agent plan --target-std {grams:g},{mm:g}: {best.candidate.describe()}\n"
-                        f"predicted 1σ: mass {best.mass_std_g:.2f} g, centre of mass {best.cog_std_mm:.2f} mm, "
+                        f"predicted 1σ of a typical run: mass {best.mass_std_g:.2f} g, centre of mass "
+                        f"{best.cog_std_mm:.2f} mm (over the target in {100 * best.p_over(grams, mm):.0f} % of runs), "
                         f"{best.robot_time_s:.0f} s of robot time, for the payload {payload.describe()}\n"
                         f"{config.source} with its procedure section replaced")
     con.say("The chosen procedure's keys (the robot YAML's `procedure:` section): "
@@ -200,6 +200,8 @@ def plan_target(config: Config, args, start_q, con) -> dict:
         con.say(f"The robot time above is the mass and centre-of-mass part; the written file keeps "
                 f"procedure.inertia ({config.procedure.inertia}), whose wrist moves come on top (`plan` shows them).")
     out["chosen"] = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
-                     "mass_std_g": best.mass_std_g, "cog_std_mm": best.cog_std_mm, "procedure_keys": keys,
+                     "mass_std_g": best.mass_std_g, "cog_std_mm": best.cog_std_mm,
+                     "mass_rms_std_g": best.mass_rms_std_g, "cog_rms_std_mm": best.cog_rms_std_mm,
+                     "p_over_target": best.p_over(grams, mm), "procedure_keys": keys,
                      "robot_file": str(path), "inertia_part": config.procedure.inertia}
     return out

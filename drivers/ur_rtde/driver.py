@@ -99,6 +99,7 @@ class URRTDEDriver(URCapabilities, Driver):
     options_class = URRTDEOptions
     simulator = "payload_agent.fakes.ur:FakeURController"
     reports_flange_pose = True  # actual_TCP_pose less the TCP offset (getTCPOffset)
+    records_controller_targets = True  # target_current and target_moment in the recipe (``Sample``)
     options: URRTDEOptions
     move_poll_s = 0.002
 
@@ -178,10 +179,20 @@ class URRTDEDriver(URCapabilities, Driver):
         return self._recv
 
     def _ensure_control(self) -> None:
-        """ur-rtde's control interface connected and its script running (built or re-uploaded if needed)."""
+        """ur-rtde's control interface connected and its script running (built or re-uploaded if needed).
+
+        A script started anew counts its async operations from the start again, and until its first
+        register write the controller's output registers still hold the last script's progress word.
+        Read then as the move's "before" state, that stale word can carry the very operation id the new
+        move gets, and the move would never be seen to finish. A command the new script answers comes
+        after its first write (the script resets its progress word before it takes commands), so one is
+        sent before any move of a new script.
+        """
         with self._control.lock:
             if self._control.get(lambda: self._state(refresh_remote=True).reason):
                 self._wait_receive_playing()
+                self._control.request("isSteady", timeout_s=COMMAND_TIMEOUT_S,
+                                      what="isSteady (the new control script answers)")
 
     def _wait_receive_playing(self) -> None:
         """The receive interface's packages may predate the script start: _move_status reads the

@@ -76,6 +76,8 @@ class RtdeControlProgram(Program):
 
     # main loop ------------------------------------------------------------------------------------
     def run(self) -> None:
+        if self.ctrl.script_start_delay_s > 0.0:  # the script's preamble, before its first register write
+            self.sleep(self.ctrl.script_start_delay_s)
         self.write_async_progress(-1)  # reset_async_progress()
         self.signal_ready()
         keep_running = True

@@ -58,7 +58,7 @@ class URControllerCore:
                  serial_number: str = "20215300042", robot_model: str = "UR5",
                  remote_control: bool = True, max_payload_kg: float = 5.0,
                  tcp_offset: Sequence[float] = DEFAULT_TCP_OFFSET, ports: dict[str, int] | None = None,
-                 keep_payload_inertia: bool = False):
+                 keep_payload_inertia: bool = False, script_start_delay_s: float = 0.0):
         self._own_sim = sim is None
         if sim is None:
             from payload_agent.fakes.arms import ur5e_spec
@@ -79,6 +79,9 @@ class URControllerCore:
         self.remote_control = remote_control
         self.max_payload_kg = float(max_payload_kg)
         self.keep_payload_inertia = bool(keep_payload_inertia)  # inertia writes ignored: a readback mismatch
+        # how long a control script runs (PLAYING) before its first register write: until then the output
+        # registers still hold the previous program's values, as on a real controller
+        self.script_start_delay_s = float(script_start_delay_s)
         self.max_frequency_hz = 500.0 if self.controller_version[0] >= 5 else 125.0
         ports = dict(ports or {})
         self.rtde_port = ports.get("rtde", RTDE_PORT)

@@ -22,7 +22,8 @@ Options (keywords): spec (ArmSpec, default UR5e), q0_rad, time_scale, tick_s (0.
 friction, noise_nm, seed, payload, sim_options (further SimRobot keywords), gains_nm_per_a,
 current_noise_a, gain_error, controller_version, serial_number, robot_model, remote_control,
 max_payload_kg, tcp_offset, ports, keep_payload_inertia (set_target_payload keeps the old inertia:
-a controller whose readback differs from what was written).
+a controller whose readback differs from what was written), script_start_delay_s (a control script runs
+this long before its first register write; until then the registers hold the previous program's values).
 """
 
 from __future__ import annotations

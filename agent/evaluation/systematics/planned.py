@@ -31,8 +31,8 @@ def planned_covariance(sweeps: Sequence[DeltaSweep], kin: Kinematics, decl: Join
     declared change only (``friction_change_std`` × ``friction_level_nm`` per moving joint, e.g. what the
     stored baseline shows): the run measures the change and reports the posterior, whose expectation
     before the run is this prior. Not predictable: the stiffness term
-    (it needs the arm's own torques) and the wrist torques (sized from the data); both are small against
-    these on a declared arm (docs/benchmarks.md).
+    (it needs the arm's own torques). The terms the run sizes from its data (the wrist torques as a tool
+    cable's spring, the residual friction as measured) are ``evaluation.planned_terms``'.
     """
     sweeps = list(sweeps)
     groups = general.build_groups(sweeps, kin)
