@@ -20,7 +20,7 @@ import dataclasses
 import numpy as np
 
 from benchmarks.gate import columns
-from benchmarks.reference import calibrate, theta_reference
+from benchmarks.reference import calibration
 
 COMP = "general-bi-cal-comp"
 COMP3 = "three-step-bi-cal-comp"  # the agent's three-step solver on the same analysis (its σ as the agent reports it)
@@ -51,20 +51,12 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
     rest), as the agent records them."""
     from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
-    from payload_agent.evaluation import systematics, zero_offsets
-    from payload_agent.evaluation.systematics import gain_scatter
-
     decl = declaration(declared)
-    scale, gain_rel_std, fitted = calibrate(ref, empty, config, unfitted_std, decl)
-    ref_deltas = systematics.prepare(ref, empty, decl).deltas
-    # as ``calibration.fit_gains``: the zeros of joints 2, 3 fitted with the gains where zero uncertainty is declared
-    scale, gain_rel_std, zeros = zero_offsets.refit(ref_deltas, config.robot.kinematics, theta_reference(), fitted,
-                                                    scale, gain_rel_std, decl.zero_offset_std_rad)
-    stood = gain_scatter.standing_angles(ref_deltas, config.robot.kinematics)
+    cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores: gains, zeros, reference friction
+    scale = np.asarray(cal.scale, float)
     options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
-    gains = Gains(tuple(float(g) for g in np.asarray(config.effort.gains_nm_per_unit) * scale),
-                  "calibrated on the benchmark's reference run", None, tuple(float(v) for v in gain_rel_std),
-                  (tuple(theta_reference()), tuple(fitted), stood), zeros)
+    gains = Gains(tuple(cal.gains_nm_per_unit), "calibrated on the benchmark's reference run", None,
+                  tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros)
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=(), mount_rad=mount_rad)
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 

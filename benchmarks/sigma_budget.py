@@ -25,7 +25,7 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import cases  # noqa: E402
-from benchmarks.reference import calibrate, theta_reference  # noqa: E402
+from benchmarks.reference import calibration, theta_reference  # noqa: E402
 from benchmarks.remedies import declaration, scaled  # noqa: E402
 
 
@@ -65,7 +65,9 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
     loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
     ref = cases.record_reference(robot, plan_bi, draws)
     decl = declaration(draws["declared"])
-    scale, gain_std, fitted = calibrate(ref, empty, config, cases.declared_unfitted_gain_std(scenario), decl)
+    cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores (its zeros are not corrected here)
+    scale, fitted = np.asarray(cal.scale, float), cal.fitted_joints
+    gain_std = np.asarray(cal.gain_rel_std(cases.declared_unfitted_gain_std(scenario)), float)
     prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl, mount_rad=mount)
     model = general.fit_model(prepared.deltas, kin, gain_std)
     res = model.fit()
@@ -90,11 +92,7 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
         theta = np.array([plain.mass_kg, *(plain.mass_kg * np.asarray(plain.cog_m))])
         noise = noise_iid = np.asarray(plain.covariance)
         parts["gains j2, j3"] = np.asarray(with_gains.covariance) - noise
-    from payload_agent.evaluation.systematics import gain_scatter
-
-    stood = gain_scatter.standing_angles(systematics.prepare(ref, empty, decl).deltas, kin)
-    for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model,
-                                     gain_reference=(theta_reference(), fitted, stood)).terms:
+    for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model, gain_reference=cal.reference).terms:
         parts[term.name] = term.covariance(key)
     i, unit, _ = QUANTITIES[quantity]
     truth = np.array([mass, *(np.asarray(cog) / 1000.0)])

@@ -179,9 +179,10 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
     fric = next(t for t in syst.terms if t.name == "residual friction")
     fric_plain = next(t for t in plain.terms if t.name == "residual friction")
     labels = int(len(fric_plain.std))
-    assert len(fric.std) == 2 * labels  # one reference parameter per joint, after the tool run's
+    # per joint: the one asymmetry of both runs, the tool run's uncertain change, the reference run's (declared here)
+    assert len(fric.std) == 3 * labels
     b_ref = {j: ASYMMETRY[j] * COULOMB[j] * -REF_DROP for j in (1, 2)}  # the Coulomb part the reference keeps
-    A_ref = fric.sens[systematics.THREE_STEP][:, labels:]
+    A_ref = fric.sens[systematics.THREE_STEP][:, 2 * labels:]
     order = sorted({k.joint - 1 for k in prep.deltas if k.direction == "both"})  # the term's joints, in its order
     assert len(order) == labels
     predicted = sum(A_ref[:, k] * b_ref.get(j, 0.0) for k, j in enumerate(order))
@@ -189,8 +190,8 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
     # the general fits take none of it: their friction term is the one without a calibration
     for which, S in fric_plain.sens.items():
         if which != systematics.THREE_STEP:
-            np.testing.assert_array_equal(fric.sens[which][:, :labels], S)
-            assert not fric.sens[which][:, labels:].any()
+            np.testing.assert_array_equal(fric.sens[which][:, labels:2 * labels], S)
+            assert not fric.sens[which][:, 2 * labels:].any()
     assert fric.covariance(ALL) == pytest.approx(fric_plain.covariance(ALL))
     # and the three-step σ is now the size of the shift (it was not: the tool run alone shows no friction change)
     sigma_m = float(np.sqrt(fric.covariance(systematics.THREE_STEP)[0, 0]))

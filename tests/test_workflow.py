@@ -254,3 +254,7 @@ def test_calibrate_then_run_uses_the_fitted_gains(sim_ec66_data, tmp_path, no_st
     # the zeros of joints 2 and 3 were fitted with the gains, shown, and the tool run corrected its angles by them
     assert any(line.startswith("Joint zeros (controller − link angle") and "j2 " in line for line in lines), lines
     assert [z["joint"] for z in out.result.extra["zero_offsets"]["joints"]] == [2, 3]
+    # and the reference run's friction change against the baseline, measured, shown and stored (the three-step σ)
+    assert any(line.startswith("Reference run's constant-friction change") and "j2 " in line for line in lines), lines
+    stored = json.loads(RobotState.for_config(cfg).gains_path.read_text())
+    assert 2 in {c["joint"] for c in stored["reference_friction"]["joints"]}  # this procedure sweeps joint 2 only

@@ -20,6 +20,9 @@ Only joints that carry enough of the payload's torque are fitted (in ``paper_bd`
 the others keep their nominal gain. A scale outside 0.8–1.25 is refused (a wrong reference mass, or no tool mounted).
 The fitted gains are then refitted jointly with the zeros of joints 2 and 3 (``zero_offsets``: a zero shifts the
 reference's torque along a sweep where a gain scales it), which are stored with them and corrected by every run.
+The reference run's friction change against the baseline is measured per joint and stored too
+(``systematics.reference_friction``): a direction asymmetry leaves it in the gains, where the three-step solver
+reads it.
 The result lives in ``state/<robot>/gains.json`` and is valid only for the configuration
 it was fitted on (robot name, effort unit, nominal gains, kinematics): ``load_calibration``
 refuses it otherwise, rather than silently applying stale gains."""
@@ -32,30 +35,24 @@ import json
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from payload_agent.configuration.config import Config
-from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.analysis.run_deltas import phases_for
 from payload_agent.evaluation import systematics, zero_offsets
-from payload_agent.evaluation.systematics import gain_scatter
-from payload_agent.errors import DataError, QualityGateError
-from payload_agent.model.kinematics import Kinematics
+from payload_agent.evaluation.systematics import gain_scatter, reference_friction
+from payload_agent.errors import DataError
+from payload_agent.recording.rundata import SweepData
 from payload_agent.types import SweepKey
-from payload_agent.solvers import general, wls
 from payload_agent.recording.state import RobotState, write_json_atomic
+# the gain-scale fit itself (``gain_scales``), named here too: callers know it as the calibration's
+from payload_agent.evaluation.gain_scales import (  # noqa: F401
+    IMPLAUSIBLE_Z, MAX_SCALE_STD, MIN_SAMPLES, MIN_SIGNAL_TO_NOISE, SCALE_MAX, SCALE_MIN, UNFITTED_GAIN_REL_STD,
+    CalibrationFailed, JointFit, fit_gains_from_deltas, fit_joint_scales)
 
 FORMAT = "payload-agent-gains/1"
-SCALE_MIN, SCALE_MAX = 0.8, 1.25  # a drive gain this far off nominal is a wrong reference, not a drive
-MIN_SIGNAL_TO_NOISE = 5.0  # a joint is fitted when its largest |Δτ_pred| is this many residual σ
-MAX_SCALE_STD = 0.01  # ... and its scale comes out to better than 1 %
-# what an unfitted joint's nominal gain is assumed to be good for (datasheet torque constants and
-# "rated torque / 100" conversions are typically within a few per cent): enters the uncertainty
-UNFITTED_GAIN_REL_STD = 0.03
-MIN_SAMPLES = 50  # per joint, over all sweeps
-IMPLAUSIBLE_Z = 3.0  # a scale this many σ outside SCALE_MIN–SCALE_MAX is a wrong reference, not noise
 
 
 @dataclass(frozen=True)
@@ -77,13 +74,21 @@ class GainCalibration:
     # still-joint gain errors the calibration absorbed; None in files written before it was recorded
     standing_angles: tuple[tuple[int, float], ...] | None = None
     zeros: zero_offsets.ZeroOffsets | None = None  # joint zeros fitted with the gains (None: not measured)
+    # the reference run's constant-friction change against the baseline per joint, measured (``reference_friction``);
+    # None in files written before it was: a tool run's three-step σ then keeps the declared change
+    reference_friction: reference_friction.ReferenceFriction | None = None
 
     @property
     def reference(self) -> tuple:
-        """(θ_ref = [m, m·c], fitted joints[, standing angles]): what the analysis subtracts the absorption with."""
+        """(θ_ref = [m, m·c], fitted joints[, standing angles[, reference friction]]): what the analysis subtracts the
+        absorption with, and what the reference run's friction changed by (written only with the standing angles,
+        which every calibration since both were recorded has)."""
         theta = [self.reference_mass_kg, *(self.reference_mass_kg * np.asarray(self.reference_cog_m))]
         base = (theta, self.fitted_joints)
-        return base if self.standing_angles is None else (*base, self.standing_angles)
+        if self.standing_angles is None:
+            return base
+        stood = (*base, self.standing_angles)
+        return stood if self.reference_friction is None else (*stood, self.reference_friction)
 
     @property
     def nominal_gains(self) -> tuple[float, ...]:
@@ -104,7 +109,9 @@ class GainCalibration:
                 "created_utc": self.created_utc,
                 **({} if self.standing_angles is None else
                    {"standing_angles_rad": [[j + 1, float(a)] for j, a in self.standing_angles]}),
-                **({} if self.zeros is None else {"zero_offsets": self.zeros.to_json()})}
+                **({} if self.zeros is None else {"zero_offsets": self.zeros.to_json()}),
+                **({} if self.reference_friction is None else
+                   {"reference_friction": self.reference_friction.to_json()})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -122,9 +129,11 @@ class GainCalibration:
         stood = d.get("standing_angles_rad")
         angles = None if stood is None else tuple((int(j) - 1, float(a)) for j, a in stood)
         zeros = None if d.get("zero_offsets") is None else zero_offsets.ZeroOffsets.from_json(d["zero_offsets"])
+        fric = d.get("reference_friction")
+        fric = None if fric is None else reference_friction.ReferenceFriction.from_json(fric)
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
-                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros)
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -135,181 +144,48 @@ def calibration_fingerprint(config: Config) -> str:
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _groups_by_joint(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool]]]:
-    """Per joint: (predicted Δτ, measured Δτ, needs an offset) for every sweep carrying that joint."""
-    sweeps = general.select_sweeps(deltas)
-    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool]]] = {}
-    for g, d in ((g, d) for d in sweeps for g in general.build_groups([d], kin)):
-        # a moving joint in a one-direction sweep keeps friction the baseline did not remove
-        offset = d.key.direction != "both" and g.joint == d.moving
-        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset))
-    return out
-
-
-@dataclass(frozen=True)
-class JointFit:
-    """One joint's gain fit against the reference payload, whether or not it was used."""
-
-    joint: int  # 0-based
-    status: str  # "fitted", "implausible", "too uncertain", "too little torque", "too few samples"
-    samples: int
-    scale: float | None = None  # fitted / nominal gain
-    scale_std: float | None = None
-    peak_torque_nm: float | None = None  # largest predicted payload torque on this joint
-    noise_nm: float | None = None  # residual σ of the fit
-
-    def to_json(self) -> dict[str, Any]:
-        return {"joint": self.joint + 1, "status": self.status, "samples": self.samples, "scale": self.scale,
-                "scale_std": self.scale_std, "peak_torque_nm": self.peak_torque_nm, "noise_nm": self.noise_nm}
-
-    def describe(self) -> str:
-        if self.scale is not None and self.scale_std is not None:
-            return f"joint {self.joint + 1}: scale {self.scale:.4f} ± {self.scale_std:.4f} ({self.status})"
-        if self.peak_torque_nm is not None:
-            return (f"joint {self.joint + 1}: payload torque at most {self.peak_torque_nm:.3g} N·m against "
-                    f"{self.noise_nm:.2g} N·m noise ({self.status})")
-        return f"joint {self.joint + 1}: {self.samples} samples ({self.status})"
-
-
-class CalibrationFailed(QualityGateError):
-    """The calibration run cannot give drive gains; ``fits`` holds what every joint's fit found.
-
-    The numbers travel with the error so that a failed calibration's report can show them.
-    """
-
-    def __init__(self, message: str, fits: Sequence[JointFit], reference_mass_kg: float,
-                 reference_cog_m: Sequence[float]):
-        super().__init__(message)
-        self.fits = tuple(fits)
-        self.reference_mass_kg = float(reference_mass_kg)
-        self.reference_cog_m = tuple(float(v) for v in reference_cog_m)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"error": str(self), "reference_mass_kg": self.reference_mass_kg,
-                "reference_cog_mm": [1000.0 * v for v in self.reference_cog_m],
-                "joints": [f.to_json() for f in self.fits]}
-
-
-def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_mass_kg: float,
-                     known_cog_m: Sequence[float]) -> list[JointFit]:
-    """Every loaded joint's gain scale against the reference payload, with a verdict each.
-
-    The verdict order matters: a scale far outside the plausible range is a wrong reference
-    (``implausible``) however uncertain it is, since a wrong mass scales the uncertainty too.
-    """
-    c = np.asarray(known_cog_m, float)
-    theta = np.concatenate(([known_mass_kg], known_mass_kg * c))
-    fits: list[JointFit] = []
-    for j, parts in sorted(_groups_by_joint(deltas, kin, theta).items()):
-        pred = np.concatenate([p for p, _, _ in parts])
-        meas = np.concatenate([m for _, m, _ in parts])
-        n = len(pred)
-        offset_parts = [i for i, (_, _, off) in enumerate(parts) if off]
-        X = np.zeros((n, 1 + len(offset_parts)))
-        X[:, 0] = pred
-        start = np.concatenate(([0], np.cumsum([len(p) for p, _, _ in parts])))
-        for col, i in enumerate(offset_parts, 1):
-            X[start[i]:start[i + 1], col] = 1.0
-        if n < MIN_SAMPLES + X.shape[1]:
-            fits.append(JointFit(j, "too few samples", n))
-            continue
-        coef, *_ = np.linalg.lstsq(X, meas, rcond=None)
-        resid = meas - X @ coef
-        dof = n - X.shape[1]
-        sigma = float(np.sqrt(resid @ resid / dof))
-        k = float(coef[0])
-        # standard error of k with correlated residuals: Bartlett sandwich over each sweep
-        XtX_inv = np.linalg.pinv(X.T @ X)
-        B = np.zeros((X.shape[1], X.shape[1]))
-        for i in range(len(parts)):
-            sl = slice(start[i], start[i + 1])
-            r = resid[sl]
-            _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
-            B += wls.long_run_scores(X[sl] * r[:, None], lag)
-        k_var = max(float((XtX_inv @ B @ XtX_inv)[0, 0]), float(XtX_inv[0, 0]) * sigma ** 2) * n / dof
-        peak = float(np.max(np.abs(pred)))
-        if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
-            fits.append(JointFit(j, "too little torque", n, peak_torque_nm=peak, noise_nm=sigma))
-            continue
-        s, s_std = 1.0 / k, float(np.sqrt(k_var)) / k ** 2
-        outside = max(SCALE_MIN - s, s - SCALE_MAX, 0.0)
-        if outside > IMPLAUSIBLE_Z * s_std:
-            status = "implausible"
-        elif s_std > MAX_SCALE_STD:
-            status = "too uncertain"
-        elif outside > 0:
-            status = "implausible"
-        else:
-            status = "fitted"
-        fits.append(JointFit(j, status, n, s, s_std, peak, sigma))
-    return fits
-
-
-def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, nominal_gains: Sequence[float],
-                          known_mass_kg: float, known_cog_m: Sequence[float]
-                          ) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
-    """Per-joint gain scale (true / nominal), its standard uncertainty, and the joints fitted.
-
-    ``deltas`` must have been converted to N·m with ``nominal_gains``. Joints without enough
-    payload torque keep scale 1 and std 0. Raises CalibrationFailed (a QualityGateError, with
-    every joint's numbers) when a scale is implausible (outside 0.8–1.25: a wrong reference
-    mass or centre of mass, or the reference was not mounted) or no joint can be fitted.
-    """
-    nominal = np.asarray(nominal_gains, float)
-    if not known_mass_kg > 0:
-        raise DataError(f"the reference mass must be positive, got {known_mass_kg} kg")
-    c = np.asarray(known_cog_m, float)
-    fits = fit_joint_scales(deltas, kin, known_mass_kg, c)
-    ref = f"{known_mass_kg:.3f} kg reference at {1000 * c[0]:.1f}, {1000 * c[1]:.1f}, {1000 * c[2]:.1f} mm"
-    bad = [f for f in fits if f.status == "implausible"]
-    if bad:
-        which = "; ".join(f"joint {f.joint + 1} would need {f.scale:.3f} ± {f.scale_std:.3f} × its nominal "
-                          "drive gain" for f in bad)
-        implied = known_mass_kg / float(np.median([f.scale for f in bad]))
-        raise CalibrationFailed(
-            f"calibration: {which} (plausible {SCALE_MIN:g}–{SCALE_MAX:g}). Drive gains are not that far off: "
-            f"the measured payload torque does not match a {ref}; it fits about {implied:.3f} kg there. "
-            f"Check --known-mass and --known-cog (kg; mm in the flange frame), and that the reference payload "
-            "was mounted for the loaded run and removed for the empty one.",
-            fits, known_mass_kg, c)
-    fitted = [f for f in fits if f.status == "fitted"]
-    if not fitted:
-        skipped = "; ".join(f.describe() for f in fits) or "no usable sweep"
-        raise CalibrationFailed(
-            "calibration: no joint carried enough of the reference payload's torque to fit its gain "
-            f"({skipped}). Use a heavier reference payload (a few kg) and check that it was mounted for "
-            "the loaded run.", fits, known_mass_kg, c)
-    scale = np.ones(len(nominal))
-    scale_std = np.zeros(len(nominal))
-    for f in fitted:
-        scale[f.joint], scale_std[f.joint] = f.scale, f.scale_std
-    return scale, scale_std, tuple(f.joint for f in fitted)
-
-
 def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: Sequence[float],
               baseline_dir: Path | None = None) -> GainCalibration:
-    """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains.
-
-    The declared joint stiffness is compensated in both phases first (``systematics.prepare``), as
-    in every identification the gains are then used for.
-    """
+    """Fit drive gains on a recorded run (empty + loaded with the reference payload) at nominal gains
+    (``fit_from_sweeps`` on the run folder's phases)."""
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     loaded, empty, commands = phases_for(Path(run_dir), nominal, baseline_dir)
-    deltas = systematics.prepare(loaded, empty, config.robot.joints, commands).deltas
-    scale, scale_std, fitted = fit_gains_from_deltas(deltas, config.robot.kinematics, nominal,
-                                                     known_mass_kg, known_cog_m)
-    c = tuple(float(v) for v in known_cog_m)  # then the zeros of joints 2, 3 with the gains (``zero_offsets``)
-    scale, scale_std, zeros = zero_offsets.refit(deltas, config.robot.kinematics, [known_mass_kg, *(
-        known_mass_kg * np.asarray(c))], fitted, scale, scale_std, config.robot.joints.zero_offset_std_rad)
+    return fit_from_sweeps(loaded, empty, config, known_mass_kg, known_cog_m, commands=commands, run_dir=str(run_dir))
+
+
+def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], config: Config,
+                    known_mass_kg: float, known_cog_m: Sequence[float], *, joints: JointSystematicsConfig | None = None,
+                    commands: Mapping | None = None, run_dir: str = "") -> GainCalibration:
+    """The calibration of a reference run's sweeps (``loaded``, effort in N·m at the config's nominal gains) against
+    the empty baseline's, pure: what ``fit_gains`` does on a run folder and the accuracy benchmark on its simulated
+    reference run, so that the benchmark measures what ``calibrate`` stores.
+
+    1. the declared joint stiffness is compensated in both runs (``systematics.prepare``), as in every
+       identification the gains are then used for;
+    2. the gain scales of the loaded joints (``gain_scales``), then refitted with the zeros of joints 2 and 3
+       (``zero_offsets``);
+    3. the reference run's constant-friction change against the baseline per joint, measured with the prior of
+       the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains.
+
+    ``joints``: the declared systematics (default the config's ``robot.joints``); ``commands``: the plan's sweep
+    commands (constant-speed windows); ``run_dir``: recorded as given."""
+    decl = config.robot.joints if joints is None else joints
+    nominal = np.asarray(config.effort.gains_nm_per_unit, float)
+    prepared = systematics.prepare(loaded, empty, decl, commands)
+    deltas, kin = prepared.deltas, config.robot.kinematics
+    scale, scale_std, fitted = fit_gains_from_deltas(deltas, kin, nominal, known_mass_kg, known_cog_m)
+    c = tuple(float(v) for v in known_cog_m)
+    scale, scale_std, zeros = zero_offsets.refit(deltas, kin, [known_mass_kg, *(known_mass_kg * np.asarray(c))],
+                                                 fitted, scale, scale_std, decl.zero_offset_std_rad)
+    fric = reference_friction.measure(prepared.loaded, prepared.empty, deltas, commands, decl.friction_change_std)
     return GainCalibration(
         gains_nm_per_unit=tuple(float(v) for v in nominal * scale), fitted_joints=fitted,
         scale=tuple(float(v) for v in scale), scale_std=tuple(float(v) for v in scale_std),
         reference_mass_kg=float(known_mass_kg), reference_cog_m=(c[0], c[1], c[2]),
         robot=config.robot.name, effort_unit=config.effort.unit,
-        nominal_fingerprint=calibration_fingerprint(config), run_dir=str(run_dir),
+        nominal_fingerprint=calibration_fingerprint(config), run_dir=run_dir,
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        standing_angles=gain_scatter.standing_angles(deltas, config.robot.kinematics), zeros=zeros)
+        standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric)
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

@@ -122,7 +122,7 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
     return Gains(tuple(float(g) for g in gains_arr), source, note,
                  None if gain_rel_std is None else tuple(float(v) for v in gain_rel_std),
                  None if gain_reference is None else (tuple(float(v) for v in gain_reference[0]),
-                                                      tuple(int(j) for j in gain_reference[1])),
+                                                      tuple(int(j) for j in gain_reference[1]), *gain_reference[2:]),
                  None if cal is None else cal.zeros)
 
 

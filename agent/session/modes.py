@@ -130,6 +130,10 @@ class Calibrate(Mode):
         if calibration.zeros is not None:  # fitted with the gains; every later run corrects its angles by them
             out("Joint zeros (controller − link angle, ±1σ, fitted with the gains; the declared "
                 f"robot.kinematics.zero_offset_uncertainty_deg is the prior): {calibration.zeros.describe()}")
+        if calibration.reference_friction is not None:  # what a direction asymmetry left in the gains (three-step σ)
+            out("Reference run's constant-friction change against the baseline (±1σ; the declared "
+                "robot.friction_change_percent is the prior where the data cannot tell): "
+                + calibration.reference_friction.describe())
         return calibration
 
 

@@ -20,8 +20,9 @@ sensitivity to each sample (``_jacobians``: through the step-1 interpolation, an
 into steps 2 and 3, and through x, y into step 3) times that sweep's residuals gives scores
 whose long-run variance (Bartlett kernel, bandwidth from the residuals' autocorrelation time,
 as in ``solvers.wls``) is the covariance of [m, x, y, z]; never below the independent-noise
-value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top.
-The DH lengths' uncertainty is not (the three-step's levers come from FK as the general's do).
+value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top, and the DH lengths'
+uncertainty by re-running the steps with each length moved, less what a drive-gain calibration absorbed of it
+(``length_covariance``, the general solver's DH-length term through the three steps).
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ from payload_agent.types import SweepKey
 
 NAME = "three-step"
 PREFERENCE = ("both", "up")  # combined where recorded both ways, else the published upward sweep
+LENGTH_STEP_M = 1e-4  # the finite step of a DH length (the steps are smooth in it: levers and the 1/m of steps 2, 3)
+GAIN_STEP = 1e-4  # the finite step of a relative drive-gain error
 
 
 def _find(deltas: dict[SweepKey, DeltaSweep], pose: str, joint: int,
@@ -96,9 +99,10 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
     ``directions``: which recorded direction to use per sweep, in order of preference (default:
     the combined "both", else "up"; ``("up",)`` is the paper's single-direction procedure).
     ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), added
-    to the covariance for joints 2 and 3. ``length_std_m``, ``gain_reference`` and ``model`` belong to
-    the solvers' common signature (``solvers.Solver``): the three steps use four sweeps directly, not the
-    general fit, and propagate no DH-length error.
+    to the covariance for joints 2 and 3. ``length_std_m``: standard uncertainty of every non-zero DH length,
+    added through the three steps (``length_covariance``; ``gain_reference``, (θ_ref, fitted joints) of the
+    drive-gain calibration the data were scaled with, absorbed part of it; ``model``: the analysis' fitted model,
+    whose rows name where).
     """
     b2, b3, d3 = (_find(deltas, pose_xy, 2, directions), _find(deltas, pose_xy, 3, directions),
                   _find(deltas, pose_z, 3, directions))
@@ -143,6 +147,9 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
     }
     J = _jacobians(beta, phi, inside, dm_dv, B3, Bd, data["b3"][0], d3.dtau[:, 2])
     cov_beta = _covariance(J, data, gain_rel_std)
+    if length_std_m is not None and length_std_m > 0:
+        cov_beta = cov_beta + length_covariance(deltas, kin, beta, float(length_std_m), gain_reference, model,
+                                                dict(pose_xy=pose_xy, pose_z=pose_z, directions=directions))
     # θ = [m, m·c]: the covariance the other solvers report
     Jt = np.zeros((4, 4))
     Jt[0, 0] = 1.0
@@ -169,6 +176,56 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         covariance=cov_theta,
         notes=notes,
     )
+
+
+def length_covariance(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, beta: np.ndarray, length_std_m: float,
+                      gain_reference: object = None, model: object = None, steps: dict | None = None) -> np.ndarray:
+    """Covariance of β = [m, x, y, z] from independent errors, standard uncertainty ``length_std_m`` each, of the
+    non-zero DH lengths (``general.length_parameters``): the general solver's DH-length term
+    (``general.kinematic_sensitivities``) through the three steps instead of the weighted fit: σ²·DᵀD with D of
+    ``length_sensitivities``."""
+    D = length_sensitivities(deltas, kin, beta, gain_reference, model, steps)
+    return float(length_std_m) ** 2 * (D.T @ D)
+
+
+def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, beta: np.ndarray,
+                         gain_reference: object = None, model: object = None, steps: dict | None = None) -> np.ndarray:
+    """(K, 4): β̂'s error per metre of error of each DH length of ``general.length_parameters(kin)``.
+
+    The arm's torques follow the true lengths p + δp while the steps' levers use the nominal p; the steps are
+    consistent (right lengths, right β), so β̂'s error is −∂β̂/∂p_k·δp_k, by re-running them with one length
+    moved.
+    A drive-gain calibration on the same procedure (``gain_reference`` = (θ_ref, fitted joints, ...)) absorbed
+    the share ε_jk·δp_k of it into joint j's gain (``general.absorbed_length_error``), which the steps read where
+    j is joint 2 or 3: −ε_jk·∂β̂/∂g_j more (g_j: a relative gain error of joint j on every sweep)."""
+    from dataclasses import replace
+
+    from payload_agent.solvers import general
+
+    def beta_of(d: dict[SweepKey, DeltaSweep], k: Kinematics) -> np.ndarray:
+        e = solve(d, k, **(steps or {}))
+        return np.array([e.mass_kg, *e.cog_m])
+
+    params = general.length_parameters(kin)
+    if not params:
+        return np.zeros((0, 4))
+    D = np.array([-(beta_of(deltas, general.perturbed(kin, row, which, LENGTH_STEP_M)) - beta) / LENGTH_STEP_M
+                  for row, which in params])  # (K, 4)
+    if gain_reference is not None:
+        if model is None:
+            model = general.fit_model(deltas, kin)  # the rows only: no fit is made here
+        sweeps, groups = list(model.sweeps), list(model.groups)  # type: ignore[attr-defined]
+        dY = general.model_length_derivatives(model)  # type: ignore[arg-type]
+        eps = general.absorbed_length_error(sweeps, [replace(g, Y=g.Y[:, :4]) for g in groups],
+                                            [d[:, :4] for d in dY], gain_reference)  # type: ignore[arg-type]
+        for j in sorted(set(eps) & {1, 2}):  # joints 2 and 3: the only rows the steps read
+            shifted = {}
+            for key, d in deltas.items():
+                dtau = np.array(d.dtau, float)
+                dtau[:, j] *= 1.0 + GAIN_STEP
+                shifted[key] = replace(d, dtau=dtau)
+            D -= np.outer(eps[j], (beta_of(shifted, kin) - beta) / GAIN_STEP)
+    return D
 
 
 def _jacobians(beta: np.ndarray, phi: np.ndarray, inside: np.ndarray, dm_dv: np.ndarray, B3: np.ndarray,

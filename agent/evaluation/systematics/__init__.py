@@ -64,7 +64,7 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
-                                                  three_step_response, wrist)
+                                                  reference_friction, three_step_response, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
@@ -265,9 +265,12 @@ def friction_terms(ctx: Context) -> list[Term]:
     if ctx.three_step is not None and ctx.gain_reference is not None:
         calib = three_step_response.with_reference_offsets(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
                                                            per_joint, labels, ctx.gain_reference, ctx.three_step, sens)
-    if calib is not None:  # the same asymmetry in the calibration's reference run: its change the declared prior
-        std = np.concatenate([std, asym * rel * np.array([constant[j] for j in joints])])
-        sens = calib
+    ref = ""
+    if calib is not None:  # the same asymmetry in the calibration's reference run: its change as the calibration
+        # measured it, else the declared change of the baseline's constant part (``reference_friction``)
+        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
+                                                              ctx.gain_reference, joints, rel, constant)
+        ref = f"; for the three-step solver also in the drive-gain calibration's reference run, {ref}"
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
                 if change[j].measured]
     prior = [f"j{j + 1}" for j in joints if not change[j].measured]
@@ -275,8 +278,6 @@ def friction_terms(ctx: Context) -> list[Term]:
     if prior:
         how += ("; " if how else "") + (f"declared ±{100 * rel:.3g} % of the baseline's level where the sweeps' load "
                                         f"torque varies too little to tell ({', '.join(prior)})")
-    ref = (f"; for the three-step solver also in the drive-gain calibration's reference run, whose change is "
-           f"the declared ±{100 * rel:.3g} % of the baseline's constant part" if calib is not None else "")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
                  f"the change of the constant friction part between the runs ({how}){ref} in σ")]
