@@ -143,7 +143,12 @@ def preflight(config: Config, *, calibration: bool = True, apply: bool = False, 
     try:
         from payload_agent.evaluation.calibration import effective_gains
 
+        from payload_agent.evaluation.controller_gains import records_controller_targets
+
         note = effective_gains(config)[1]
+        if note is None and records_controller_targets(config.driver_type):  # UR: fitted by the run itself
+            note = ("no calibration stored: the controller's own constants, fitted by the run from its "
+                    "target_current / target_moment")
         result.notes.append(f"drive gains: {note}" if note else "drive gains: nominal (no calibration stored)")
     except DataError as exc:
         result.problems.append(ConfigError("gains.json", str(exc), config.source))
