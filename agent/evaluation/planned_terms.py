@@ -78,13 +78,19 @@ def wrist_spread(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: n
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
     sens = offsets.offset_sensitivities(sweeps, groups, w, inv, offsets.wrist_joint)
     A = np.column_stack([sens.get(lab, np.zeros(4)) for lab in labels])
+    cov_a = _augmented_covariance(aug, w, theta, len(labels), inflation, gain_rel_std)
+    return A @ cov_a[4:, 4:] @ A.T
+
+
+def _augmented_covariance(aug, w, theta, n_extra: int, inflation: float, gain_rel_std) -> np.ndarray:
+    """The covariance of the fit with ``n_extra`` nuisance columns beside θ (noise scaled by ``inflation``, plus
+    the drive gains' part where their uncertainty is known), as the run's own fit computes it."""
     Ya = np.vstack([g.Y for g in aug])
     inv_a = np.linalg.pinv((Ya * w[:, None]).T @ Ya)
-    cov_a = inv_a * inflation ** 2
+    cov = inv_a * inflation ** 2
     if gain_rel_std is not None:
-        cov_a = cov_a + wls.gain_covariance(aug, Ya, w, inv_a, np.concatenate([theta, np.zeros(len(labels))]),
-                                            gain_rel_std)
-    return A @ cov_a[4:, 4:] @ A.T
+        cov = cov + wls.gain_covariance(aug, Ya, w, inv_a, np.concatenate([theta, np.zeros(n_extra)]), gain_rel_std)
+    return cov
 
 
 # the standard normal draws of β̂'s whitened coordinates that ``reported_sigma_draws`` uses for every candidate (the
@@ -176,12 +182,7 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
         return offset_model(np.zeros((4, 4)))
     k = len(names)
     spring = [dataclasses.replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M])) for g in aug]
-    Ys = np.vstack([g.Y for g in spring])
-    inv_s = np.linalg.pinv((Ys * w[:, None]).T @ Ys)
-    cov = inv_s * inflation ** 2
-    if gain_rel_std is not None:
-        cov = cov + wls.gain_covariance(spring, Ys, w, inv_s, np.concatenate([theta, np.zeros(len(joints))]),
-                                        gain_rel_std)
+    cov = _augmented_covariance(spring, w, theta, len(joints), inflation, gain_rel_std)
     Y = np.vstack([g.Y for g in groups])
     sens = offsets.offset_sensitivities(sweeps, groups, w, np.linalg.pinv((Y * w[:, None]).T @ Y), offsets.wrist_joint)
     AM = np.column_stack([sens.get(lab, np.zeros(4)) for lab in names]) @ M
