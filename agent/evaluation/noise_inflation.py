@@ -1,0 +1,87 @@
+"""How much wider than white noise a stored run's statistical σ came out: the plan's ``NoiseModel.inflation``.
+
+A run reports the autocorrelation-robust σ of its fit (``solvers.wls.fit``: the sandwich over each sweep's
+lags), never below the textbook σ for independent noise. ``plan --target-std`` predicts the white-noise σ
+at the sample density the stored runs delivered (``session.stream_density``). Where the noise is correlated
+in time (a drive's ripple, a stream whose gaps leave runs of samples), the robust σ is wider, by a ratio
+that a run of the same arm and stream shows: the stored run that has a loaded phase, the drive-gain
+calibration's. Its fit is made again here on its recorded sweeps (nominal gains: the ratio does not depend
+on their scale) and the ratio of robust to white σ of the mass and of the centre of mass is read off.
+
+An empty-flange baseline has no loaded phase and says nothing about it; without a calibration run the ratio
+is 1 (said so).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from payload_agent.configuration.config import Config
+
+MIN_RATIO = 1.0  # the run's robust σ is never below its white one (``wls.fit``)
+
+
+@dataclass(frozen=True)
+class NoiseInflation:
+    """The robust-to-white σ ratio the plan assumes, and where it came from."""
+
+    ratio: float  # what ``NoiseModel.inflation`` gets (1: none measured)
+    mass_ratio: float | None = None  # robust / white σ of the mass in the stored run
+    cog_ratio: float | None = None  # robust / white σ of the centre of mass (its largest axis)
+    run: str = ""  # the stored run's folder name
+
+    def describe(self) -> str:
+        if self.mass_ratio is None:
+            return "noise taken as white (no stored run with a loaded phase to measure its correlation in)"
+        return (f"robust σ {self.ratio:.2f} × the white-noise σ, as in the stored run {self.run} "
+                f"(mass {self.mass_ratio:.2f}, centre of mass {self.cog_ratio:.2f})")
+
+
+def ratios(cov: np.ndarray, cov_iid: np.ndarray, theta: np.ndarray) -> tuple[float, float]:
+    """(mass, largest CoM axis) robust-to-white σ ratios of a fit of θ = [m, m·cx, m·cy, m·cz]."""
+    m = float(theta[0])
+    J = np.zeros((3, 4))  # c = (m·c) / m
+    J[:, 0] = -np.asarray(theta[1:], float) / m ** 2
+    J[:, 1:] = np.eye(3) / m
+    com = np.sqrt(np.maximum(np.diag(J @ cov @ J.T), 0.0))
+    com_iid = np.sqrt(np.maximum(np.diag(J @ cov_iid @ J.T), 1e-300))
+    axis = int(np.argmax(com))
+    mass = math.sqrt(max(cov[0, 0], 0.0) / max(cov_iid[0, 0], 1e-300))
+    return mass, float(com[axis] / com_iid[axis])
+
+
+def of_sweeps(config: Config, loaded, empty, commands=None) -> tuple[float, float]:
+    """(mass, CoM) robust-to-white σ ratios of the fit the run makes of these sweeps (effort in N·m)."""
+    from payload_agent.evaluation import systematics
+    from payload_agent.solvers import general
+
+    prepared = systematics.prepare(loaded, empty, config.robot.joints, commands)
+    fit = general.fit_model(prepared.deltas, config.robot.kinematics).fit()
+    return ratios(fit.cov, fit.cov_iid, fit.theta)
+
+
+def of_run(config: Config, run_dir: Path) -> NoiseInflation:
+    """The robust-to-white ratio of a recorded run with a loaded and an empty phase (DataError if it has none)."""
+    from payload_agent.analysis.run_deltas import phases_for
+
+    loaded, empty, commands = phases_for(Path(run_dir), np.asarray(config.effort.gains_nm_per_unit, float))
+    mass, cog = of_sweeps(config, loaded, empty, commands)
+    return NoiseInflation(max(MIN_RATIO, mass, cog), mass, cog, Path(run_dir).name)
+
+
+def stored(config: Config) -> NoiseInflation:
+    """The ratio of the robot's stored calibration run, or 1 without one (or when it cannot be fitted)."""
+    from payload_agent.errors import DataError
+    from payload_agent.evaluation.calibration import effective_calibration
+
+    cal = effective_calibration(config)
+    if cal is None or not (Path(cal.run_dir) / "manifest.json").is_file():
+        return NoiseInflation(MIN_RATIO)
+    try:
+        return of_run(config, Path(cal.run_dir))
+    except DataError:
+        return NoiseInflation(MIN_RATIO)
