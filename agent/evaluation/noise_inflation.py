@@ -8,6 +8,15 @@ that a run of the same arm and stream shows: the stored run that has a loaded ph
 calibration's. Its fit is made again here on its recorded sweeps (nominal gains: the ratio does not depend
 on their scale) and the ratio of robust to white σ of the mass and of the centre of mass is read off.
 
+Part of that ratio is in the plan's white term already: the run matches the empty run's samples to the
+loaded run's by angle, which correlates neighbouring deltas, and the fit's independent-rows σ understates the
+subtraction's full variance that the plan assumes. On white noise and a whole stream the fit shows
+``WHITE_RATIO`` (measured: UR and EC66 runs of the simulated arms with whole streams 1.18–1.29, 30 seeds of
+white noise on the EC66's sweeps 1.26; ``tests/test_noise_inflation.py``), and the plan takes the stored run's
+ratio over it. What remains is the noise's correlation in time and the holes of a stream that drops
+samples (a simulated UR read through ur_rtde's polled receive interface showed 2.0–2.5, docs/benchmarks.md
+session 14).
+
 An empty-flange baseline has no loaded phase and says nothing about it; without a calibration run the ratio
 is 1 (said so).
 """
@@ -23,13 +32,14 @@ import numpy as np
 from payload_agent.configuration.config import Config
 
 MIN_RATIO = 1.0  # the run's robust σ is never below its white one (``wls.fit``)
+WHITE_RATIO = 1.22  # the fit's robust-to-white ratio on white noise and a whole stream (module docstring)
 
 
 @dataclass(frozen=True)
 class NoiseInflation:
     """The robust-to-white σ ratio the plan assumes, and where it came from."""
 
-    ratio: float  # what ``NoiseModel.inflation`` gets (1: none measured)
+    ratio: float  # what ``NoiseModel.inflation`` gets: the larger of the two over WHITE_RATIO (1: none measured)
     mass_ratio: float | None = None  # robust / white σ of the mass in the stored run
     cog_ratio: float | None = None  # robust / white σ of the centre of mass (its largest axis)
     run: str = ""  # the stored run's folder name
@@ -37,8 +47,9 @@ class NoiseInflation:
     def describe(self) -> str:
         if self.mass_ratio is None:
             return "noise taken as white (no stored run with a loaded phase to measure its correlation in)"
-        return (f"robust σ {self.ratio:.2f} × the white-noise σ, as in the stored run {self.run} "
-                f"(mass {self.mass_ratio:.2f}, centre of mass {self.cog_ratio:.2f})")
+        return (f"noise term × {self.ratio:.2f} for the noise's correlation, as the stored run {self.run} showed (its "
+                f"robust σ {self.mass_ratio:.2f} × the white one for the mass, {self.cog_ratio:.2f} for the centre of "
+                f"mass, over the {WHITE_RATIO:g} of white noise)")
 
 
 def ratios(cov: np.ndarray, cov_iid: np.ndarray, theta: np.ndarray) -> tuple[float, float]:
@@ -70,7 +81,7 @@ def of_run(config: Config, run_dir: Path) -> NoiseInflation:
 
     loaded, empty, commands = phases_for(Path(run_dir), np.asarray(config.effort.gains_nm_per_unit, float))
     mass, cog = of_sweeps(config, loaded, empty, commands)
-    return NoiseInflation(max(MIN_RATIO, mass, cog), mass, cog, Path(run_dir).name)
+    return NoiseInflation(max(MIN_RATIO, max(mass, cog) / WHITE_RATIO), mass, cog, Path(run_dir).name)
 
 
 def stored(config: Config) -> NoiseInflation:
