@@ -140,6 +140,9 @@ def test_the_plan_widens_its_noise_term_by_the_stored_calibration_runs_ratio(cle
     a = design.covariance_terms(config, plan, dataclasses.replace(widened, inflation=1.0), theta)[0]["noise"]
     b = design.covariance_terms(config, plan, widened, theta)[0]["noise"]
     assert b[0, 0] / a[0, 0] == pytest.approx(own.ratio ** 2, rel=1e-9)
+    _write_run(run_dir, config, {}, _noisy(loaded, RHO, 4))  # its empty phase elsewhere: the fit cannot be made
+    alone, source = target.noise_for(config)
+    assert alone.inflation == 1.0 and "noise taken as white (the calibration run calibration-run cannot be fitted" in source
     (run_dir / "manifest.json").unlink()  # the calibration's run folder removed: nothing to measure
     gone, source = target.noise_for(config)
-    assert gone.inflation == 1.0 and "noise taken as white" in source
+    assert gone.inflation == 1.0 and "noise taken as white (the calibration's run folder" in source

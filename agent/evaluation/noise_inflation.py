@@ -43,10 +43,11 @@ class NoiseInflation:
     mass_ratio: float | None = None  # robust / white σ of the mass in the stored run
     cog_ratio: float | None = None  # robust / white σ of the centre of mass (its largest axis)
     run: str = ""  # the stored run's folder name
+    why_none: str = "no stored calibration run to measure its correlation in"  # when nothing was measured
 
     def describe(self) -> str:
         if self.mass_ratio is None:
-            return "noise taken as white (no stored run with a loaded phase to measure its correlation in)"
+            return f"noise taken as white ({self.why_none})"
         return (f"noise term × {self.ratio:.2f} for the noise's correlation, as the stored run {self.run} showed (its "
                 f"robust σ {self.mass_ratio:.2f} × the white one for the mass, {self.cog_ratio:.2f} for the centre of "
                 f"mass, over the {WHITE_RATIO:g} of white noise)")
@@ -90,9 +91,12 @@ def stored(config: Config) -> NoiseInflation:
     from payload_agent.evaluation.calibration import effective_calibration
 
     cal = effective_calibration(config)
-    if cal is None or not (Path(cal.run_dir) / "manifest.json").is_file():
+    if cal is None:
         return NoiseInflation(MIN_RATIO)
+    if not (Path(cal.run_dir) / "manifest.json").is_file():
+        return NoiseInflation(MIN_RATIO, why_none=f"the calibration's run folder {cal.run_dir} is gone")
     try:
         return of_run(config, Path(cal.run_dir))
-    except DataError:
-        return NoiseInflation(MIN_RATIO)
+    except DataError as exc:  # e.g. a calibration whose empty phase was a stored baseline's
+        return NoiseInflation(MIN_RATIO, why_none=f"the calibration run {Path(cal.run_dir).name} cannot be fitted "
+                                                  f"again: {exc}")
