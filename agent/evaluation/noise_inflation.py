@@ -11,8 +11,9 @@ on their scale) and the ratio of robust to white σ of the mass and of the centr
 Part of that ratio is in the plan's white term already: the run matches the empty run's samples to the
 loaded run's by angle, which correlates neighbouring deltas, and the fit's independent-rows σ understates the
 subtraction's full variance that the plan assumes. On white noise and a whole stream the fit shows
-``WHITE_RATIO`` (measured: UR and EC66 runs of the simulated arms with whole streams 1.18–1.29, 30 seeds of
-white noise on the EC66's sweeps 1.26; ``tests/test_noise_inflation.py``), and the plan takes the stored run's
+``WHITE_RATIO`` (measured: 20 sim-ur5e runs with whole streams 1.12–1.44, mean 1.24, their calibration runs
+1.23–1.27, an EC66 run 1.21–1.22; 30 seeds of white noise on the EC66's sweeps 1.26,
+``tests/test_noise_inflation.py``), and the plan takes the stored run's
 ratio over it. What remains is the noise's correlation in time and the holes of a stream that drops
 samples (a simulated UR read through ur_rtde's polled receive interface showed 2.0–2.5, docs/benchmarks.md
 session 14).
