@@ -114,9 +114,13 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "p_over_target": best.p_over(*targets.parse_target(target))}
     planned_share, planned = stream_share(config), noise_inflation.stored(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
-    own = noise_inflation.of_run(config, outcome.run_dir)  # what the run's σ follows: its own robust-to-white ratio
+    try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
+        own = noise_inflation.of_run(config, outcome.run_dir)
+        ratio = [own.mass_ratio, own.cog_ratio]
+    except DataError:
+        ratio = [float("nan")] * 2
     plan.update(kept_share=stream_share(config, outcome.run_dir), planned_share=planned_share,
-                inflation=[own.mass_ratio, own.cog_ratio], planned_inflation=planned.ratio)
+                inflation=ratio, planned_inflation=planned.ratio)
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
