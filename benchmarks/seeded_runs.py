@@ -34,6 +34,7 @@ import yaml
 
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import DataError, PayloadAgentError
+from payload_agent.evaluation import noise_inflation
 from payload_agent.session.runner import OperatorUI, RunOptions, SimulatedCellUse, run_identification
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -111,9 +112,15 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target))}
-    planned_share = stream_share(config)
+    planned_share, planned = stream_share(config), noise_inflation.stored(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
-    plan.update(kept_share=stream_share(config, outcome.run_dir), planned_share=planned_share)
+    try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
+        own = noise_inflation.of_run(config, outcome.run_dir)
+        ratio = [own.mass_ratio, own.cog_ratio]
+    except DataError:
+        ratio = [float("nan")] * 2
+    plan.update(kept_share=stream_share(config, outcome.run_dir), planned_share=planned_share,
+                inflation=ratio, planned_inflation=planned.ratio)
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
@@ -184,7 +191,9 @@ def main(argv: list[str] | None = None) -> int:
               + (f"  | {r['procedure']}: {r['robot_time_s']:.0f} s ({r['approach_s']:.0f} s approach), predicted "
                  f"σ {r['pred_std'][0]:.2f} g / {r['pred_std'][1]:.2f} mm (rms {r['pred_rms_std'][0]:.2f} / "
                  f"{r['pred_rms_std'][1]:.2f}, P over {100 * r['p_over_target']:.0f} %)" if "procedure" in r else "")
-              + f"  | stream kept {100 * r['kept_share']:.0f} % (planned {100 * r['planned_share']:.0f} %)", flush=True)
+              + f"  | stream kept {100 * r['kept_share']:.0f} % (planned {100 * r['planned_share']:.0f} %)"
+              + f"  | robust/white σ m {r['inflation'][0]:.2f} c {r['inflation'][1]:.2f} (planned "
+                f"{r['planned_inflation']:.2f})", flush=True)
     if len(runs) < 2:
         print("fewer than two runs ended in a result: no summary")
         return 1

@@ -118,8 +118,7 @@ def test_registered_with_its_simulator():
 def test_options_defaults():
     o = URRTDEDriver.parse_options({"type": "ur_rtde", "host": "10.0.0.1"})
     assert o == URRTDEOptions(type="ur_rtde", host="10.0.0.1", frequency_hz=None, connect_timeout_s=5.0,
-                              upper_range_registers=False, target_tolerance_deg=None, stop_decel_rad_s2=2.0,
-                              poll_interval_s=0.0002)
+                              upper_range_registers=False, target_tolerance_deg=None, stop_decel_rad_s2=2.0)
     assert make_driver("10.0.0.1").target_tolerance_rad == pytest.approx(math.radians(0.1))  # the shared default
 
 
@@ -131,7 +130,7 @@ def test_options_defaults():
     ({"host": "10.0.0.1", "upper_range_registers": "yes"}, "driver.upper_range_registers"),
     ({"host": "10.0.0.1", "target_tolerance_deg": -1}, "driver.target_tolerance_deg"),
     ({"host": "10.0.0.1", "stop_decel_rad_s2": 50}, "driver.stop_decel_rad_s2"),
-    ({"host": "10.0.0.1", "poll_interval_s": 0.1}, "driver.poll_interval_s"),
+    ({"host": "10.0.0.1", "poll_interval_s": 0.1}, "driver.poll_interval_s"),  # gone: the stream is read, not polled
     ({"host": "10.0.0.1", "rpc_port": 8055}, "driver.rpc_port"),
 ])
 def test_bad_options_name_the_key(options, key):
@@ -157,11 +156,7 @@ def test_identify_and_state(healthy):
 
 
 def test_stream_has_no_unreported_gap(ur, healthy):
-    """Every sample once, in controller order; any hole beyond the gap limit is in the stream statistics.
-
-    Reports the rate achieved (a loaded machine delivers fewer of the 500 packages a second: the
-    count itself is not the driver's to guarantee).
-    """
+    """Every sample once, in controller order; any hole beyond the gap limit is in the stream statistics."""
     samples = []
     sent0 = ur.stream_packages_sent
     healthy.begin_stats()
@@ -174,17 +169,39 @@ def test_stream_has_no_unreported_gap(ur, healthy):
     t_ctrl = np.array([s.t_ctrl for s in samples])
     t_recv = np.array([s.t_recv for s in samples])
     assert np.all(np.diff(t_ctrl) > 0)  # de-duplicated, in order
-    holes = np.diff(t_ctrl)  # packages ur-rtde replaced before they were read show as steps of 4, 6 ms...
+    holes = np.diff(t_ctrl)
     assert stats.count >= len(samples) and stats.largest_gap_s >= holes.max() - 1e-9
     assert stats.largest_wall_gap_s >= np.diff(t_recv).max() - 1e-9
     assert len(stats.gaps) >= int(np.sum(holes > healthy.gap_limit_s))
     assert len(samples) <= sent + 2  # nothing invented (the counter runs on while the sink is set)
-    span = t_ctrl[-1] - t_ctrl[0]
-    print(f"\nUR stream: {len(samples)} samples over {span:.3f} s of controller time = "
-          f"{len(samples) / (span * 500 + 1):.1%} of 500 Hz; the fake sent {sent}; "
-          f"largest gap {1000 * stats.largest_gap_s:.1f} ms, rate {stats.achieved_rate_hz:.0f} Hz")
     s = samples[-1]
     assert len(s.q) == 6 and len(s.effort) == 6
+
+
+def test_every_package_is_delivered_while_python_is_busy(ur, healthy):
+    """The controller's packages wait in the sample connection until the stream reads them: a Python thread that
+    holds the interpreter (the analysis, the recorder, a busy host) delays samples but loses none. (ur_rtde's
+    receive interface, polled from Python, kept 67-88 % of them here: docs/benchmarks.md, session 14.)"""
+    samples = []
+    stop = threading.Event()
+
+    def hog():  # pure Python: holds the GIL but for the interpreter's switch interval
+        while not stop.is_set():
+            sum(i * i for i in range(2000))
+
+    missed0 = healthy.samples_missed
+    healthy.start_stream(samples.append)
+    th = threading.Thread(target=hog, daemon=True)
+    th.start()
+    time.sleep(1.5)
+    stop.set()
+    th.join()
+    healthy.stop_stream()
+    t_ctrl = np.array([s.t_ctrl for s in samples])
+    steps = np.round(np.diff(t_ctrl) * healthy.frequency_hz)
+    assert healthy.stream_error is None and len(samples) > 300
+    assert np.all(steps == 1), f"{int(np.sum(steps - 1))} packages skipped, largest step {int(steps.max())}"
+    assert healthy.samples_missed == missed0
 
 
 def test_effort_is_motor_current(ur, healthy):

@@ -17,7 +17,8 @@ predicted before the run (``systematics.planned_covariance``: joint zeros) and t
 run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
 the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
 stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ratio of the reported
-(autocorrelation-robust) to the white-noise σ a run of this arm showed (1 without a baseline).
+(autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
+calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
 term (the run's own rule): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on
 the chance the run's σ exceeds the target.

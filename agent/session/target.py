@@ -3,7 +3,8 @@
 The effort noise comes from the stored empty-flange baseline when there is one (measured in its
 constant-speed windows), else from the simulation's declared noise; a real robot without a
 baseline is refused with what to do. The samples per second of sweep are what the stored runs delivered
-(``stream_density``), else the nominal rate. The drive gains' uncertainty is the one the run will carry:
+(``stream_density``), else the nominal rate; the noise's correlation in time widens the noise term by the
+robust-to-white σ ratio the stored calibration run's own fit showed (``noise_inflation``), else not. The drive gains' uncertainty is the one the run will carry:
 the stored calibration's (whose fit also absorbs most of the DH-length error), or none with nominal
 gains, exactly as ``pipeline.run_gains`` gives the run. The payload the prediction assumes is the
 user's (``--payload-kg``/``--payload-cog-mm`` or a tool library entry), else a nominal one, and the
@@ -94,6 +95,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     from payload_agent.evaluation.planned_terms import earlier_friction_change
 
     noise, source = _effort_noise(config)
+    from payload_agent.evaluation import noise_inflation
+
+    inflation = noise_inflation.stored(config)  # the stored calibration run's robust-to-white σ ratio
+    noise, source = dataclasses.replace(noise, inflation=inflation.ratio), source + "; " + inflation.describe()
     known = earlier_friction_change(config) if noise.friction_level_nm is not None else None
     if known is not None:
         noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source

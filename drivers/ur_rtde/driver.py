@@ -2,8 +2,10 @@
 
 Three controller services, all through their documented protocols:
 
-* RTDE (30004) through ``rtde_receive.RTDEReceiveInterface`` with an explicit recipe
-  (``RECIPE``) at the controller's rate (500 Hz e-Series, 125 Hz CB3): the sample stream;
+* RTDE (30004) at the controller's rate (500 Hz e-Series, 125 Hz CB3), twice: the sample stream
+  (``SAMPLE_FIELDS``) on a connection of the driver's own (``sample_reader``), which reads every package;
+  the controller's state (``RECIPE``: modes, safety bits, runtime state, speeds) through
+  ``rtde_receive.RTDEReceiveInterface``;
 * ur-rtde's control script (uploaded on 30003 by ``rtde_control.RTDEControlInterface``, which
   runs in a worker process: ``control``): moveJ / stopJ / setPayload / getTCPOffset /
   stopScript, the command channel;
@@ -12,11 +14,11 @@ Three controller services, all through their documented protocols:
 
 Design notes:
 
-* ``_read_sample``: RTDEReceiveInterface keeps only the latest data package, so the reader polls
-  ``getTimestamp()`` and reads q and current when it changes (timestamp read again afterwards:
-  the getters then came from one package); ``samples_missed`` counts the packages skipped,
-  from the controller timestamps. Values no arm can have (angles beyond ±2 turns, currents
-  beyond 100 A, time running backwards) are a broken stream: corrupt RTDE data parses.
+* ``_read_sample``: the next package of the sample connection, in the controller's order. ur_rtde's
+  receive interface keeps only the newest package and is polled from Python: on a loaded host that lost
+  up to a third of the packages (``samples_missed``, from the controller timestamps, counts any still
+  skipped). Values no arm can have (angles beyond ±2 turns, currents beyond 100 A, time running
+  backwards) are a broken stream: corrupt RTDE data parses.
 * ``effort`` is ``actual_current`` in A (motor current; torque = gain × current); each sample also
   carries the controller's ``target_current`` and ``target_moment``, from which the analysis fits
   the current-to-torque constants when no calibration is stored.
@@ -65,6 +67,7 @@ from payload_agent.drivers.ur_rtde.capabilities import URCapabilities
 from payload_agent.drivers.ur_rtde.control import COMMAND_TIMEOUT_S, ControlChannel
 from payload_agent.drivers.ur_rtde.dashboard import dashboard_identify, dashboard_query, dashboard_stop
 from payload_agent.drivers.ur_rtde.options import URRTDEOptions
+from payload_agent.drivers.ur_rtde.sample_reader import RTDESampleReader
 from payload_agent.drivers.ur_rtde.states import (RUNTIME_PLAYING, URStatus, controller_state, runtime_name,
                                                   safety_stop)
 from payload_agent.errors import CommunicationError, RobotNotReadyError
@@ -77,6 +80,9 @@ RECIPE = ["timestamp", "actual_q", "actual_qd", "actual_current", "actual_TCP_po
           "safety_status_bits", "runtime_state", "actual_digital_input_bits", "joint_temperatures", "target_current",
           "target_moment"]
 PAYLOAD_FIELDS = ["payload", "payload_cog"]
+# the sample stream's recipe (``sample_reader``): names and types from UR's RTDE guide
+SAMPLE_FIELDS = [("timestamp", "DOUBLE"), ("actual_q", "VECTOR6D"), ("actual_current", "VECTOR6D"),
+                 ("target_current", "VECTOR6D"), ("target_moment", "VECTOR6D")]
 POLL_TIMEOUT_S = 0.5  # reading the async progress word during a move (a local read in the worker)
 HEARTBEAT_S = 0.05  # during a move the control script is asked (isSteady) this often: does it still answer?
 STOP_REPLY_S = 0.25  # stopJ over the command channel; then the dashboard is tried
@@ -110,6 +116,7 @@ class URRTDEDriver(URCapabilities, Driver):
         self.frequency_hz: float = options.frequency_hz or 500.0  # CB3 (125 Hz) is known only at connect
         self.nominal_period_s = 1.0 / self.frequency_hz
         self._recv: Any = None
+        self._reader: RTDESampleReader | None = None
         self._control = ControlChannel(self.host, self.frequency_hz, options.upper_range_registers)
         self._info: ControllerInfo | None = None
         self._version: tuple[int, ...] = ()
@@ -120,7 +127,6 @@ class URRTDEDriver(URCapabilities, Driver):
         self._script_dead = False  # the move just ended with ur-rtde's script gone: stop from the dashboard
         self._move = _URMove(0)
         self._last_ts: float | None = None
-        self._last_conn_check = 0.0
         self._heartbeat_t = 0.0
         self.samples_delivered = 0
         self.samples_missed = 0
@@ -155,7 +161,14 @@ class URRTDEDriver(URCapabilities, Driver):
         if not recv.isConnected():
             raise CommunicationError(f"RTDE receive interface to {self.host}:{RTDE_PORT} did not connect "
                                      "(ur-rtde returned without a connection)")
-        self._recv = recv
+        reader = RTDESampleReader(self.host, RTDE_PORT, self.frequency_hz, SAMPLE_FIELDS)
+        try:
+            reader.open(self.options.connect_timeout_s)
+        except CommunicationError:
+            reader.close()
+            recv.disconnect()
+            raise
+        self._recv, self._reader = recv, reader
         self._last_ts = None
 
     def _identify_dashboard(self) -> None:
@@ -164,6 +177,9 @@ class URRTDEDriver(URCapabilities, Driver):
 
     def _close(self) -> None:
         self._control.close(STOP_REPLY_S * 4)
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            reader.close()
         recv, self._recv = self._recv, None
         if recv is not None:
             try:
@@ -228,30 +244,13 @@ class URRTDEDriver(URCapabilities, Driver):
 
     # -- sample stream ---------------------------------------------------------------------------
     def _read_sample(self, timeout_s: float) -> Sample | None:
-        r = self._recv
-        if r is None:
+        reader = self._reader
+        if reader is None:
             raise CommunicationError("the ur_rtde driver is not connected")
-        deadline = time.monotonic() + timeout_s
-        while True:
-            ts = r.getTimestamp()
-            if ts != self._last_ts:
-                break
-            now = time.monotonic()
-            if now - self._last_conn_check > 0.01:
-                self._last_conn_check = now
-                if not r.isConnected():
-                    raise CommunicationError(f"lost the RTDE connection to {self.host}:{RTDE_PORT}")
-            if now > deadline:
-                return None
-            time.sleep(self.options.poll_interval_s)
-        for _ in range(4):  # the getters are separate calls: make sure they saw one package
-            q = r.getActualQ()
-            cur = r.getActualCurrent()
-            i_target, tau_target = r.getTargetCurrent(), r.getTargetMoment()
-            ts2 = r.getTimestamp()
-            if ts2 == ts:
-                break
-            ts = ts2
+        got = reader.read(timeout_s)
+        if got is None:
+            return None
+        ts, q, cur, i_target, tau_target = got
         t_recv = time.monotonic()
         self._check_plausible(ts, q, cur)
         for name, values in (("target_current", i_target), ("target_moment", tau_target)):

@@ -11,7 +11,6 @@ Parsed by ``configuration.options.parse_options`` (through ``Driver.parse_option
       upper_range_registers: false  # ur-rtde's FLAG_UPPER_RANGE_REGISTERS (registers 24..47)
       target_tolerance_deg: 0.1   # final position check after a move
       stop_decel_rad_s2: 2.0      # stopJ deceleration used by stop() and aborted moves
-      poll_interval_s: 0.0002     # sample poll period (must be well below 1/frequency)
 """
 
 from __future__ import annotations
@@ -37,4 +36,3 @@ class URRTDEOptions(DriverOptions):
                                       help="reachability check before ur-rtde's own (blocking) connect")
     upper_range_registers: bool = option(False, help="ur-rtde's FLAG_UPPER_RANGE_REGISTERS (registers 24..47)")
     stop_decel_rad_s2: float = option(2.0, gt=0.0, max=40.0, help="stopJ deceleration of stops and aborted moves")
-    poll_interval_s: float = option(0.0002, gt=0.0, max=0.01, help="sample poll period (well below 1/frequency)")
