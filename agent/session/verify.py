@@ -114,7 +114,7 @@ def verify_tool(config: Config, opts: VerifyOptions) -> VerifyOutcome:
 
 
 def _expected_name(entry: ToolEntry) -> str:
-    return (f"the controller's current payload setting" if entry.source == "verified" and entry.name == "controller"
+    return ("the controller's current payload setting" if entry.source == "verified" and entry.name == "controller"
             else f"tool {entry.name!r}") + f" ({entry.mass_kg:.3f} kg, [{', '.join(f'{c:.1f}' for c in entry.cog_mm)}] mm)"
 
 
