@@ -61,9 +61,11 @@ def test_a_closed_connection_and_corrupt_framing_end_the_stream(ur):
     reader = RTDESampleReader(ur.host, 30004, 500.0, SAMPLE_FIELDS)
     reader.open(2.0)
     assert reader.read(1.0) is not None
+    assert not reader.lost
     ur.inject_fault("drop_connections")
     with pytest.raises(CommunicationError, match="lost the RTDE sample connection"):
         for _ in range(2000):
             reader.read(1.0)
+    assert reader.lost  # the driver then stops over a new connection, not through ur_rtde's reconnecting control
     reader.close()
     ur.clear_faults()

@@ -342,13 +342,14 @@ class URRTDEDriver(URCapabilities, Driver):
     def _stop_command(self) -> bool:
         """stopJ (asynchronous: done once the script took it) over the control interface, if it runs.
 
-        Not when the receive interface has lost its connection: then the link to the controller is
-        likely gone, ur-rtde's control interface would try to reconnect before sending, and the
-        dashboard's stop (``_stop_fresh``) is the quicker and surer way. Nor when the move just ended in a
-        safety stop or the script stopped: stopJ cannot go then.
+        Not when the sample connection or the receive interface has lost its connection: then the link to
+        the controller is likely gone, ur-rtde's control interface would try to reconnect (and upload its
+        script anew) before sending, and the dashboard's stop (``_stop_fresh``) is the quicker and surer way.
+        The sample connection reads the socket itself, so it sees a dropped link first. Nor when the move
+        just ended in a safety stop or the script stopped: stopJ cannot go then.
         """
-        r = self._recv
-        if r is None or not r.isConnected() or self._script_dead:
+        r, reader = self._recv, self._reader
+        if r is None or reader is None or reader.lost or not r.isConnected() or self._script_dead:
             return False
         return self._control.stop(self.options.stop_decel_rad_s2, STOP_REPLY_S)
 

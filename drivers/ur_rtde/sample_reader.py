@@ -52,6 +52,7 @@ class RTDESampleReader:
         self._sock: socket.socket | None = None
         self._buf = bytearray()
         self._rid = 0
+        self.lost = False  # the connection failed or the controller closed it: the link is likely gone
 
     def describe(self) -> str:
         return f"{self.host}:{self.port}"
@@ -162,8 +163,10 @@ class RTDESampleReader:
         except (socket.timeout, BlockingIOError):
             return False
         except OSError as exc:
+            self.lost = True
             raise CommunicationError(f"lost the RTDE sample connection to {self.describe()}: {exc}") from exc
         if not chunk:
+            self.lost = True
             raise CommunicationError(f"lost the RTDE sample connection to {self.describe()}: the controller closed it")
         self._buf += chunk
         return True
