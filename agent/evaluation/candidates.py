@@ -25,7 +25,7 @@ ACCELS_PERCENT = (40.0, 100.0)
 # as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
 REPETITIONS = (1,)
 # "" = the configured procedure; the others are bundled (procedures/*.yaml)
-PROCEDURES = ("", "j2_pair", "j2_triple")
+PROCEDURES = ("", "j2_pair", "j2_triple", "j2_quarter")
 
 
 @dataclass(frozen=True)
