@@ -13,7 +13,7 @@ columns are the information per second, σ m (noise alone) · √(constant-speed
 seconds the candidate's shape would need for the target mass given its other terms (∞: they alone exceed it).
 
     .venv/bin/python -m benchmarks.plan_budget --robot sim-ec66 [--seed 1] [--target-std 2,1] [--max-s 15]
-        [--rows 6] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]
+        [--rows 6] [--procedure NAME] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]] [--retry-sweeps N]
 """
 
 from __future__ import annotations
@@ -71,17 +71,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    p.add_argument("--procedure", metavar="NAME", help="show only this procedure's candidates (and the chosen one)")
+    p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
+                   help="the calibration run's retries of a failed sweep (a loaded host), as seeded_runs")
     args = p.parse_args(argv)
     grams, mm = targets.parse_target(args.target_std)
     with tempfile.TemporaryDirectory(prefix="plan-budget-") as tmp:
         config = seed_config(args.robot, args.seed, Path(tmp), args.calibrate, parse_reference(args.calibrate_with),
-                             args.calibrate_speed)
+                             args.calibrate_speed, args.retry_sweeps)
         noise, source = targets.noise_for(config)
         sim = config.simulation
         theta = design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm)
         choice = design.choose(config, grams, mm, noise, nominal_mass_kg=sim.payload.mass_kg,
-                               nominal_cog_mm=sim.payload.cog_mm)
-        near = sorted((q for q in choice.table if q.usable and q.robot_time_s <= args.max_s + 0.05),
+                               nominal_cog_mm=sim.payload.cog_mm,
+                               exhaustive=args.procedure is not None)
+        near = sorted((q for q in choice.table if q.usable and q.robot_time_s <= args.max_s + 0.05
+                       and args.procedure in (None, q.candidate.procedure)),
                       key=lambda q: max(q.mass_std_g / grams, q.cog_std_mm / mm))[:args.rows]
         shown = near + ([choice.best] if choice.best is not None and choice.best not in near else [])
         rows = [(q, budget(config, q.candidate, noise, theta, grams)) for q in shown]

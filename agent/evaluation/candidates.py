@@ -1,9 +1,12 @@
 """The candidate procedures ``plan --target-std`` predicts: sweep speed, travel speed, acceleration, sweep range,
 repetitions and the procedure (the configured one, or a bundled joint-2-only one), as a grid.
 
-The bundled procedures (procedures/j2_pair.yaml, j2_triple.yaml) sweep joint 2 only in two or three tool
-orientations: they carry the payload's weight on the longest lever (links 2 and 3 collinear) and need no 90°
-joint-2 travel to a joint-3 sweep's start. ``evaluation.design`` predicts each candidate's σ.
+The bundled procedures (procedures/j2_pair.yaml, j2_triple.yaml, j2_quarter.yaml) sweep joint 2 only in two or
+three tool orientations: they carry the payload's weight on the longest lever (links 2 and 3 collinear) and need
+no 90° joint-2 travel to a joint-3 sweep's start. j2_quarter's two orientations are one quarter wrist turn apart
+and its first holds the tool z up, off the payload's lever, so the flange-offset length hardly moves the mass:
+on a calibrated UR5e that is what takes 2 g / 1 mm under 15 s (docs/benchmarks.md, "Session 14: 15 s on
+sim-ur5e"). ``evaluation.design`` predicts each candidate's σ.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ ACCELS_PERCENT = (40.0, 100.0)
 # as chosen (issue 22); ``candidates(reps=...)`` still predicts repetitions for the benchmarks.
 REPETITIONS = (1,)
 # "" = the configured procedure; the others are bundled (procedures/*.yaml)
-PROCEDURES = ("", "j2_pair", "j2_triple")
+PROCEDURES = ("", "j2_pair", "j2_triple", "j2_quarter")
 
 
 @dataclass(frozen=True)

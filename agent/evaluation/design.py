@@ -28,7 +28,7 @@ as ``plan`` checks it, the approach too when where the robot stands is given), a
 that meets the target in the least robot time (the approach move counted then: procedures start in
 different poses), with the whole trade-off table. The procedures tried are the configured one and the bundled procedures of
 ``PROCEDURES``: joint-2 sweeps only in two or three tool orientations (procedures/j2_pair.yaml,
-j2_triple.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear) and
+j2_triple.yaml, j2_quarter.yaml), which carry the payload's weight on the longest lever (links 2 and 3 collinear) and
 need no 90° joint-2 travel to a joint-3 sweep's start. ``covariance_terms`` keeps each part
 of a prediction apart (``benchmarks.plan_budget``). The CLI hook is ``plan --target-std G,MM``.
 """
