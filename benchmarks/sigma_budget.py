@@ -42,15 +42,14 @@ def to_mass_cog(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return J @ cov @ J.T
 
 
-def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, solver: str = "general",
-           quantity: str = "m") -> dict[str, float]:
-    """The error of one quantity (mass in g or a CoM axis in mm) and the σ of each part of the reported
-    covariance, for one case (``solver``: "general" or "three-step", as general-bi-cal-comp and
-    three-step-bi-cal-comp report it)."""
+def analysed_case(scenario: str, index: int, proc: cases.Procedure, n_payloads: int) -> dict:
+    """One case of the accuracy benchmark's general-bi-cal-comp, recorded and prepared as the analysis does: the
+    calibrated, compensated deltas (``prepared``), the fitted model, the calibration, the gains' uncertainty, the
+    declaration, the payload (``mass``, ``cog`` mm), the arm's draws and where the loaded run started (``mount``)."""
     from payload_agent.evaluation import systematics
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
-    from payload_agent.solvers import general, three_step, wls
+    from payload_agent.solvers import general
 
     mass, cog = cases.payloads(n_payloads)[index]
     draws = cases.robot_draws(scenario, index)
@@ -66,10 +65,25 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
     ref = cases.record_reference(robot, plan_bi, draws)
     decl = declaration(draws["declared"])
     cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores (its zeros are not corrected here)
-    scale, fitted = np.asarray(cal.scale, float), cal.fitted_joints
+    scale = np.asarray(cal.scale, float)
     gain_std = np.asarray(cal.gain_rel_std(cases.declared_unfitted_gain_std(scenario)), float)
     prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl, mount_rad=mount)
     model = general.fit_model(prepared.deltas, kin, gain_std)
+    return dict(prepared=prepared, model=model, cal=cal, gain_std=gain_std, decl=decl, kin=kin, mass=mass, cog=cog,
+                draws=draws, mount=mount)
+
+
+def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, solver: str = "general",
+           quantity: str = "m") -> dict[str, float]:
+    """The error of one quantity (mass in g or a CoM axis in mm) and the σ of each part of the reported
+    covariance, for one case (``solver``: "general" or "three-step", as general-bi-cal-comp and
+    three-step-bi-cal-comp report it)."""
+    from payload_agent.evaluation import systematics
+    from payload_agent.solvers import general, three_step, wls
+
+    c = analysed_case(scenario, index, proc, n_payloads)
+    prepared, model, cal, gain_std, decl, kin = c["prepared"], c["model"], c["cal"], c["gain_std"], c["decl"], c["kin"]
+    mass, cog, fitted = c["mass"], c["cog"], c["cal"].fitted_joints
     res = model.fit()
     theta, groups = res.theta[:4], list(model.groups)
     parts: dict[str, np.ndarray] = {}

@@ -308,7 +308,7 @@ def wrist_terms(ctx: Context) -> list[Term]:
 
 def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) -> list[Term]:
     try:
-        s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad)
+        s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad, gain_reference=ctx.gain_reference)
     except (DataError, np.linalg.LinAlgError):
         return []
     if s is None or s.weight <= 0:

@@ -49,6 +49,7 @@ class CableSpring:
     statistic: float  # T
     critical: float  # the 1 − ALPHA quantile of T under κ = 0
     null_mean: float  # E[T] under κ = 0
+    estimate: np.ndarray | None = None  # (p,) the unconstrained κ̂
 
     @property
     def present(self) -> bool:
@@ -140,12 +141,13 @@ def null_distribution(cov: np.ndarray, alpha: float = ALPHA, draws: int = DRAWS)
 
 
 def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[float],
-               alpha: float = ALPHA) -> CableSpring | None:
+               alpha: float = ALPHA, gain_reference: tuple | None = None) -> CableSpring | None:
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
-    torque-gain scatter is found, as ``wrist.measure`` does); None when no wrist joint has a lever."""
+    torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
+    absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever."""
     sweeps, groups = list(model.sweeps), list(model.groups)
     nuisance = gain_scatter.of_model(model).tau > 0
-    aug, names = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance)
+    aug, names = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance, gain_reference)
     if not names:
         return None
     M_all, joints = levers(sweeps, groups, names, mount_rad)
@@ -154,13 +156,14 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     k = len(names)
     spring = [replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M_all, g.Y[:, 4 + k:]])) for g in aug]
     gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
-    res = model.cached(("cable spring", tuple(np.round(np.asarray(mount_rad, float), 9)), nuisance),
+    res = model.cached(("cable spring", tuple(np.round(np.asarray(mount_rad, float), 9)), nuisance,
+                        gain_reference is not None and nuisance),
                        lambda: fit(spring, gain))
     p = len(joints)
     kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
     order = [names.index(lab) for lab in labels]
     return CableSpring(joints, M_all[order], project(kappa, cov), cov, statistic(kappa, cov),
-                       *null_distribution(cov, alpha))
+                       *null_distribution(cov, alpha), kappa)
 
 
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -46,11 +46,18 @@ class WristTorques:
     q: float  # β̂ᵀD⁻¹β̂
 
 
-def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.ndarray, nuisance_gains: bool = True
-            ) -> tuple[list[Group], list[str]]:
+def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.ndarray, nuisance_gains: bool = True,
+            gain_reference: tuple | None = None) -> tuple[list[Group], list[str]]:
     """The groups with one offset column per (pose, wrist joint) the still wrist names, then (``nuisance_gains``)
     one nuisance gain column (Y_gθ̂) per (joint, standing angle) of the other still joints that carry payload
-    torque."""
+    torque.
+
+    ``gain_reference``: the drive-gain calibration the data were scaled with (``GainCalibration.reference``). Its
+    reference run stood at the same angles with the same gain errors, and its scale of joint j absorbed the share
+    w_jk of cluster k's error (``gain_scatter.absorbed_shares``), so every row of joint j, the moving ones
+    included, carries −w_jk·ε_k: the column gets −w_jk·Y_gθ̂ on them. Without that the cluster column measures ε_k
+    only relative to the joint's own moving rows, and the moving rows' gain error −Σ_k w_jk·ε_k moves θ̂ and,
+    through the wrist rows' level, the offsets or the cable spring's stiffness (docs/benchmarks.md, session 14)."""
     by_name = {d.key.name: d for d in sweeps}
     names = [offsets.wrist_joint(g, by_name[g.sweep]) for g in groups]
     labels = list(dict.fromkeys(n for n in names if n is not None))
@@ -58,6 +65,8 @@ def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.nda
               and np.max(np.abs(g.Y[:, :4] @ theta)) > gain_scatter.MIN_CLUSTER_PEAK_NM else None
               for g, c in zip(groups, gain_scatter.clusters(list(sweeps), list(groups)))]
     nuisance = list(dict.fromkeys(c for c in others if c is not None))
+    shares = {} if not nuisance or gain_reference is None else \
+        gain_scatter.absorbed_shares(list(sweeps), list(groups), nuisance, gain_reference)
     k = len(labels)
     out = []
     for g, name, other in zip(groups, names, others):
@@ -66,6 +75,9 @@ def columns(sweeps: Sequence[DeltaSweep], groups: Sequence[Group], theta: np.nda
             extra[:, labels.index(name)] = 1.0
         if other is not None:
             extra[:, k + nuisance.index(other)] = g.Y[:, :4] @ theta
+        for c, (j, w) in shares.items():
+            if g.joint == j:
+                extra[:, k + nuisance.index(c)] -= w * (g.Y[:, :4] @ theta)
         out.append(replace(g, Y=np.hstack([g.Y, extra])))
     return out, labels
 
