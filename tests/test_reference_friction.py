@@ -22,6 +22,7 @@ from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
+from payload_agent.solvers import general
 
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import scaled
@@ -112,11 +113,13 @@ def test_the_three_step_sigma_uses_the_measured_change_and_covers_the_shift_it_c
     assert n == len(cal.reference_friction.joints)  # the same procedure: the same joints
     asym = joints.friction_asymmetry_std
     A, G = fric.sens[systematics.THREE_STEP], fric.sens[systematics.ALL]
-    assert not G[:, 2 * n:].any()  # the general fit does not take the reference run's path
+    assert G[:, 2 * n:].any()  # the general fit takes the reference run's path too (through the gains, session 14)
     for k, c in enumerate(cal.reference_friction.joints):
         assert fric.std[k] == pytest.approx(asym) and fric.std[2 * n + k] == pytest.approx(asym * c.change.std_nm)
-        mu_tool = float(G[:, k] @ G[:, n + k] / (G[:, n + k] @ G[:, n + k]))  # a_j's column: S·μt (+ R·μr)
-        np.testing.assert_allclose(G[:, k], G[:, n + k] * mu_tool, rtol=1e-9, atol=1e-15)
+        mu_r = c.change.mean_nm
+        rest = G[:, k] - G[:, 2 * n + k] * mu_r  # a_j's column: S·μt + R·μr, for each fit
+        mu_tool = float(rest @ G[:, n + k] / (G[:, n + k] @ G[:, n + k]))
+        np.testing.assert_allclose(rest, G[:, n + k] * mu_tool, rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(A[:, k], A[:, n + k] * mu_tool + A[:, 2 * n + k] * c.change.mean_nm,
                                    rtol=1e-9, atol=1e-15)
     assert "the calibration measured against its baseline" in fric.note
@@ -128,6 +131,36 @@ def test_the_three_step_sigma_uses_the_measured_change_and_covers_the_shift_it_c
     # declared 3 % a fraction of it
     assert 0.4 * shift_g < sigma_g < 2.0 * shift_g, (sigma_g, shift_g)
     assert declared_g < 0.5 * sigma_g, (declared_g, sigma_g)
+
+
+def test_the_general_fit_reads_the_reference_runs_friction_through_the_gains(runs):
+    """The reference run's friction drop, left by the asymmetry in the gains of joints 2 and 3, moves the general
+    fit's mass as well (by grams, at a per-mille gain error): its reference-run columns predict the shift, and its
+    σ covers it."""
+    config, empty, loaded, ref_same, ref_dropped, _, _ = runs
+    kin, joints = config.robot.kinematics, config.robot.joints
+
+    def analysed(ref):
+        cal = _calibrate(config, ref, empty)
+        scale = np.asarray(cal.scale)
+        prep = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), joints)
+        model = general.fit_model(prep.deltas, kin, tuple(cal.gain_rel_std()))
+        syst = systematics.evaluate(prep, kin, joints, list(cal.gain_rel_std()), gain_reference=cal.reference,
+                                    model=model)
+        return model.fit().theta[:4], next(t for t in syst.terms if t.name == "residual friction"), cal
+
+    theta_same, _, _ = analysed(ref_same)
+    theta_dropped, fric, cal = analysed(ref_dropped)
+    shift_g = 1000.0 * (theta_dropped[0] - theta_same[0])
+    n = len(fric.std) // 3
+    R = fric.sens[systematics.ALL][:, 2 * n:]  # per N·m of constant torque in the reference run's rows of joint j
+    true_leftover = {c.joint: ASYMMETRY[c.joint] * -REF_DROP * COULOMB[c.joint] for c in cal.reference_friction.joints}
+    predicted_g = 1000.0 * sum(R[0, k] * true_leftover[c.joint] for k, c in enumerate(cal.reference_friction.joints))
+    assert abs(shift_g) > 3.0, shift_g
+    # the two reference runs' own noise moves the gains too (σ of the difference about 1.5 g here)
+    assert abs(predicted_g - shift_g) < 0.25 * abs(shift_g) + 2.0, (predicted_g, shift_g)
+    sigma_g = 1000.0 * float(np.sqrt(fric.covariance(systematics.ALL)[0, 0]))
+    assert 0.5 * abs(shift_g) < sigma_g < 3.0 * abs(shift_g), (sigma_g, shift_g)
 
 
 def test_one_asymmetry_in_both_runs_cancels_where_both_changed_alike(runs):

@@ -261,16 +261,15 @@ def friction_terms(ctx: Context) -> list[Term]:
     labels = [str(j) for j in joints]
     std = np.array([asym * change[j].rms_nm for j in joints])
     sens = ctx.offset_sens(per_joint, labels)
-    calib = None
-    if ctx.three_step is not None and ctx.gain_reference is not None:
-        calib = three_step_response.with_reference_offsets(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
-                                                           per_joint, labels, ctx.gain_reference, ctx.three_step, sens)
     ref = ""
-    if calib is not None:  # the same asymmetry in the calibration's reference run: its change as the calibration
-        # measured it, else the declared change of the baseline's constant part (``reference_friction``)
+    if ctx.gain_reference is not None:  # the same asymmetry in the calibration's reference run, read through the
+        # gains: its change as the calibration measured it, else the declared change of the baseline's constant part
+        calib = reference_friction.reference_columns(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
+                                                     per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
+                                                     ctx.three_step, sens)
         std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
                                                               ctx.gain_reference, joints, rel, constant)
-        ref = f"; for the three-step solver also in the drive-gain calibration's reference run, {ref}"
+        ref = f"; also in the drive-gain calibration's reference run, {ref}"
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
                 if change[j].measured]
     prior = [f"j{j + 1}" for j in joints if not change[j].measured]

@@ -4,14 +4,16 @@ Why it matters: a Coulomb direction asymmetry a_j leaves a_j·Δ_j in the two-di
 constant friction part changed by Δ_j against the empty baseline. In the calibration's reference run that
 leftover is fitted into the gains of the joints it calibrates (joints 2 and 3), and the three-step solver, whose
 mass is a small difference of those two joints' torques, reads it through the gains
-(``three_step_response.reference_offset_response``). A tool run cannot see the reference run, but ``calibrate``
+(``three_step_response.reference_offset_response``); the general fit reads it through the gains as well, by its
+response to a relative gain error (``reference_columns``; in tests/test_reference_friction.py a 15 % friction drop
+in the reference run moves a 3 kg tool's general mass by 6.5 g). A tool run cannot see the reference run, but ``calibrate``
 can: it has the reference run's sweeps in both directions and the baseline. So it measures Δ_j per joint with the
 same estimator a tool run uses for its own change (``friction.friction_gaps``, ``friction.coulomb_change``: the
 legs' half gap split into a constant and a load-dependent part, the constant part's change pooled over the joint's
 sweeps), combines it with the declared prior (``robot.friction_change_percent`` × the baseline's constant part,
 the form used before anything was measured) and stores the posterior in gains.json (``reference_friction``).
 
-A tool run's three-step σ then uses that posterior (``change_rms_nm``; a calibration stored without it keeps the
+A tool run's σ (both solvers) then uses that posterior (``change_rms_nm``; a calibration stored without it keeps the
 declared form), with ONE asymmetry a_j per joint for both runs (``shared_asymmetry``): the reference run's leftover
 went into the gains and takes the tool run's alike-signed leftover back out, so the two cancel where both runs
 changed alike, and add where they changed apart.
@@ -26,6 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.errors import DataError
 from payload_agent.evaluation.systematics import friction
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general
@@ -136,6 +139,39 @@ def change_rms_nm(reference: Sequence | None, joints: Sequence[int], declared_re
     return np.array(out), note
 
 
+def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequence[DeltaSweep], groups: Sequence,
+                      selector, labels: Sequence[str], reference: tuple, general_fit, three_step_theta,
+                      sens: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
+    the calibration's reference run, which every solver reads through the calibrated gains (the tool data off by
+    −ε_jk·b_k relatively, ``three_step_response.reference_offset_shares``). The general fit's (``ALL``):
+    −Σ_j G_j·ε_jᵀ, G_j its response to a relative gain error of joint j (as ``wls.gain_covariance``); the
+    three-step's by finite differences (``three_step_response.reference_offset_response``); a pose's own fit gets
+    zeros (the gains are common to the poses, which the pose comparison differences)."""
+    from payload_agent.evaluation.systematics import three_step_response
+    from payload_agent.solvers.fitted import ALL
+
+    out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
+    eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference)
+    if ALL in sens and eps:
+        inv, w, theta = general_fit.normal_inverse, general_fit.weights, general_fit.theta
+        joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+        Y = np.vstack([g.Y for g in groups])
+        R = np.zeros((4, len(labels)))
+        for j, e in eps.items():
+            rows = joint_of_row == j
+            R -= np.outer((inv @ (Y[rows].T @ (w[rows] * (Y[rows] @ theta))))[:4], e)
+        out[ALL] = np.hstack([sens[ALL], R])
+    if three_step_response.THREE_STEP in sens and three_step_theta is not None:
+        try:
+            A = three_step_response.reference_offset_response(deltas, kin, sweeps, groups, selector, labels,
+                                                              reference, three_step_theta)
+            out[three_step_response.THREE_STEP] = np.hstack([sens[three_step_response.THREE_STEP], A])
+        except DataError:
+            pass  # no three-step response to the reference run: its tool-run columns alone, as before
+    return out
+
+
 def shared_asymmetry(asym_std: float, tool: Sequence[friction.CoulombChange], calib: Mapping[str, np.ndarray],
                      reference: Sequence | None, joints: Sequence[int], declared_rel: float,
                      constant_nm: Mapping[int, float]) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
@@ -144,12 +180,12 @@ def shared_asymmetry(asym_std: float, tool: Sequence[friction.CoulombChange], ca
     reference run's Δr_j each as measured (posterior mean μ, std s; ``change_rms_nm`` for the reference run).
 
     The shift of θ is a_j·(S_j·Δt_j + R_j·Δr_j), S_j the tool run's rows' response, R_j the calibration's
-    (``three_step_response.reference_offset_response``; zero for the general fits): the two cancel where both runs
+    (``reference_columns``; zero for a pose's own fit): the two cancel where both runs
     changed alike (the gains then absorbed the very leftover the tool run has) and add where they changed apart,
     which two independent parameters cannot say. Parameters, per joint: a_j (std ``asym_std``) along S·μt + R·μr,
     then a_j·(Δt − μt) along S (std asym·st) and a_j·(Δr − μr) along R (std asym·sr), uncorrelated. For the general
     fits (R = 0) the variance is asym²·S²·(μt² + st²), the same as one parameter of std asym·rms(Δt).
-    ``calib``: {fit: (4, 2P)}, the tool run's P columns then the reference run's (``with_reference_offsets``)."""
+    ``calib``: {fit: (4, 2P)}, the tool run's P columns then the reference run's (``reference_columns``)."""
     p = len(joints)
     rms, note = change_rms_nm(reference, joints, declared_rel, constant_nm)
     found = of_reference(reference)
@@ -165,4 +201,5 @@ def shared_asymmetry(asym_std: float, tool: Sequence[friction.CoulombChange], ca
     return std, sens, note + "; one asymmetry per joint in both runs, with the signs of the measured changes"
 
 
-__all__ = ["JointChange", "ReferenceFriction", "measure", "of_reference", "change_rms_nm", "shared_asymmetry"]
+__all__ = ["JointChange", "ReferenceFriction", "measure", "of_reference", "change_rms_nm", "reference_columns",
+           "shared_asymmetry"]

@@ -95,6 +95,23 @@ def gain_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, joint:
     return (th - theta0) / GAIN_STEP
 
 
+def reference_offset_shares(sweeps: Sequence[DeltaSweep], groups: Sequence[Group],
+                            selector: Callable[[Group, DeltaSweep], "str | None"], labels: Sequence[str],
+                            reference: tuple) -> dict[int, np.ndarray]:
+    """Per calibrated joint j: (P,) ε_jk, the relative gain change the calibration's fit of joint j made per N·m of
+    a constant torque on the rows ``selector`` names ``labels[k]`` in its reference run (the tool run's rows stand
+    in for the calibration's, same procedure; ``general.absorbed_length_error`` with the "length derivative"
+    1_k·θ_refᵀ/|θ_ref|²). Any solver reads it through the gains: the tool data are off by −ε_jk·b_k relatively."""
+    theta_ref = np.asarray(list(reference[0]), float)
+    by_name = {d.key.name: d for d in sweeps}
+    names = np.repeat(np.array([selector(g, by_name[g.sweep]) for g in groups], dtype=object),
+                      [len(g.y) for g in groups])
+    Y4 = [replace(g, Y=g.Y[:, :4]) for g in groups]
+    unit = theta_ref / float(theta_ref @ theta_ref)
+    dY = [np.outer((names == lab).astype(float), unit) for lab in labels]
+    return general.absorbed_length_error(list(sweeps), Y4, dY, (theta_ref, sorted(int(j) for j in reference[1])))
+
+
 def reference_offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
                               groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
                               labels: Sequence[str], reference: tuple, theta0: np.ndarray) -> np.ndarray:
@@ -107,38 +124,13 @@ def reference_offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinema
     the constant on the named rows): the tool data, scaled by the calibrated gain, are off by −ε_jk·b_k
     relatively. Joints the calibration did not fit, or whose rows the three steps do not read, give zero."""
     out = np.zeros((4, len(labels)))
-    theta_ref = np.asarray(list(reference[0]), float)
+    eps = reference_offset_shares(sweeps, groups, selector, labels, reference)
     fitted = {int(j) for j in reference[1]}
-    by_name = {d.key.name: d for d in sweeps}
-    names = np.repeat(np.array([selector(g, by_name[g.sweep]) for g in groups], dtype=object),
-                      [len(g.y) for g in groups])
-    Y4 = [replace(g, Y=g.Y[:, :4]) for g in groups]
-    unit = theta_ref / float(theta_ref @ theta_ref)
-    dY = [np.outer((names == lab).astype(float), unit) for lab in labels]
-    eps = general.absorbed_length_error(list(sweeps), Y4, dY, (theta_ref, sorted(fitted)))
     response = {j: gain_response(deltas, kin, j, theta0) for j in sorted(fitted & set(READS_JOINTS) & set(eps))}
     for j, resp in response.items():
         out -= np.outer(resp, eps[j])
     return out
 
 
-def with_reference_offsets(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
-                           groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
-                           labels: Sequence[str], reference: tuple, theta0: np.ndarray,
-                           sens: Mapping[str, np.ndarray]) -> dict[str, np.ndarray] | None:
-    """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
-    the calibration's reference run, which reach the three-step solver (``reference_offset_response``) and none of
-    the general fits (zero columns: their σ does not take this path). None where the three steps have no response."""
-    if THREE_STEP not in sens:
-        return None
-    try:
-        A = reference_offset_response(deltas, kin, sweeps, groups, selector, labels, reference, theta0)
-    except DataError:
-        return None
-    out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    out[THREE_STEP] = np.hstack([sens[THREE_STEP], A])
-    return out
-
-
 __all__ = ["THREE_STEP", "STEP_NM", "GAIN_STEP", "theta", "offset_response", "gain_response",
-           "reference_offset_response", "with_reference_offsets"]
+           "reference_offset_shares", "reference_offset_response"]
