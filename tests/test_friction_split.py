@@ -187,12 +187,13 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
     assert len(order) == labels
     predicted = sum(A_ref[:, k] * b_ref.get(j, 0.0) for k, j in enumerate(order))
     np.testing.assert_allclose(predicted, shift, rtol=0.02, atol=2e-5)  # first order; 1e-4 agreement measured
-    # the general fits take none of it: their friction term is the one without a calibration
+    # the general fits keep the tool run's change columns; the combined fit takes the reference run's through the
+    # gains too (session 14; its size against a simulated shift: test_reference_friction), a pose's own fit not
+    # (the gains are common to the poses, which the pose comparison differences)
     for which, S in fric_plain.sens.items():
         if which != systematics.THREE_STEP:
             np.testing.assert_array_equal(fric.sens[which][:, labels:2 * labels], S)
-            assert not fric.sens[which][:, 2 * labels:].any()
-    assert fric.covariance(ALL) == pytest.approx(fric_plain.covariance(ALL))
+            assert fric.sens[which][:, 2 * labels:].any() == (which == ALL), which
     # and the three-step σ is now the size of the shift (it was not: the tool run alone shows no friction change)
     sigma_m = float(np.sqrt(fric.covariance(systematics.THREE_STEP)[0, 0]))
     assert 0.5 * abs(shift[0]) < sigma_m < 2.0 * abs(shift[0])
