@@ -10,7 +10,6 @@ must show that ratio, and the plan must carry what exceeds white noise into its 
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,8 @@ from payload_agent.fakes.physics import PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
 from payload_agent.recording.state import RobotState
+
+from test_calibration import write_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SIGMA_NM = 0.4
@@ -91,26 +92,8 @@ def test_ratios_propagate_to_the_centre_of_mass():
 
 
 def _write_run(run_dir: Path, config, empty, loaded) -> Path:
-    """A run folder in the documented format (manifest + one CSV per sweep), effort in the config's unit."""
-    gains = np.asarray(config.effort.gains_nm_per_unit, float)
-    phases = {}
-    for phase, sweeps in (("empty", empty), ("loaded", loaded)):
-        entries = []
-        for key, s in sweeps.items():
-            rel = f"{phase}/{key.name}.csv"
-            (run_dir / rel).parent.mkdir(parents=True, exist_ok=True)
-            header = "t_ctrl_s,t_recv_s," + ",".join(f"q{i}_rad" for i in range(1, 7)) + "," + \
-                     ",".join(f"effort{i}" for i in range(1, 7))
-            np.savetxt(run_dir / rel, np.column_stack([s.t, s.t, s.q, s.effort_nm / gains]), delimiter=",",
-                       header=header, comments="")
-            entries.append({"file": rel, "name": key.name, "pose": key.pose, "joint": key.joint,
-                            "direction": key.direction, "speed_percent": key.speed_percent, "status": "complete",
-                            "samples": len(s.t)})
-        phases[phase] = {"status": "complete", "sweeps": entries}
-    (run_dir / "manifest.json").write_text(json.dumps({
-        "format": "payload-agent-run/1", "robot": config.robot.name, "effort_unit": config.effort.unit,
-        "gains_nm_per_unit": gains.tolist(), "phases": phases}), encoding="utf-8")
-    return run_dir
+    """A run folder in the documented format, effort in the config's unit (test_calibration's writer)."""
+    return write_run(run_dir, config, empty, loaded, list(config.effort.gains_nm_per_unit))
 
 
 def test_the_plan_widens_its_noise_term_by_the_stored_calibration_runs_ratio(clean, monkeypatch, tmp_path):
