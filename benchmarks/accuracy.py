@@ -129,6 +129,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="relative drive-gain standard uncertainty general-bi-cal declares for the joints its "
                    "calibration does not fit, every scenario (default: the simulated arm's own: 0 ideal and "
                    f"realistic-exact-gains, {100 * GAIN_ERROR:g}/√3 %% realistic; the agent's default is 3 %%)")
+    p.add_argument("--noise-draws", type=int, default=1, metavar="N",
+                   help="sensor-noise draws per PTP case (default 1): N > 1 re-runs every case with N − 1 further "
+                   "draws on the same arm and payload, so a cell of P payloads holds P × N cases "
+                   "(benchmarks.calibration pools them)")
     p.add_argument("--jobs", type=int, default=0, help="worker processes (default: all CPUs)")
     p.add_argument("--json", help="write the summary rows and every case to this path")
     p.add_argument("--plot", help="save the error-vs-speed figure here (e.g. docs/benchmark-error-vs-speed.png)")
@@ -159,13 +163,15 @@ def main(argv: list[str] | None = None) -> int:
         problems = check_safety(proc)
         if problems:
             p.error(f"procedure {proc.describe()} would be refused by the safety gate: {'; '.join(problems)}")
+    if args.noise_draws < 1:
+        p.error("--noise-draws must be at least 1")
     ptp_methods = tuple(m for m in methods if m in PTP_METHODS)
     pays = payloads(n)
     cases: list[tuple] = []
     if ptp_methods:
         cases += [("ptp", (sc, pr, ptp_methods, i, m, c, args.length_uncertainty_mm,
-                           args.unfitted_gain_uncertainty_percent)) for sc in scenarios
-                  for pr in procs for i, (m, c) in enumerate(pays)]
+                           args.unfitted_gain_uncertainty_percent, draw)) for sc in scenarios
+                  for pr in procs for i, (m, c) in enumerate(pays) for draw in range(args.noise_draws)]
     if "dynamic" in methods:
         cases += [("dynamic", (sc, i, m, c)) for sc in scenarios for i, (m, c) in enumerate(pays)]
 
@@ -182,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.extend(r)
     summary = summarize(rows, ALL_SCENARIOS, METHODS)
     elapsed = time.monotonic() - t0
-    print(f"payload-agent accuracy benchmark: EC66 simulator, {n} payloads, scenarios {', '.join(scenarios)}, "
+    print(f"payload-agent accuracy benchmark: EC66 simulator, {n} payloads × {args.noise_draws} noise draw(s), scenarios {', '.join(scenarios)}, "
           f"{len(cases)} cases, {elapsed:.0f} s wall on {args.jobs or 'all'} worker(s)")
     for proc in procs:
         print(f"  procedure {proc.label}: {proc.describe()}")

@@ -252,7 +252,7 @@ def run_case(args: tuple) -> list[dict]:
     loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
 
     base = {"scenario": scenario, "procedure": proc.label, "procedure_settings": dataclasses.asdict(proc),
-            "payload": index, "length_std_mm": length_std_mm}
+            "payload": index, "noise_draw": replica, "length_std_mm": length_std_mm}
     if "general-bi-cal" in methods or COMP in methods or COMP3 in methods:
         base["unfitted_gain_std_percent"] = 100.0 * unfitted_std
     rows = []
