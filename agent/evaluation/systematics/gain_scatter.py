@@ -40,8 +40,8 @@ known as well as the data tell it: given its measurement ε̂_k ~ N(ε_k, C) and
 is measured far better than τ (joints 2 and 3, ε̂ to ±0.1 %), the scatter's own size τ² where it is not (the
 still wrist: a few N·m of payload torque give ε̂ to ±0.5–2 %, against a ripple of ±0.7 %). Under the model
 E[ε̃ε̃ᵀ] + P = τ²·I, so the term is the true effect's size on average, neither shrunk nor counted twice.
-The form before (until session 13, docs/benchmarks.md) put the measured effect β̂ = S·ε̂ in whole, shrunk by one
-factor for all clusters, s² = max(q − r, 0)/q, q = β̂ᵀ(S·C·Sᵀ)⁻¹β̂: the well-measured clusters of joints 2
+The form before (until session 14; docs/benchmarks.md, sessions 13 and 15) put the measured effect β̂ = S·ε̂
+in whole, shrunk by one factor for all clusters, s² = max(q − r, 0)/q, q = β̂ᵀ(S·C·Sᵀ)⁻¹β̂: the well-measured clusters of joints 2
 and 3 passed the shrink, and with them the wrist clusters' noise, read as effect (realistic+ripple, 10 %:
 σ_y 0.8–1.5 mm of "scatter" against errors the clean arm has too, rms(err/σ) of y 0.61). The random-effects
 size τ²·Σ_k s_k s_kᵀ alone ignores what ε̂ says: without a calibration (ripple on joints 1–3 of a
