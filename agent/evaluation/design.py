@@ -20,8 +20,9 @@ stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ra
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
 calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
-term (the run's own rule): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on
-the chance the run's σ exceeds the target.
+term (the run's own rule) and of the run's own estimate of its noise term (``noise_scatter``: a few % between
+runs): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on the chance the run's
+σ exceeds the target.
 
 ``choose`` evaluates a grid of candidates, keeps those the safety gate accepts (the whole plan,
 as ``plan`` checks it, the approach too when where the robot stands is given), and returns the one
