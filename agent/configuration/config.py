@@ -1,8 +1,7 @@
 """Robot YAML -> typed, validated configuration.
 
 Units in YAML are the ones integrators read on teach pendants (mm, deg, percent);
-everything inside the dataclasses is SI (m, rad, rad/s) unless a name says otherwise.
-"""
+everything inside the dataclasses is SI (m, rad, rad/s) unless a name says otherwise."""
 
 from __future__ import annotations
 
@@ -63,6 +62,7 @@ class JointSystematicsConfig:
     friction_change_std: float = DEFAULT_FRICTION_CHANGE_PERCENT / 100.0  # of the baseline's friction level
     zero_offset_corr: tuple[tuple[float, ...], ...] | None = None  # 6×6
     zero_gain_coupling: tuple[tuple[float, ...], ...] | None = None  # 6×6
+    tool_cable_fitted: bool = False  # robot.tool_cable_fitted; False: not declared, the cable's presence test decides
 
 
 @dataclass(frozen=True)
@@ -173,7 +173,7 @@ class Config:
 
 SECTIONS = ("robot", "effort", "driver", "procedure", "safety", "storage", "simulation", "watch")
 ROBOT_KEYS = ("name", "model", "kinematics", "joint_limits_deg", "max_joint_speed_deg_s", "max_joint_accel_deg_s2",
-              "friction_asymmetry_percent", "friction_change_percent")
+              "friction_asymmetry_percent", "friction_change_percent", "tool_cable_fitted")
 KINEMATICS_KEYS = ("convention", "dh", "length_uncertainty_mm", "stiffness_nm_per_rad", "stiffness_uncertainty_percent",
                    "zero_offset_uncertainty_deg")
 DH_KEYS = ("a_mm", "d_mm", "alpha_deg", "offset_deg")
@@ -285,14 +285,14 @@ def _joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
         if not any(stiffness):
             stiffness = None
     stiff_pct = kin.number("stiffness_uncertainty_percent", DEFAULT_STIFFNESS_UNCERTAINTY_PERCENT, min=0, max=100)
-    zero_deg = kin.per_joint("zero_offset_uncertainty_deg", N_JOINTS, DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG,
-                             min=0, max=5)
+    zero_deg = kin.per_joint("zero_offset_uncertainty_deg", N_JOINTS, DEFAULT_ZERO_OFFSET_UNCERTAINTY_DEG, min=0, max=5)
     asym_pct, change_pct = DEFAULT_FRICTION_ASYMMETRY_PERCENT, DEFAULT_FRICTION_CHANGE_PERCENT
     if robot is not None:
         asym_pct = robot.number("friction_asymmetry_percent", DEFAULT_FRICTION_ASYMMETRY_PERCENT, min=0, max=100)
         change_pct = robot.number("friction_change_percent", DEFAULT_FRICTION_CHANGE_PERCENT, min=0, max=100)
+    cable = robot is not None and robot.boolean("tool_cable_fitted", False)
     return JointSystematicsConfig(stiffness, stiff_pct / 100.0, tuple(math.radians(v) for v in zero_deg),
-                                  asym_pct / 100.0, change_pct / 100.0)
+                                  asym_pct / 100.0, change_pct / 100.0, tool_cable_fitted=cable)
 
 
 def _robot(node: Node) -> RobotConfig:
