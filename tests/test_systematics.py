@@ -17,7 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from payload_agent.configuration.config import DEFAULT_FRICTION_ASYMMETRY_PERCENT, parse_config
+from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.joint_systematics import DEFAULT_FRICTION_ASYMMETRY_PERCENT
 from payload_agent.errors import ConfigError, QualityGateError
 from payload_agent.evaluation import cable_check, quality
 from payload_agent.evaluation.pipeline import analyse_run
