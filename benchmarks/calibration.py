@@ -14,6 +14,11 @@ that band about 30 % of the time (the rms of 24 draws is 1 ± 0.14; 3 misses of 
 time). So each cell also gets the chance, under an exactly right σ, of a result as far out as this one (two-sided
 for each rms, χ²_n; one-sided for too many misses, binomial(n, 0.05); Bonferroni over the six), and the table ends
 with how many cells such a σ would leave out of band on average at these sample sizes (drawn, fixed seed).
+
+With several sensor-noise draws per case (``benchmarks.accuracy --noise-draws``) the draws of one case share its
+systematic error, so they are worth fewer independent cases than their count: column n gives the count and, in
+brackets, the effective number of cases of the mass and CoM axes (``effective_sizes``), on which the chance and the
+"out by chance" count are computed.
 """
 
 from __future__ import annotations
@@ -38,7 +43,8 @@ def rows_of(paths: list[Path]) -> list[dict]:
 
 
 def cell(rows: list[dict]) -> dict:
-    """rms(err/σ) of mass, x, y, z and the 95 % coverage of mass and CoM over one cell's cases."""
+    """rms(err/σ) of mass, x, y, z and the 95 % coverage of mass and CoM over one cell's cases, and the cases'
+    effective number per quantity (``effective_sizes``)."""
     zm = np.array([r["z_mass"] for r in rows], float)
     zc = np.array([r["z_cog"] for r in rows if r.get("z_cog") is not None], float).reshape(-1, 3)
     cc = [r["cog_in_ci95"] for r in rows if r.get("cog_in_ci95") is not None]
@@ -46,24 +52,60 @@ def cell(rows: list[dict]) -> dict:
             "rms_xyz": [float(v) for v in np.sqrt(np.mean(zc ** 2, axis=0))] if len(zc) else [np.nan] * 3,
             "in95_m": float(np.mean(np.abs(zm) <= 1.959964)), "in95_c": float(np.mean(cc)) if cc else np.nan,
             "mean_abs_m_g": float(np.mean(np.abs([r["mass_err_g"] for r in rows]))),
-            "mean_c_mm": float(np.mean([r["cog_err_mm"] for r in rows]))}
+            "mean_c_mm": float(np.mean([r["cog_err_mm"] for r in rows])), **effective_sizes(rows)}
+
+
+def draw_correlation(z: np.ndarray, case: np.ndarray) -> float:
+    """The correlation of one quantity's z between noise draws of the same case (the share of its variance that
+    the arm, the payload and the drifts fix: the systematic part), from the spread of the case means against the
+    spread within cases; 0 for one draw per case."""
+    groups = [z[case == k] for k in np.unique(case)]
+    groups = [g for g in groups if len(g) > 1]
+    if not groups:
+        return 0.0
+    within = float(np.mean([np.var(g, ddof=1) for g in groups]))
+    draws = float(np.mean([len(g) for g in groups]))
+    between = float(np.var([np.mean(g) for g in groups], ddof=1)) - within / draws if len(groups) > 1 else 0.0
+    return max(between, 0.0) / (max(between, 0.0) + within) if within + max(between, 0.0) > 0 else 0.0
+
+
+def effective_sizes(rows: list[dict]) -> dict:
+    """The number of independent cases a cell's z-scores are worth, per quantity (n_m, n_xyz) and for the CoM
+    coverage (n_c). Noise draws of one case (``benchmarks.accuracy --noise-draws``) share its systematic error:
+    with R draws of correlation ρ, the mean of z² over n cases has the variance of n / (1 + (R − 1)·ρ²)
+    independent ones (Cov(z₁², z₂²) = 2ρ²); a miss indicator is taken as correlated by ρ itself (more than the
+    bivariate normal gives: the chance errs towards "could be right")."""
+    case = np.array([r.get("payload", k) for k, r in enumerate(rows)])
+    draws = len(rows) / max(len(np.unique(case)), 1)
+    zm = np.array([r["z_mass"] for r in rows], float)
+    with_c = [r for r in rows if r.get("z_cog") is not None]
+    zc = np.array([r["z_cog"] for r in with_c], float).reshape(-1, 3)
+    case_c = np.array([r.get("payload", k) for k, r in enumerate(with_c)])
+    rho_m = draw_correlation(zm, case)
+    rho_xyz = [draw_correlation(zc[:, k], case_c) for k in range(3)] if len(zc) else [0.0] * 3
+
+    def size(n: int, inflation: float) -> float:
+        return n / (1.0 + (draws - 1.0) * inflation)
+
+    return {"n_m": size(len(zm), rho_m ** 2), "n_xyz": [size(len(zc), r ** 2) for r in rho_xyz],
+            "n_cover_m": size(len(zm), rho_m), "n_cover_c": size(len(zc), float(np.mean(rho_xyz))),
+            "draws": draws}
 
 
 def chance(c: dict) -> float:
     """The probability, under an exactly right σ, of a cell at least as far from calibrated as ``c`` (the least
-    of its six tests' p-values, times six, at most 1)."""
+    of its six tests' p-values, times six, at most 1), each test on the cell's effective number of cases."""
     from scipy import stats
 
-    n = c["n"]
     ps = []
-    for rms in (c["rms_m"], *c["rms_xyz"]):
-        if np.isfinite(rms):
+    for rms, n in zip((c["rms_m"], *c["rms_xyz"]), (c["n_m"], *c["n_xyz"])):
+        if np.isfinite(rms) and n > 0:
             cdf = float(stats.chi2.cdf(n * rms ** 2, n))
             ps.append(2.0 * min(cdf, 1.0 - cdf))
-    for cover in (c["in95_m"], c["in95_c"]):
-        if np.isfinite(cover):
-            misses = int(round(n * (1.0 - cover)))
-            ps.append(float(stats.binom.sf(misses - 1, n, 0.05)))
+    for cover, n in ((c["in95_m"], c["n_cover_m"]), (c["in95_c"], c["n_cover_c"])):
+        if np.isfinite(cover) and n > 0:
+            # misses on the effective sample, the binomial's survival function continued to non-integer counts
+            ps.append(float(stats.beta.cdf(0.05, max(n * (1.0 - cover), 1e-9), n * cover + 1.0)))
     return min(1.0, len(ps) * min(ps)) if ps else float("nan")
 
 
@@ -97,12 +139,14 @@ def table(rows: list[dict]) -> str:
         cells.append(c)
         proc = key[1] if key[1] in ("default", "excitation") else f"{key[1]} %"
         rms = " / ".join(f"{v:.2f}" for v in (c["rms_m"], *c["rms_xyz"]))
-        lines.append(f"| {key[0]} | {proc} | {key[2]} | {c['n']} | {c['mean_abs_m_g']:.1f} | {c['mean_c_mm']:.2f} | "
+        sizes = (c["n_m"], *c["n_xyz"])
+        n = f"{c['n']}" if c["draws"] == 1 else f"{c['n']} ({min(sizes):.0f}–{max(sizes):.0f})"
+        lines.append(f"| {key[0]} | {proc} | {key[2]} | {n} | {c['mean_abs_m_g']:.1f} | {c['mean_c_mm']:.2f} | "
                      f"{rms} | {c['in95_m']:.2f} / {c['in95_c']:.2f} | {'yes' if in_band(c) else '*'} | "
                      f"{chance(c):.3f} |")
     out = sum(not in_band(c) for c in cells)
     lines.append(f"\n{out} of {len(cells)} cells out of band; an exactly right σ would leave "
-                 f"{out_of_band_by_chance([c['n'] for c in cells]):.1f} out on average at these sample sizes; "
+                 f"{out_of_band_by_chance([max(2, round(min(c['n_m'], *c['n_xyz']))) for c in cells]):.1f} out on average at these sample sizes; "
                  f"{sum(chance(c) < 0.05 for c in cells)} cells have a chance below 0.05")
     return "\n".join(lines)
 

@@ -77,6 +77,7 @@ class Declared:
     friction_asymmetry_std: float = 0.0
     # standard uncertainty of the friction level's change between the runs, relative (robot.friction_change_percent)
     friction_change_std: float = 0.0
+    tool_cable_fitted: bool = False  # robot.tool_cable_fitted: the cell's integrator knows a cable is on the tool
 
 
 def draw(scenario: str, index: int):
@@ -119,5 +120,5 @@ def draw(scenario: str, index: int):
     change = math.sqrt(DRIFT ** 2 / 3.0 + ((WARMUP_MAX_C * FRICTION_PER_C) ** 2 / 3.0 if on("temperature") else 0.0))
     declared = Declared(STIFFNESS_NM_PER_RAD if on("elasticity") else None, STIFFNESS_SPREAD / math.sqrt(3.0),
                         math.radians(ZERO_OFFSET_STD_DEG) if on("zero_offset") else 0.0,
-                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change)
+                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change, on("cable"))
     return tool, reference, declared

@@ -8,7 +8,8 @@ it depends on where the robot stands) and the one ``plan`` chooses, it prints th
 constant-speed seconds (loaded run, both legs), and σ of the mass and of the centre of mass (largest axis) as
 the terms of ``design.covariance_terms`` are added one by one: the noise alone, + the wrist torques, + the
 drive gains, + the DH lengths, + the joint zeros, + the residual friction (= the root of the run's expected
-variance; the plan's σ is the median over the wrist term's draws: the last two columns, with P over). The last
+variance; the plan's σ is the median over the draws of the wrist term and of the run's own noise estimate: the
+last columns, with their spread and P over). The last
 columns are the information per second, σ m (noise alone) · √(constant-speed s), and the constant-speed
 seconds the candidate's shape would need for the target mass given its other terms (∞: they alone exceed it).
 
@@ -61,6 +62,14 @@ def budget(config, c: design.Candidate, noise: design.NoiseModel, theta: np.ndar
             "per_root_s": noise_m * math.sqrt(const_s), "const_s_needed": needed}
 
 
+def spread(q: design.Prediction) -> str:
+    """The standard deviation of the σ a run reports over the plan's draws (wrist term and the run's own noise
+    estimate), in % of the typical run's."""
+    if q.draws is None:
+        return "-"
+    return f"{100 * np.std(q.draws[:, 0]) / q.mass_std_g:.1f} / {100 * np.std(q.draws[:, 1]) / q.cog_std_mm:.1f} %"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", default="sim-ec66", help="a shipped simulated robot (configs/NAME.yaml)")
@@ -95,13 +104,13 @@ def main(argv: list[str] | None = None) -> int:
           + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.1f} s)" if choice.best else "none"))
     head = " | ".join(("noise", "+ wrist", "+ gains", "+ DH lengths", "+ zeros", "+ friction (plan)"))
     print(f"\n| candidate | procedure s | constant-speed s | {head} | σ m·√s (noise) | constant-speed s for "
-          f"{grams:g} g | a typical run (median) | P over |\n|" + "---|" * 13)
+          f"{grams:g} g | a typical run (median) | run-to-run spread m / c | P over |\n|" + "---|" * 14)
     for q, b in rows:
         mark = " (chosen)" if choice.best is not None and q is choice.best else ""
         cells = " | ".join(f"{m:.2f} / {c:.2f}" for m, c in b["cumulative"])
         print(f"| {q.candidate.describe()}{mark} | {b['procedure_s']:.1f} | {b['const_s']:.1f} | {cells} | "
               f"{b['per_root_s']:.2f} g·√s | {b['const_s_needed']:.1f} | {q.mass_std_g:.2f} / {q.cog_std_mm:.2f} | "
-              f"{100 * q.p_over(grams, mm):.0f} % |")
+              f"{spread(q)} | {100 * q.p_over(grams, mm):.0f} % |")
         if abs(b["cumulative"][-1][0] - q.mass_rms_std_g) > 1e-6 * max(q.mass_rms_std_g, 1.0):
             print(f"  (!) the terms add to {b['cumulative'][-1][0]:.3f} g, the plan's root mean square is "
                   f"{q.mass_rms_std_g:.3f} g")

@@ -9,8 +9,9 @@ and into the quality gate's pose comparison; the gate's tool-cable check does th
 
 The declared values are what a correctly configured agent knows about the simulated arm
 (``benchmarks.hard.Declared``), as the robot YAML's ``robot.kinematics.stiffness_nm_per_rad``,
-``stiffness_uncertainty_percent``, ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent`` and
-``robot.friction_change_percent`` would say; the realistic arm has none of these effects and declares none.
+``stiffness_uncertainty_percent``, ``zero_offset_uncertainty_deg``, ``robot.friction_asymmetry_percent``,
+``robot.friction_change_percent`` and ``robot.tool_cable_fitted`` would say; the realistic arm has none of these
+effects and declares none.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def declaration(declared):
         return systematics.RIGID
     return JointSystematicsConfig(declared.stiffness_nm_per_rad, declared.stiffness_rel_std,
                                   (declared.zero_offset_std_rad,) * 6, declared.friction_asymmetry_std,
-                                  declared.friction_change_std)
+                                  declared.friction_change_std, tool_cable_fitted=declared.tool_cable_fitted)
 
 
 def scaled(sweeps: dict, scale: np.ndarray) -> dict:

@@ -8,7 +8,7 @@ hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
         [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
-        [--driver-option KEY=VALUE]
+        [--driver-option KEY=VALUE] [--dh-error-mm MM]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
@@ -18,7 +18,9 @@ the effort noise and the stream's samples per second in it; the run still record
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
-``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise).
+``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise). ``--dh-error-mm``: each
+seed's simulated arm has its non-zero DH lengths off by up to that (uniform, drawn from the seed) while the agent
+keeps the YAML's; the JSON then holds the drawn errors and the plan's DH-length term (``pred_length_std``).
 """
 
 from __future__ import annotations
@@ -54,11 +56,15 @@ def parse_reference(text: str | None) -> tuple:
 
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
-                calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False):
+                calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False,
+                dh_error_mm: float = 0.0):
     """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
-    YAML's procedure stored, then calibrated, first when asked)."""
+    YAML's procedure stored, then calibrated, first when asked); ``dh_error_mm``: the simulated arm's DH lengths off
+    by up to that (``simulation.dh_length_error_mm``, drawn from the seed: another arm per seed)."""
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
+    if dh_error_mm > 0:
+        data["simulation"]["dh_length_error_mm"] = dh_error_mm
     data["robot"]["name"] = f"{robot}-seed{seed}"
     data["storage"] = {"runs_dir": str(storage / "runs"), "state_dir": str(storage / "state")}
     data.pop("watch", None)
@@ -91,8 +97,9 @@ def _silent() -> OperatorUI:
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
-            baseline: bool = False) -> dict:
-    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline)
+            baseline: bool = False, dh_error_mm: float = 0.0) -> dict:
+    config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
+                         dh_error_mm)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     if target:
@@ -108,7 +115,10 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "" if fastest is None else f" (least mass σ {fastest.mass_std_g:.2f} g: {fastest.candidate.describe()})"))
         best = choice.best
         config = design.with_candidate(config, best.candidate)
+        terms, _ = design.covariance_terms(config, design.plan_for(config, best.candidate), noise_model(config),
+                                           design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm))
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
+                "pred_length_std": list(term_sigmas(terms["lengths"], sim)),
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target))}
@@ -124,8 +134,31 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
     est, truth = outcome.result.primary, outcome.truth
     err = [1000 * (est.mass_kg - truth["mass_kg"]), *(np.asarray(est.cog_mm) - truth["cog_mm"])]
     std = [1000 * est.mass_std_kg, *(1000 * np.asarray(est.cog_std_m))]
+    if config.simulation.dh_length_error_mm > 0:  # the drawn arm's length errors (mm; a then d per DH row)
+        from payload_agent.fakes.arms import SPECS, simulated_spec
+
+        drawn, nominal = simulated_spec(config.simulation).dh, SPECS[config.simulation.arm]().dh
+        plan["dh_length_errors_mm"] = [round(1000.0 * (x.a_m - n.a_m), 4) for x, n in zip(drawn, nominal)] + [
+            round(1000.0 * (x.d_m - n.d_m), 4) for x, n in zip(drawn, nominal)]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
             "passed": bool(outcome.result.quality.get("passed")), **plan}
+
+
+def noise_model(config):
+    """The plan's noise model, as ``plan --target-std`` reads it."""
+    from payload_agent.session import target as targets
+
+    return targets.noise_for(config)[0]
+
+
+def term_sigmas(cov: np.ndarray, sim) -> tuple[float, float]:
+    """(σ mass g, σ CoM largest axis mm) of one term of the plan, for the simulation's payload."""
+    from payload_agent.evaluation import design
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    theta = design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm)
+    _, cov_c = cog_with_covariance(theta, cov)
+    return 1000.0 * float(np.sqrt(max(cov[0, 0], 0.0))), 1000.0 * float(np.sqrt(max(np.max(np.diag(cov_c)), 0.0)))
 
 
 def stream_share(config, run_dir: Path | None = None) -> float:
@@ -166,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
+    p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
+                   help="the simulated arm's DH lengths off by up to MM (uniform, per seed: simulation.dh_length_error_mm)")
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="set a driver key for every seed (a Modbus timeout_s on a loaded host); printed with the results")
     args = p.parse_args(argv)
@@ -180,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
-                            args.calibrate_speed, args.retry_sweeps, args.baseline)
+                            args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

@@ -46,7 +46,8 @@ def to_mass_cog(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def analysed_case(scenario: str, index: int, proc: cases.Procedure, n_payloads: int) -> dict:
     """One case of the accuracy benchmark's general-bi-cal-comp, recorded and prepared as the analysis does: the
     calibrated, compensated deltas (``prepared``), the fitted model, the calibration, the gains' uncertainty, the
-    declaration, the payload (``mass``, ``cog`` mm), the arm's draws and where the loaded run started (``mount``)."""
+    declaration, the payload (``mass``, ``cog`` mm), the arm's draws, where the loaded run started (``mount``), and the
+    recorded sweeps (``loaded``, ``empty``, ``ref``) with the procedure's ``config``."""
     from payload_agent.evaluation import systematics
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
@@ -71,7 +72,7 @@ def analysed_case(scenario: str, index: int, proc: cases.Procedure, n_payloads: 
     prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl, mount_rad=mount)
     model = general.fit_model(prepared.deltas, kin, gain_std)
     return dict(prepared=prepared, model=model, cal=cal, gain_std=gain_std, decl=decl, kin=kin, mass=mass, cog=cog,
-                draws=draws, mount=mount)
+                draws=draws, mount=mount, loaded=loaded, empty=empty, ref=ref, config=config)
 
 
 def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, solver: str = "general",

@@ -70,3 +70,21 @@ def canopen_arm_spec() -> ArmSpec:
 
 
 SPECS["canopen_arm"] = canopen_arm_spec
+
+
+# the stream of the simulation's seed the DH-length errors are drawn from (the other draws keep theirs)
+DH_ERROR_STREAM = 22
+
+
+def simulated_spec(sim) -> ArmSpec:
+    """The arm a ``simulation`` section describes (``configuration.simulation.SimulationConfig``): its arm's spec, each
+    non-zero DH length off by a uniform draw within ± ``dh_length_error_mm`` (``ArmSpec.with_dh_errors``, as the
+    accuracy benchmark's arms), drawn from the simulation's seed; the exact spec when that is 0 (the shipped configs)."""
+    spec = SPECS[sim.arm]()
+    error_mm = float(getattr(sim, "dh_length_error_mm", 0.0))
+    if error_mm <= 0:
+        return spec
+    import numpy as np
+
+    rng = np.random.default_rng((int(sim.seed) % 2 ** 32, DH_ERROR_STREAM))
+    return spec.with_dh_errors(rng, error_mm / 1000.0)

@@ -140,14 +140,14 @@ class FakeEliteController(ElitePendant, EliteMethods, SimulatedController):
         a loopback address (the TCP servers refuse any other), or ``auto``: a 127.0.0.x on which the
         ports are free.
         """
-        from payload_agent.fakes.arms import SPECS
+        from payload_agent.fakes.arms import simulated_spec
 
         sim = config.simulation
         if sim is None:
             raise ValueError("this config has no simulation section")
         if not in_process:
             return HostedController(f"{cls.__module__}:{cls.__name__}", config, cls.faults)
-        spec = SPECS[sim.arm]()
+        spec = simulated_spec(sim)
         robot = SimRobot(spec, tick_s=TICK_S, **sim_robot_kwargs(config))
         opts = config.driver_options
         host = str(opts.host)

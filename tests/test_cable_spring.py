@@ -232,3 +232,58 @@ def test_gear_ripple_the_calibration_absorbed_is_not_read_as_a_cable():
     assert not absolute.present
     z = absolute.estimate / np.sqrt(np.diag(absolute.cov))
     assert np.all(np.abs(z) < 2.0), z
+
+
+# -- a cable the robot YAML declares (robot.tool_cable_fitted): κ's posterior on κ ≥ 0 -------------------------
+
+def test_the_posterior_is_the_truncated_normal():
+    """One joint: N(κ̂, σ²) truncated to κ ≥ 0 has a closed form (scipy's truncnorm); the drawn mean and variance
+    agree within the draws' scatter, also where κ̂ lies 2 σ below zero."""
+    from scipy.stats import truncnorm
+
+    for k in (-2.0, 0.0, 1.5):
+        mean, cov = cable_spring.posterior(np.array([k]), np.array([[1.0]]))
+        exact = truncnorm(-k, np.inf, loc=k, scale=1.0)
+        assert mean[0] == pytest.approx(exact.mean(), abs=0.02) and cov[0, 0] == pytest.approx(exact.var(), rel=0.05)
+
+
+def test_a_declared_cable_is_covered_at_every_strength_where_the_test_weight_is_not():
+    """κ̂ ~ N(κ, C) for cables of 0.5 and 1 σ per joint (the benchmark's weak cable): the effect a·κ lies within
+    1.96 of the declared term's σ in ≥ 95 % of 150 draws, where the presence test's weight leaves it out in ≥ 10 %."""
+    C = np.array([[1.0, 0.6, -0.3], [0.6, 2.0, 0.4], [-0.3, 0.4, 0.5]])
+    a, L = np.array([1.0, 0.7, 1.2]), np.linalg.cholesky(C)
+    crit, null_mean = cable_spring.null_distribution(C)
+    rng = np.random.default_rng(5)
+    for strength in (0.5, 1.0):
+        kappa = strength * np.sqrt(np.diag(C))
+        declared, tested = [], []
+        for e in rng.standard_normal((150, 3)):
+            estimate = kappa + L @ e
+            mean, cov = cable_spring.posterior(estimate, C)
+            declared.append(abs(a @ kappa) <= 1.96 * np.sqrt(a @ (cov + np.outer(mean, mean)) @ a))
+            star = cable_spring.project(estimate, C)
+            s = cable_spring.CableSpring((3, 4, 5), np.eye(3), star, C, cable_spring.statistic(estimate, C), crit,
+                                         null_mean, estimate)
+            tested.append(abs(a @ kappa) <= 1.96 * np.sqrt(s.weight * a @ (np.outer(star, star) + C) @ a))
+        assert np.mean(declared) >= 0.95 and np.mean(tested) <= 0.9, (strength, np.mean(declared), np.mean(tested))
+
+
+def test_a_declared_cable_is_the_tested_term_where_found_and_prices_the_clean_arm(runs):
+    """``robot.tool_cable_fitted`` (``JointSystematicsConfig.tool_cable_fitted``): on the found cable the term is the
+    tested one's size (the posterior of a κ̂ far from zero is N(κ̂, C)); on the clean run it is no longer about
+    zero: declaring costs what a cable of about its own σ would do, which is why it is not the default."""
+    from dataclasses import replace
+
+    declared = replace(systematics.RIGID, tool_cable_fitted=True)
+
+    def mass_std(run, declaration):
+        kin, loaded, empty, mount = run
+        prep = systematics.prepare(loaded, empty, declaration, mount_rad=mount)
+        syst = systematics.evaluate(prep, kin, declaration, terms=[systematics.wrist_terms],
+                                    model=general.fit_model(prep.deltas, kin))
+        return float(np.sqrt(syst.covariance()[0, 0])), syst
+
+    found, syst = mass_std(runs["cable"], declared)
+    assert "declared fitted" in syst.terms[0].note
+    assert 0.8 < found / mass_std(runs["cable"], systematics.RIGID)[0] < 1.25
+    assert mass_std(runs["clean"], declared)[0] > 1.5 * mass_std(runs["clean"], systematics.RIGID)[0]

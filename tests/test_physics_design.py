@@ -97,9 +97,11 @@ def test_the_prediction_is_the_sum_of_its_named_terms(config):
         assert set(terms) == set(design.NOISE_TERMS + design.SYSTEMATIC_TERMS)
         pred = design.predict(config, cand, noise, theta, check_safety=False)
         assert 1000 * np.sqrt(sum(terms.values())[0, 0]) == pytest.approx(pred.mass_rms_std_g, rel=1e-9)
-        # a typical run's σ leaves the wrist term out (it is 0 in most clean runs), never more than the mean's root
+        # a typical run's σ leaves the wrist term out (it is 0 in most clean runs), never more than the mean's root;
+        # the run's own noise estimate scatters about the planned noise term (``noise_scatter``, centred on its mean):
+        # the median moves by a small part of that spread
         no_wrist = sum(v for k, v in terms.items() if k != "wrist")
-        assert 1000 * np.sqrt(no_wrist[0, 0]) == pytest.approx(pred.mass_std_g, rel=1e-9)
+        assert 1000 * np.sqrt(no_wrist[0, 0]) == pytest.approx(pred.mass_std_g, rel=5e-3)
         parts[speed] = terms, n
     (slow, n_slow), (fast, n_fast) = parts[10.0], parts[20.0]
     assert n_slow == pytest.approx(2 * n_fast, rel=0.1)

@@ -17,7 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from payload_agent.configuration.config import DEFAULT_FRICTION_ASYMMETRY_PERCENT, parse_config
+from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.joint_systematics import DEFAULT_FRICTION_ASYMMETRY_PERCENT
 from payload_agent.errors import ConfigError, QualityGateError
 from payload_agent.evaluation import cable_check, quality
 from payload_agent.evaluation.pipeline import analyse_run
@@ -46,6 +47,7 @@ STIFFNESS = [1.5e4, 1.5e4, 1.5e4, 3.0e3, 3.0e3, 3.0e3]  # softer than a real EC6
     ("robot.kinematics.zero_offset_uncertainty_deg", [0.02, 0.02], "zero_offset_uncertainty_deg", "6"),
     ("robot.friction_asymmetry_percent", -5, "robot.friction_asymmetry_percent", ">= 0"),
     ("robot.friction_change_percent", True, "robot.friction_change_percent", "number"),
+    ("robot.tool_cable_fitted", "yes", "robot.tool_cable_fitted", "true or false"),
     ("robot.kinematics.stifness_nm_per_rad", [3e4] * 6, "robot.kinematics.stifness_nm_per_rad", "stiffness_nm_per_rad"),
 ])
 def test_bad_systematics_keys_are_refused_naming_the_key(sim_ec66_data, path, value, key, fragment):
@@ -60,6 +62,8 @@ def test_systematics_keys_and_their_defaults(sim_ec66_data):
     assert joints.stiffness_nm_per_rad is None  # rigid unless declared
     assert joints.zero_offset_std_rad == pytest.approx((math.radians(0.02),) * 6)
     assert joints.friction_asymmetry_std == pytest.approx(DEFAULT_FRICTION_ASYMMETRY_PERCENT / 100)
+    assert joints.tool_cable_fitted is False  # not declared: the cable spring's presence test decides
+    assert parse_config(tweak(sim_ec66_data, "robot.tool_cable_fitted", True)).robot.joints.tool_cable_fitted
     data = tweak(sim_ec66_data, "robot.kinematics.stiffness_nm_per_rad", [3e4, 3e4, 3e4, 0, 5e3, 5e3])
     data = tweak(data, "robot.kinematics.zero_offset_uncertainty_deg", 0.05)
     data = tweak(data, "robot.kinematics.stiffness_uncertainty_percent", 20)

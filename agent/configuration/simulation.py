@@ -99,6 +99,9 @@ class SimulationConfig:
     effects: SimEffects = field(default_factory=SimEffects)
     # effort noise of a standing joint (None: noise_nm, the in-motion level, whether it moves or stands)
     noise_rest_nm: tuple[float, ...] | None = None
+    # the simulated arm's DH lengths against the YAML's kinematics, which the agent uses: each non-zero a and d off
+    # by a uniform draw within ± this, seeded by ``seed`` (``fakes.arms.simulated_spec``); 0: exact, as shipped
+    dh_length_error_mm: float = 0.0
 
 
 def _inertia(payload: Node) -> tuple[tuple[float, float, float], ...]:
@@ -144,7 +147,8 @@ def parse_simulation(node: Node) -> SimulationConfig:
     angle_noise = node.per_joint("angle_noise_rad", N_JOINTS, 0.0, min=0, max=0.01)
     jitter_ms = node.number("timestamp_jitter_ms", 0.0, min=0, max=100)
     effects = parse_effects(node.child("effects", required=False))
+    dh_error_mm = node.number("dh_length_error_mm", 0.0, min=0, max=5)
     node.reject_unknown(["arm", "payload", "noise_nm", "noise_rest_nm", "friction", "drive_gain_error", "time_scale",
-                         "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects"])
+                         "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects", "dh_length_error_mm"])
     return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start,
-                            angle_noise, jitter_ms / 1000.0, effects, noise_rest)
+                            angle_noise, jitter_ms / 1000.0, effects, noise_rest, dh_error_mm)

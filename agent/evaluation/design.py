@@ -20,8 +20,9 @@ stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ra
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
 calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
-term (the run's own rule): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on
-the chance the run's σ exceeds the target.
+term (the run's own rule) and of the run's own estimate of its noise term (``noise_scatter``: a few % between
+runs): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on the chance the run's
+σ exceeds the target.
 
 ``choose`` evaluates a grid of candidates, keeps those the safety gate accepts (the whole plan,
 as ``plan`` checks it, the approach too when where the robot stands is given), and returns the one
@@ -46,7 +47,9 @@ from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F401
 from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
                                                  SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
-from payload_agent.evaluation.planned_terms import (FrictionKnowledge, WristModel, friction_covariance,
+from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
+from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
+from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model)
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
@@ -79,7 +82,7 @@ class Prediction:
 
     def p_over(self, mass_std_g: float, cog_std_mm: float) -> float:
         """The chance that the run's reported σ of the mass or of the centre of mass (largest axis) exceeds the
-        target, over the wrist term's draws (the rest of σ taken as predicted)."""
+        target, over the draws of the wrist term and of the run's own noise estimate (the rest of σ as predicted)."""
         if self.draws is None:
             return float(self.mass_std_g > mass_std_g or self.cog_std_mm > cog_std_mm)
         over = (self.draws[:, 0] > mass_std_g) | (self.draws[:, 1] > cog_std_mm)
@@ -163,45 +166,6 @@ def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
     return total
 
 
-def planned_sweeps(plan: Plan, period_s: float):
-    """Synthetic combined sweeps (``DeltaSweep``, Δτ = 0) at the samples the analysis will use."""
-    from payload_agent.analysis.delta import DeltaSweep
-    from payload_agent.analysis.segmenter import sweep_commands
-    from payload_agent.types import SweepKey
-
-    out = []
-    for key, cmd in sweep_commands(plan.moves).items():
-        if key.direction == "down":
-            continue
-        lo, hi = cmd.cruise_interval()
-        speed = abs(float(cmd.speed_rad_s))
-        n = max(int((hi - lo) / max(speed, 1e-9) / period_s), 2)
-        q = np.tile(np.asarray(cmd.start_rad, float), (n, 1))
-        q[:, cmd.joint] = np.linspace(lo, hi, n)
-        both = any(k.direction == "down" and (k.pose, k.joint) == (key.pose, key.joint) for k in sweep_commands(plan.moves))
-        direction = "both" if both else key.direction
-        out.append(DeltaSweep(SweepKey(key.pose, key.joint, direction, key.speed_percent), q, np.zeros((n, 6)), speed))
-    return out
-
-
-def too_few_samples(plan: Plan, period_s: float) -> tuple[str, ...]:
-    """Why the run could be refused for too few constant-speed samples in a sweep at ``period_s`` (the sample
-    density the run will have), or nothing. The quality gate needs ``quality.MIN_SWEEP_SAMPLES`` per combined
-    sweep, and the segmenter may keep as little as ``segmenter.MIN_VERIFIED_FRACTION`` of the planned cruise
-    interval where the data do not confirm a constant speed (a stream timed on receipt, with gaps): measured on
-    sim-ur5e-modbus, a j2_pair 15 %, 0–20° planned at 67 samples per sweep kept 37-44, and the gate refused
-    every run. So a candidate needs the gate's count in that fraction of its planned samples."""
-    from payload_agent.analysis.segmenter import MIN_VERIFIED_FRACTION
-    from payload_agent.evaluation.quality import MIN_SWEEP_SAMPLES
-
-    fewest = min(planned_sweeps(plan, period_s), key=lambda d: len(d.q), default=None)
-    if fewest is None or MIN_VERIFIED_FRACTION * len(fewest.q) >= MIN_SWEEP_SAMPLES:
-        return ()
-    return (f"{fewest.key.name}: about {len(fewest.q)} constant-speed samples at {1.0 / period_s:.0f} per s; the "
-            f"quality gate needs {MIN_SWEEP_SAMPLES} in the {MIN_VERIFIED_FRACTION:g} of them the segmentation may "
-            f"keep: a slower sweep or a wider range",)
-
-
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
 NOISE_TERMS = ("noise", "wrist")
 SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros")
@@ -212,15 +176,16 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``; the
     wrist term as its expectation), and the constant-speed samples of one run: kept apart so that a benchmark can
     show what binds a candidate (docs/benchmarks.md, issue 22)."""
-    terms, n, _ = terms_and_wrist_model(config, plan, noise, theta)
+    terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta)
     return terms, n
 
 
 def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
-                          ) -> tuple[dict[str, np.ndarray], int, WristModel]:
-    """``covariance_terms`` and the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
-    relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted),
-    from which ``predict`` draws the σ a run reports."""
+                          ) -> tuple[dict[str, np.ndarray], int, WristModel, NoiseScatter]:
+    """``covariance_terms``, the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
+    relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
+    the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
+    reports."""
     from payload_agent.solvers import general, wls
 
     kin = config.robot.kinematics
@@ -242,6 +207,10 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     Y = np.vstack([g.Y for g in groups])
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
     terms = {"noise": inv * noise.inflation ** 2}
+    J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0]: the CoM's largest axis of the noise term
+    J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
+    axis = int(np.argmax(np.diag(J @ inv @ J.T)))
+    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS)
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
     rel = noise.gain_rel_std
@@ -279,7 +248,7 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
         if len(_SYSTEMATIC) > 256:
             _SYSTEMATIC.clear()
         _SYSTEMATIC[key] = fixed
-    return {**terms, **_SYSTEMATIC[key]}, sum(len(d.q) for d in sweeps), wrist
+    return {**terms, **_SYSTEMATIC[key]}, sum(len(d.q) for d in sweeps), wrist, spread
 
 
 _SYSTEMATIC: dict[tuple, dict[str, np.ndarray]] = {}
@@ -297,10 +266,10 @@ def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, 
     base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety, start_q)
     if isinstance(base, tuple) and len(base) == 1:
         return Prediction(c, float("nan"), float("nan"), float("nan"), 0, base[0])
-    time_s, noise_cov, wrist, sys_cov, n, problems = base
+    time_s, noise_cov, wrist, sys_cov, n, problems, spread = base
     cov = noise_cov / c.repetitions + sys_cov
     wrist = wrist.over(c.repetitions)
-    sigma_m, sigma_c = reported_sigma_draws(cov, wrist, theta)
+    sigma_m, sigma_c = reported_sigma_draws(cov, wrist, theta, noise_cov / c.repetitions, spread.over(c.repetitions))
     mean_cov = cov + wrist.expected()
     _, cov_c = cog_with_covariance(theta, mean_cov)
     approach = approach_s(config, c, start_q)
@@ -323,8 +292,8 @@ def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None) ->
 def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, check_safety: bool,
              start_q: Sequence[float] | None = None) -> tuple:
     """One run of the candidate: (robot s, noise covariance, the wrist term (``WristModel``), systematic covariance,
-    samples, the safety gate's problems), or (problems,) when it cannot be predicted; kept for the other
-    repetition counts."""
+    samples, the safety gate's problems, the noise estimate's scatter (``noise_scatter``)), or (problems,) when it
+    cannot be predicted; kept for the other repetition counts."""
     from payload_agent.errors import PayloadAgentError
 
     start = None if start_q is None else tuple(float(v) for v in start_q)
@@ -344,8 +313,9 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
-        terms, n, wrist = terms_and_wrist_model(cfg, plan, noise, theta)
-        out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems)
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta)
+        out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
+                      spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
         out = ((str(exc),),)
     if len(_RUNS) > 4096:

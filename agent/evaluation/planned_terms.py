@@ -189,12 +189,14 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     return spring_model(AM, cov[4:, 4:])
 
 
-def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray, noise_cov: np.ndarray | None = None,
+                         spread=None) -> tuple[np.ndarray, np.ndarray]:
     """(σ mass g, σ centre of mass mm, largest axis) a run of the candidate reports, one per seeded draw
     (``DRAWS``): the covariance ``base_cov`` (every other term) plus the wrist term by the run's own rule
     (``WristModel``). Its mean covariance is ``base_cov + model.expected()``, the root of which the plan predicted
     before (issue 22: the term is 0 in about two thirds of clean runs and large in the rest, so no single number
-    of it is what a user sees)."""
+    of it is what a user sees). ``noise_cov``, the part of ``base_cov`` that is the noise term, scaled per draw by
+    the run's own estimate of it (``spread``: ``noise_scatter.NoiseScatter``, mass and CoM; none: as planned)."""
     from payload_agent.solvers.wls import cog_with_covariance
 
     _, base_c = cog_with_covariance(theta, base_cov)
@@ -203,6 +205,10 @@ def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndar
     a, beta, b, D = model.a, model.beta, model.b, model.spread
     var_m = float(base_cov[0, 0]) + a * beta[:, 0] ** 2 + b * D[0, 0]
     var_c = np.diag(base_c)[None, :] + a[:, None] * (beta @ J.T) ** 2 + b[:, None] * np.diag(J @ D @ J.T)[None, :]
+    if noise_cov is not None and spread is not None:
+        f = spread.factors() - 1.0  # the run's noise variance over the plan's, minus 1
+        var_m = var_m + f[:, 0] * float(noise_cov[0, 0])
+        var_c = var_c + f[:, 1:2] * np.diag(J @ noise_cov @ J.T)[None, :]
     return (1000.0 * np.sqrt(np.maximum(var_m, 0.0)),
             1000.0 * np.sqrt(np.maximum(np.max(var_c, axis=1), 0.0)))
 

@@ -132,10 +132,10 @@ class SimulatedCANopenArm(SimulatedController):
     @classmethod
     def from_config(cls, config, **kwargs) -> "SimulatedCANopenArm":
         """From a robot YAML; ``kwargs`` (tests): ``faulted={joint: code}``, ``has_rated_torque=False``, ..."""
-        from payload_agent.fakes.arms import SPECS
+        from payload_agent.fakes.arms import simulated_spec
 
         opts, sim = config.driver_options, config.simulation
-        spec = SPECS[sim.arm]()
+        spec = simulated_spec(sim)
         robot = SyncSteppedRobot(spec, tick_s=sim.time_scale / opts.sync_rate_hz, **sim_robot_kwargs(config))
         return cls(robot, opts, **{"rated_torque_nm": spec.rated_torque_nm, "gain_error": sim.drive_gain_error,
                                    **kwargs})

@@ -83,7 +83,7 @@ class SimulatedModbusRobot(SimulatedController):
         (``fakes.hosted``: served beside the agent's threads, a pty device answered late under load, and a TCP
         server missed the 0.25 s reply timeout in 2 of 5 seeded runs), unless ``in_process`` (which is how that
         process builds it)."""
-        from payload_agent.fakes.arms import SPECS
+        from payload_agent.fakes.arms import simulated_spec
 
         sim = config.simulation
         if sim is None:
@@ -95,7 +95,7 @@ class SimulatedModbusRobot(SimulatedController):
             faults = frozenset(FAULTS) - ({"nan_values"} if not _float_signals(regmap) else set())
             return HostedController(f"{cls.__module__}:{cls.__name__}", config, faults)
         update = regmap.update_hz or DEFAULT_UPDATE_HZ
-        robot = SimRobot(SPECS[sim.arm](), tick_s=1.0 / update, **sim_robot_kwargs(config))
+        robot = SimRobot(simulated_spec(sim), tick_s=1.0 / update, **sim_robot_kwargs(config))
         host = opts.host if opts.transport == "tcp" else "127.0.0.1"
         return cls(robot, regmap, gains=config.effort.gains_nm_per_unit, gain_error=sim.drive_gain_error,
                    transport=opts.transport, host=host or "127.0.0.1", unit_id=opts.unit_id,

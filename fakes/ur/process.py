@@ -222,7 +222,7 @@ class FakeURController(SimulatedController):
         ``driver.host: auto`` (or none) picks a free 127.0.0.x.
         """
         from payload_agent.errors import ConfigError
-        from payload_agent.fakes.arms import SPECS
+        from payload_agent.fakes.arms import SPECS, simulated_spec
 
         sim = config.simulation
         if sim is None:
@@ -239,7 +239,7 @@ class FakeURController(SimulatedController):
         kwargs["q0_rad"] = tuple(float(v) for v in kwargs["q0_rad"])
         opts = config.driver_options
         host = getattr(opts, "host", None) if opts is not None else config.driver.get("host")
-        return cls(host=None if host in (None, "", "auto") else str(host), spec=SPECS[sim.arm](), tick_s=UR_TICK_S,
+        return cls(host=None if host in (None, "", "auto") else str(host), spec=simulated_spec(sim), tick_s=UR_TICK_S,
                    gain_error=tuple(sim.drive_gain_error), gains_nm_per_a=tuple(config.effort.gains_nm_per_unit),
                    current_noise_a=0.0, sim_options=extra or None, **kwargs)
 

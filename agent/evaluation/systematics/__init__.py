@@ -38,7 +38,8 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
      data tell it given the scatter's size (posterior mean and covariance, ``systematics.gain_scatter``);
    - tool cable / wrist torques: where the loaded run's start is known, a spring on the wrist relaxed there,
-     tested and, when present, its measured effect on θ with that effect's uncertainty (``cable_spring``);
+     tested and, when present, its measured effect on θ with that effect's uncertainty (``cable_spring``; where
+     ``robot.tool_cable_fitted`` declares one, its effect for every stiffness κ ≥ 0 the data allow);
      else one constant per (pose, wrist joint) beside a nuisance gain column per still (joint, angle) of
      joints 1–3, their measured effect shrunk likewise (``systematics.wrist``); a strong one fails the
      gate's cable check instead;
@@ -307,7 +308,8 @@ def wrist_terms(ctx: Context) -> list[Term]:
 
 def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) -> list[Term]:
     try:
-        s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad, gain_reference=ctx.gain_reference)
+        s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad, gain_reference=ctx.gain_reference,
+                                    declared=ctx.decl.tool_cable_fitted)
     except (DataError, np.linalg.LinAlgError):
         return []
     if s is None or s.weight <= 0:

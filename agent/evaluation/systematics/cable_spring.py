@@ -17,6 +17,12 @@ that effect's uncertainty D = A·M·C·Mᵀ·Aᵀ (M: the levers): all of β̂β
 (the cable is found), else the share the data show beyond noise, (T − E₀[T])⁺/T of it. The weak cable of the
 benchmark (10–20 mN·m/rad) was found in 3 of 6 runs; the other 3 still erred by 2–4 σ of mass the
 same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md, session 12).
+
+Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide:
+κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ and a
+covariance Σ that are not zero when κ̂ ≤ 0, and the term is A·M·μ and A·M·Σ^½, honest for any cable strength
+(E[ββᵀ | κ̂] = A·M·(μμᵀ + Σ)·MᵀAᵀ). Not the default: on an arm without a cable the same term costs the clean
+arm's σ what a cable of about σ_κ would do (docs/benchmarks.md, session 15).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.errors import DataError
 from payload_agent.evaluation.systematics import gain_scatter, offsets, wrist
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import Group, fit
@@ -36,6 +43,7 @@ ALPHA = 0.05  # false-alarm rate of the presence test on an arm without a cable
 # a wrist joint that stands within this of where the tool was mounted in every pose feels no spring torque
 MIN_LEVER_RAD = math.radians(1.0)
 DRAWS = 4000  # draws of the chi-bar-squared null distribution (fixed seed: the same data give the same answer)
+POSTERIOR_DRAWS = 20000  # importance-sampling draws of κ's posterior on κ ≥ 0 (fixed seed)
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,13 @@ class CableSpring:
     critical: float  # the 1 − ALPHA quantile of T under κ = 0
     null_mean: float  # E[T] under κ = 0
     estimate: np.ndarray | None = None  # (p,) the unconstrained κ̂
+    # declared fitted (``robot.tool_cable_fitted``): κ's posterior mean and covariance on κ ≥ 0 (``posterior``)
+    posterior_mean: np.ndarray | None = None
+    posterior_cov: np.ndarray | None = None
+
+    @property
+    def declared(self) -> bool:
+        return self.posterior_mean is not None
 
     @property
     def present(self) -> bool:
@@ -57,10 +72,10 @@ class CableSpring:
 
     @property
     def weight(self) -> float:
-        """The share of β̂β̂ᵀ + D that goes into σ: all of it where the test finds the cable, else the share the
-        data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ of mass in
-        the weak-cable ablation's undetected cases)."""
-        if self.present:
+        """The share of the term that goes into σ: all of it where a cable is declared or the test finds it, else
+        the share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ
+        of mass in the weak-cable ablation's undetected cases)."""
+        if self.declared or self.present:
             return 1.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
 
@@ -140,11 +155,32 @@ def null_distribution(cov: np.ndarray, alpha: float = ALPHA, draws: int = DRAWS)
     return float(np.quantile(t, 1.0 - alpha)), float(np.mean(t))
 
 
+def posterior(kappa: np.ndarray, cov: np.ndarray, draws: int = POSTERIOR_DRAWS) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, covariance) of κ given κ̂ ~ N(κ, C) and a flat prior on κ ≥ 0: N(κ̂, C) truncated to the cone.
+    Drawn by importance sampling from N(κ*, C), κ* the projection (``project``), with a fixed seed: the target
+    over the proposal is exp((κ − κ*)ᵀC⁻¹(κ̂ − κ*)) up to a constant, at most 1 on the cone (κ̂ − κ* lies in
+    the polar cone), so no draw dominates; about 2⁻ᵖ of the draws or more land on the cone."""
+    center = project(kappa, cov)
+    L = np.linalg.cholesky(cov)
+    x = center + np.random.default_rng(20261127).standard_normal((draws, len(kappa))) @ L.T
+    x = x[np.all(x >= 0.0, axis=1)]
+    if len(x) < 100:
+        raise DataError(f"the cable stiffness posterior: only {len(x)} of {draws} draws on κ ≥ 0")
+    log_w = (x - center) @ np.linalg.solve(cov, kappa - center)
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    mean = w @ x
+    d = x - mean
+    return mean, (d * w[:, None]).T @ d
+
+
 def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[float],
-               alpha: float = ALPHA, gain_reference: tuple | None = None) -> CableSpring | None:
+               alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False
+               ) -> CableSpring | None:
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
     torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
-    absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever."""
+    absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever.
+    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``)."""
     sweeps, groups = list(model.sweeps), list(model.groups)
     nuisance = gain_scatter.of_model(model).tau > 0
     aug, names = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance, gain_reference)
@@ -162,29 +198,40 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     p = len(joints)
     kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
     order = [names.index(lab) for lab in labels]
+    mean, post = posterior(kappa, cov) if declared else (None, None)
     return CableSpring(joints, M_all[order], project(kappa, cov), cov, statistic(kappa, cov),
-                       *null_distribution(cov, alpha), kappa)
+                       *null_distribution(cov, alpha), kappa, mean, post)
 
 
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{fit: (4, 1 + p)}: the spring's measured effect A·M·κ* and its uncertainty A·M·chol(C) side by side
-    (``sens``: {fit: (4, k)} of the offsets' labels): unit-σ columns whose sum of squares is β̂β̂ᵀ + D."""
-    L = np.linalg.cholesky(spring.cov)
+    (``sens``: {fit: (4, k)} of the offsets' labels): unit-σ columns whose sum of squares is β̂β̂ᵀ + D; where a
+    cable is declared, the posterior's A·M·μ and A·M·Σ^½ (sum of squares E[ββᵀ | κ̂])."""
+    if spring.declared:
+        vals, vecs = np.linalg.eigh(spring.posterior_cov)
+        mean, L = spring.posterior_mean, vecs * np.sqrt(np.clip(vals, 0.0, None))
+    else:
+        mean, L = spring.stiffness_nm_per_rad, np.linalg.cholesky(spring.cov)
     out = {}
     for which, A in sens.items():
         AM = A @ spring.levers
-        out[which] = np.hstack([(AM @ spring.stiffness_nm_per_rad)[:, None], AM @ L])
+        out[which] = np.hstack([(AM @ mean)[:, None], AM @ L])
     return out
 
 
 def note(spring: CableSpring) -> str:
     """The result's note on the cable term."""
     stiff = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.stiffness_nm_per_rad))
-    found = (f"found: test statistic {spring.statistic:.1f} > {spring.critical:.1f}" if spring.present else
-             f"not significant, test statistic {spring.statistic:.1f} ≤ {spring.critical:.1f}; "
-             f"{spring.weight:.2f} × of it")
+    test = f"test statistic {spring.statistic:.1f} {'>' if spring.present else '≤'} {spring.critical:.1f}"
+    if spring.declared:
+        mean = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.posterior_mean))
+        return (f"a tool cable on the wrist, declared fitted (robot.tool_cable_fitted; a spring relaxed where the "
+                f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result for the stiffness "
+                f"the data allow, κ ≥ 0 (mean {mean} mN·m/rad), in σ")
+    found = f"found: {test}" if spring.present else f"not significant, {test}; {spring.weight:.2f} × of it"
     return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; {found}): "
             "its effect on the result as measured, and that effect's uncertainty, in σ")
 
 
-__all__ = ["note", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "fit_spring", "effect"]
+__all__ = ["note", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "posterior",
+           "fit_spring", "effect"]

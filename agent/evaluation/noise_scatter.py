@@ -1,0 +1,149 @@
+"""How much the noise term a run reports scatters from run to run: part of the plan's draws of the reported σ.
+
+A run does not know its noise; it estimates it (``solvers.wls.fit``), and the σ it reports moves with that
+estimate. ``plan --target-std`` predicts the σ of a typical run and the chance that a run reports more than the
+target (``design.Prediction.p_over``); without this scatter that chance held only the wrist term's (issue 22: 4 of
+10 runs reported 2.00–2.07 g against a 2 g target where the plan said 0 %). Two parts of the run's estimate
+scatter, both sized here from the planned rows as the run's fit forms them:
+
+- **each group's residual variance** σ̂²_g (one group: one joint's rows in one sweep, ``wls.Group``), the mean
+  square of its m_g residuals: relative variance 2/m_g. The run's noise variance of a quantity a·θ is a sum over
+  the groups of share_g·σ̂²_g/σ²_g, so it moves by Σ share_g·δ_g.
+- **each sweep's kernel ratio** (``wls.modelled_excess``): the rows' noise map is scaled up by max(ratio, 1),
+  where ratio is the lag-window (Bartlett, window L) estimate of the scores' long-run variance over the map's,
+  averaged over the parameters. On noise the map describes, it is 1 on average with a relative variance of the
+  kernel estimate, 2·K/m_eff (K = 1 + 2·Σ_{l≤L}(1 − l/(L+1))², m_eff the sweep's effective number of equally
+  weighted score instants), and the run keeps it only above 1. L follows the residuals' autocorrelation time
+  τ (Sokal's window, L ≥ ``HAC_WINDOW_C``·τ): ``WHITE_TAU`` on white noise after the empty run's interpolation,
+  times the plan's inflation² for noise correlated in time.
+
+Each draw takes independent standard normals for these sources (seeded, the same for every candidate: common
+random numbers) and gives the factor by which the run's noise variance of the mass, and of the centre of mass's
+largest axis, differs from the plan's noise term. Centred on the mean: the plan's noise term is calibrated to the
+runs' mean (``noise_inflation.WHITE_RATIO`` holds the kernel ratio's average excess).
+
+Measured (white effort noise of the simulated UR5e at 500 Hz, 30 seeds, offline recordings; docs/benchmarks.md
+"Session 15"): the run's robust σ scattered 1.7 % (mass) and 2.8 % (CoM) on j2_quarter 5 %, 0–20°, and 3.1 % /
+4.6 % on j2_pair 12 %, 0–15°; ``tests/test_noise_scatter.py`` checks the model against such seeds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from payload_agent.solvers import wls
+
+# the integrated autocorrelation time of a run's normalised residuals on white noise: the empty run interpolated
+# onto the loaded run's angles correlates neighbouring deltas (30 seeds of the simulated UR5e: 1.0–1.6 per sweep)
+WHITE_TAU = 1.2
+# the draws (``planned_terms.DRAWS`` of them) come from their own seeded stream, column by column, so that every
+# candidate's first sources get the same normals whatever its number of groups
+SCATTER_SEED = 15
+
+
+def kernel_factor(bandwidth: int) -> float:
+    """K = Σ_{|l| ≤ L} k(l)² of the Bartlett kernel k(l) = 1 − |l|/(L+1): the kernel estimate's variance over a
+    plain mean square's, per effective sample."""
+    return 1.0 + 2.0 * sum((1.0 - lag / (bandwidth + 1.0)) ** 2 for lag in range(1, bandwidth + 1))
+
+
+def window(samples: int, inflation: float) -> int:
+    """The run's lag window for a sweep of ``samples`` instants (``wls.autocorrelation_time``'s rule)."""
+    tau = WHITE_TAU * max(float(inflation), 1.0) ** 2
+    cap = max(1, int(wls.HAC_MAX_FRACTION * samples))
+    return min(cap, max(1, math.ceil(wls.HAC_WINDOW_C * tau)))
+
+
+@dataclass(frozen=True)
+class NoiseScatter:
+    """The relative deviation of the run's noise variance from the plan's, per draw: (draws, 2) for the mass and
+    the centre of mass (largest axis). ``relative_std``: their standard deviations (of the variance)."""
+
+    deviation: np.ndarray = dataclasses.field(compare=False, repr=False)
+    relative_std: tuple[float, float] = (0.0, 0.0)
+
+    def factors(self) -> np.ndarray:
+        """The run's noise variance over the plan's, per draw (never below 0)."""
+        return np.maximum(1.0 + self.deviation, 0.0)
+
+    def over(self, runs: int) -> "NoiseScatter":
+        """The same for ``runs`` repetitions averaged (each run's estimate is independent)."""
+        s = 1.0 / math.sqrt(runs)
+        return NoiseScatter(self.deviation * s, (self.relative_std[0] * s, self.relative_std[1] * s))
+
+
+def none(draws: int) -> NoiseScatter:
+    return NoiseScatter(np.zeros((draws, 2)))
+
+
+def _normals(draws: int, columns: int) -> np.ndarray:
+    rng = np.random.default_rng(SCATTER_SEED)
+    return np.column_stack([rng.standard_normal(draws) for _ in range(columns)]) if columns else np.zeros((draws, 0))
+
+
+def kernel_ratio(info: np.ndarray, inv: np.ndarray, bandwidth: int) -> tuple[float, float]:
+    """(mean, standard deviation) of one sweep's kernel ratio (``wls.modelled_excess``: the mean over the parameters
+    of the lag-window estimate of the scores' long-run variance over the noise's) on white noise.
+
+    ``info``: (instants, p, p) each instant's Σ w·yyᵀ over the joints' rows (its scores' covariance at unit σ).
+    The scores are of residuals, which the fit made orthogonal to every row's regressor: the lags of the window
+    pick up that negative correlation, −Σ_{t,t'} k(t − t')·info_t[k]·(YᵀWY)⁻¹·info_t'[k] for parameter k (the fit's
+    leverage, which a short sweep feels most: the mean ratio of j2_pair 12 %, 0–15° on the UR5e came out 0.95).
+    The lags beyond 0 also carry the scatter, 2·Σ_{l≥1} k(l)²·Σ_t info_t[k, l']²/(V_k·V_l') between two parameters'
+    ratios (Gaussian scores whose covariance changes slowly along the sweep), averaged over the p × p pairs."""
+    p = info.shape[1]
+    kern = info.copy()
+    for lag in range(1, bandwidth + 1):
+        k = 1.0 - lag / (bandwidth + 1.0)
+        kern[lag:] += k * info[:-lag]
+        kern[:-lag] += k * info[lag:]
+    V = np.maximum(np.einsum("tkk->k", info), 1e-300)
+    leverage = np.einsum("tka,ab,tkb->k", info, inv, kern)
+    centre = float(np.mean(1.0 - leverage / V))
+    pairs = np.einsum("tkl->kl", info ** 2) / np.outer(V, V)
+    var = 2.0 * (kernel_factor(bandwidth) - 1.0) * float(np.sum(pairs)) / p ** 2
+    return centre, math.sqrt(max(var, 0.0))
+
+
+def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directions: np.ndarray, inflation: float,
+            draws: int) -> NoiseScatter:
+    """The scatter of the run's noise variance of the quantities a·θ (``directions``: (2, p) rows a for the mass
+    and the CoM's largest axis) for the planned rows ``groups`` with white weights ``w`` and (YᵀWY)⁻¹ ``inv``."""
+    groups = list(groups)
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    p = inv.shape[0]
+    sweeps = list(dict.fromkeys(g.sweep for g in groups))
+    n_src = len(groups) + len(sweeps)
+    loads = np.zeros((n_src, len(directions)))  # per quantity: a group's share × its relative std, a sweep's share
+    positive = np.zeros(n_src, bool)  # the sweeps' ratios: kept only above 1
+    contrib = {}  # (group index) -> (rows, p + q) per-row variance contributions for the unit and quantity directions
+    unit = np.vstack([np.eye(p), directions])
+    totals = np.einsum("ij,jk,ik->i", unit, inv, unit)
+    for i, g in enumerate(groups):
+        ww = w[starts[i]:starts[i + 1]]
+        contrib[i] = (g.Y @ inv @ unit.T) ** 2 * ww[:, None]
+        share = contrib[i][:, p:].sum(axis=0) / np.maximum(totals[p:], 1e-300)
+        loads[i] = share * math.sqrt(2.0 / max(len(g.y), 1))
+    ratios = []  # per sweep: (expected kernel ratio, its standard deviation)
+    for s, name in enumerate(sweeps):
+        members = [i for i, g in enumerate(groups) if g.sweep == name]
+        m = len(groups[members[0]].y)
+        info = sum(np.einsum("t,tk,tl->tkl", w[starts[i]:starts[i + 1]], groups[i].Y, groups[i].Y) for i in members)
+        ratios.append(kernel_ratio(info, inv, window(m, inflation)))
+        share = sum(contrib[i][:, p:].sum(axis=0) for i in members) / np.maximum(totals[p:], 1e-300)
+        loads[len(groups) + s] = share
+        positive[len(groups) + s] = True
+    z = _normals(draws, n_src)
+    for col, (centre, std) in zip(np.flatnonzero(positive), ratios):  # the run keeps max(ratio, 1): centred draws
+        kept = np.maximum(centre + std * z[:, col], 1.0)
+        z[:, col] = kept - np.mean(kept)
+    deviation = z @ loads
+    return NoiseScatter(deviation, tuple(float(v) for v in np.std(deviation, axis=0)))
+
+
+__all__ = ["WHITE_TAU", "kernel_factor", "window", "NoiseScatter", "none", "kernel_ratio", "scatter"]

@@ -1,0 +1,124 @@
+"""What DH-length errors of a simulated arm do to the payload a calibrated run identifies, noise-free, against the
+length term the plan and the run carry (issue 22: that term was computed but never run against an arm with errors).
+
+Not a test: it prints a table. Offline recordings (``fakes.offline``, no noise, the YAML's friction) of
+sim-ur5e: the drive-gain calibration (``calibration.fit_from_sweeps``, what ``calibrate`` stores: the YAML's
+procedure at ``--calibrate-speed`` with the ``--calibrate-with`` reference, the declared joint systematics, so
+its joint zeros too), then the tool run of ``--candidate`` with the simulation's payload, its efforts at the
+calibrated gains and its angles corrected by the calibration's zeros, solved as the run solves it. Each arm is
+the simulated UR5e with its non-zero DH lengths off by a uniform draw within ±``--dh-error-mm``
+(``ArmSpec.with_dh_errors``, the stream ``simulation.dh_length_error_mm`` uses); its error minus the exact arm's
+is what the lengths did. Beside it: the plan's first-order prediction for the drawn errors
+(``general.kinematic_sensitivities`` with the calibration's absorption, as ``design`` and the run compute it, and
+without it), and the plan's term at the declared ``robot.kinematics.length_uncertainty_mm``.
+
+    .venv/bin/python -m benchmarks.length_errors [--arms 12] [--dh-error-mm 0.5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = ("mass g", "CoM x mm", "CoM y mm", "CoM z mm")
+
+
+def main(argv: list[str] | None = None) -> int:
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design, systematics, zero_offsets
+    from payload_agent.evaluation.calibration import fit_from_sweeps
+    from payload_agent.fakes.arms import DH_ERROR_STREAM, SPECS
+    from payload_agent.fakes.offline import record_plan
+    from payload_agent.fakes.physics import FrictionParams, PayloadTruth
+    from payload_agent.fakes.sim_robot import SimRobot
+    from payload_agent.motion.planner import make_plan
+    from payload_agent.solvers import general
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--arms", type=int, default=12)
+    p.add_argument("--dh-error-mm", type=float, default=0.5)
+    p.add_argument("--calibrate-with", default="5:60,0,80", metavar="KG:X,Y,Z")
+    p.add_argument("--calibrate-speed", type=float, default=3.0)
+    p.add_argument("--candidate", default="j2_quarter:5:0:20", metavar="PROCEDURE:SPEED:FROM:TO")
+    args = p.parse_args(argv)
+    config = load_config(ROOT / "configs" / "sim-ur5e.yaml")
+    sim, kin, decl = config.simulation, config.robot.kinematics, config.robot.joints
+    kg, cog = args.calibrate_with.split(":")
+    ref = (float(kg), tuple(float(v) for v in cog.split(",")))
+    truth = (sim.payload.mass_kg, tuple(sim.payload.cog_mm))
+    name, speed, lo, hi = args.candidate.split(":")
+    cand = design.Candidate(float(speed), 25.0, float(lo), float(hi), 1, 100.0, name)
+    cal_plan = make_plan(dataclasses.replace(config, procedure=dataclasses.replace(
+        config.procedure, speed_percent=args.calibrate_speed, inertia=None)))
+    run_plan = design.plan_for(config, cand)
+    friction = FrictionParams(np.array(sim.coulomb_nm), np.array(sim.viscous_nm_s_rad), np.array(sim.load_ratio))
+
+    def record(spec, plan, payload):
+        robot = SimRobot(spec, q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.002, seed=1, friction=friction)
+        empty, _ = record_plan(robot, plan)
+        robot.set_payload(PayloadTruth.point(payload[0], list(payload[1])))
+        return record_plan(robot, plan)[0], empty
+
+    def identified(spec):
+        loaded, empty = record(spec, cal_plan, ref)
+        cal = fit_from_sweeps(loaded, empty, config, ref[0], np.asarray(ref[1]) / 1000.0, joints=decl)
+        loaded, empty = record(spec, run_plan, truth)
+        scaled = [{k: dataclasses.replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in phase.items()}
+                  for phase in (loaded, empty)]
+        if cal.zeros is not None:
+            scaled = [zero_offsets.corrected(phase, cal.zeros) for phase in scaled]
+        est = general.solve(systematics.prepare(*scaled, decl, None).deltas, kin)
+        return np.array([1000 * est.mass_kg, *(1000 * np.asarray(est.cog_m))]), cal
+
+    exact, cal = identified(SPECS["ur5e"]())
+    theta = design.nominal_theta(*truth)
+    sweeps = design.planned_sweeps(run_plan, 0.002)
+    groups = general.build_groups(sweeps, kin)
+    by_name = {d.key.name: d for d in sweeps}
+    w = np.concatenate([np.full(len(g.y), 1.0 / (sim.noise_nm[g.joint] if g.joint == by_name[g.sweep].moving
+                                                 else sim.noise_rest_nm[g.joint]) ** 2) for g in groups])
+    Y = np.vstack([g.Y for g in groups])
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+    reference = (tuple(design.nominal_theta(*ref)), tuple(cal.fitted_joints))
+    S = {"absorbed": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, reference),
+         "raw": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, None)}
+    J = np.zeros((3, 4))
+    J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
+    to_units = 1000.0 * np.vstack([np.eye(4)[0], J])  # θ change -> (g, mm, mm, mm)
+    lengths = general.length_parameters(kin)
+    declared = config.robot.length_uncertainty_m
+    print(f"sim-ur5e, calibrated with {ref[0]:g} kg at {ref[1]} mm ({args.calibrate_speed:g} %), run "
+          f"{cand.describe()}; exact arm's own error {np.round(exact - [1000 * truth[0], *truth[1]], 3)}")
+    print("the plan's length term at the declared " + f"{1000 * declared:g} mm: " + ", ".join(
+        f"{k} " + " / ".join(f"{v:.3f}" for v in declared * np.sqrt(np.sum((S[k] @ to_units.T) ** 2, axis=0)))
+        for k in S) + f" ({', '.join(NAMES)})")
+    rows = []
+    print("\n| arm | length errors mm (" + ", ".join(f"{k}{i + 1}" for i, k in lengths) + ") | actual | plan (absorbed) |"
+          " plan (no absorption) |\n|---|---|---|---|---|")
+    for arm in range(1, args.arms + 1):
+        spec = SPECS["ur5e"]().with_dh_errors(np.random.default_rng((arm, DH_ERROR_STREAM)), args.dh_error_mm / 1000.0)
+        dp = np.array([getattr(spec.dh[i], f"{k}_m") - getattr(SPECS["ur5e"]().dh[i], f"{k}_m") for i, k in lengths])
+        actual = identified(spec)[0] - exact
+        pred = {k: to_units @ (S[k].T @ dp) for k in S}
+        rows.append(np.concatenate([actual, pred["absorbed"], pred["raw"]]))
+        cell = lambda v: " ".join(f"{x:+.3f}" for x in v)  # noqa: E731
+        print(f"| {arm} | {cell(1000 * dp)} | {cell(actual)} | {cell(pred['absorbed'])} | {cell(pred['raw'])} |",
+              flush=True)
+    R = np.array(rows)
+    print(f"\nover {len(R)} arms (uniform ±{args.dh_error_mm:g} mm: std {args.dh_error_mm / np.sqrt(3):.3f} mm per length)")
+    print("| quantity | rms actual | rms plan (absorbed) | rms(actual − absorbed) | rms plan (raw) | rms(actual − raw) |"
+          "\n|---|---|---|---|---|---|")
+    rms = lambda v: float(np.sqrt(np.mean(v ** 2)))  # noqa: E731
+    for k, n in enumerate(NAMES):
+        a, pa, pr = R[:, k], R[:, 4 + k], R[:, 8 + k]
+        print(f"| {n} | {rms(a):.3f} | {rms(pa):.3f} | {rms(a - pa):.3f} | {rms(pr):.3f} | {rms(a - pr):.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
