@@ -56,8 +56,11 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
     cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores: gains, zeros, reference friction
     scale = np.asarray(cal.scale, float)
     options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
+    # the calibration's reference run and the tool run share this case's empty run, as ``calibrate`` and ``run``
+    # share the stored baseline
     gains = Gains(tuple(cal.gains_nm_per_unit), "calibrated on the benchmark's reference run", None,
-                  tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros)
+                  tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros,
+                  shared_baseline=True)
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=(), mount_rad=mount_rad)
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 

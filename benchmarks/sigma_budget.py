@@ -5,8 +5,9 @@ calibration and declarations as ``benchmarks.accuracy``'s general-bi-cal-comp or
 the actual error of one quantity (the mass, or one CoM axis) and its σ from each part of the reported
 covariance: the autocorrelation-robust noise (and the independent-noise one beside it), each joint's
 drive-gain uncertainty after the calibration, the DH lengths (less what the calibration absorbed; the
-general solver only) and every systematic term of ``evaluation.systematics.TERMS`` through the solver's own
-sensitivities. The benchmark knows each effect's truth (``benchmarks.hard``; the realistic arm's draws in
+general solver only), the correlation of the shared empty baseline's noise between the calibration and the tool
+run (a negative part, −√ of the variance it removes; general only) and every systematic term of
+``evaluation.systematics.TERMS`` through the solver's own sensitivities. The benchmark knows each effect's truth (``benchmarks.hard``; the realistic arm's draws in
 ``benchmarks.cases``), so a term that claims more than the arm has shows as a large column against a small
 error, and an error no column covers points at an effect no term describes.
 
@@ -79,7 +80,7 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
     """The error of one quantity (mass in g or a CoM axis in mm) and the σ of each part of the reported
     covariance, for one case (``solver``: "general" or "three-step", as general-bi-cal-comp and
     three-step-bi-cal-comp report it)."""
-    from payload_agent.evaluation import systematics
+    from payload_agent.evaluation import shared_baseline, systematics
     from payload_agent.solvers import general, three_step, wls
 
     c = analysed_case(scenario, index, proc, n_payloads)
@@ -119,6 +120,11 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
     out = {"error": unit * float(est[i] - truth[i]), "noise (iid)": std(noise_iid), "noise": std(noise)}
     out.update({name: std(c) for name, c in parts.items() if std(c) > 0})
     total = noise + sum(parts.values(), np.zeros((4, 4)))
+    if solver == "general":  # the benchmark's calibration subtracts the case's own empty run: counted once
+        shared = shared_baseline.cross_covariance(model, cal.reference[0], cal.reference[1], gain_std)[:4, :4]
+        # a negative part: printed as −√(what it takes away from the variance)
+        out["shared baseline"] = -float(np.sqrt(max(std(total) ** 2 - std(total + shared) ** 2, 0.0)))
+        total = total + shared
     out["total"] = std(total)
     return out
 

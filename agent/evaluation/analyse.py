@@ -23,7 +23,10 @@ from typing import Any, Mapping, Sequence
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.errors import DataError
-from payload_agent.evaluation import quality, systematics, zero_offsets
+import numpy as np
+
+from payload_agent.evaluation import quality, shared_baseline, systematics, zero_offsets
+from payload_agent.evaluation.systematics import compliance
 from payload_agent.evaluation.zero_offsets import ZeroOffsets
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
@@ -58,6 +61,9 @@ class Gains:
     rel_std: tuple[float, ...] | None = None  # a calibration's relative uncertainty per joint
     reference: tuple | None = None  # (θ_ref, fitted joints[, standing angles]) of the calibration (GainCalibration.reference)
     zeros: ZeroOffsets | None = None  # the joint zeros the calibration measured with the gains (``zero_offsets``)
+    # the calibration's reference run was subtracted against this run's own empty baseline: their noise is correlated
+    # (``shared_baseline``); False: unknown or another baseline, the two taken as independent
+    shared_baseline: bool = False
 
 
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,
@@ -84,6 +90,8 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     model = general.fit_model(deltas, kin, gains.rel_std)
     syst = systematics.evaluate(prepared, kin, joints, gains.rel_std, model=model, gain_reference=gains.reference)
     primary, others = solve_all(model, options, gains, syst, solvers)
+    primary, others = _with_shared_baseline(primary, model, gains), [_with_shared_baseline(e, model, gains)
+                                                                      for e in others]
     zero_note = [] if gains.zeros is None else [zero_offsets.note(gains.zeros, "the drive-gain calibration")]
     primary = primary.with_notes(*notes, *prepared.notes, *([gains.note] if gains.note else []), *zero_note)
     quality_result = quality.evaluate(deltas, kin, primary, gain_rel_std=gains.rel_std,
@@ -121,6 +129,22 @@ def solve_all(model: FittedModel, options: AnalysisOptions, gains: Gains, syst: 
     done[0] = (options.solver, main.with_notes(*failed))
     out = [_with_systematics(SOLVERS[name].systematics_key, est, syst) for name, est in done]
     return out[0], out[1:]
+
+
+def _with_shared_baseline(est: Estimate, model: FittedModel, gains: Gains) -> Estimate:
+    """The general fit's estimate with the correlation of the baseline's noise between the calibration and this run
+    (``shared_baseline``) where both used the same empty run; any other estimate as it is."""
+    if (not gains.shared_baseline or gains.reference is None or gains.rel_std is None or est.covariance is None
+            or est.solver != general.NAME):
+        return est
+    try:
+        extra = shared_baseline.cross_covariance(model, gains.reference[0], gains.reference[1], gains.rel_std)
+    except (DataError, np.linalg.LinAlgError):
+        return est
+    cov = np.asarray(est.covariance, float).copy()
+    cov[:4, :4] += extra[:4, :4]
+    out = compliance.with_covariance(est, cov)
+    return out.with_notes(shared_baseline.note(est.mass_std_kg or 0.0, out.mass_std_kg or 0.0))
 
 
 def _with_systematics(key: str | None, est: Estimate, syst: systematics.Systematics) -> Estimate:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import hashlib
 import math
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -42,6 +42,7 @@ import numpy as np
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.analysis.run_deltas import phases_for
 from payload_agent.evaluation import systematics, zero_offsets
+from payload_agent.evaluation.baseline_identity import empty_run_source
 from payload_agent.evaluation.systematics import gain_scatter, reference_friction
 from payload_agent.errors import DataError
 from payload_agent.recording.rundata import SweepData
@@ -77,6 +78,9 @@ class GainCalibration:
     # the reference run's constant-friction change against the baseline per joint, measured (``reference_friction``);
     # None in files written before it was: a tool run's three-step σ then keeps the declared change
     reference_friction: reference_friction.ReferenceFriction | None = None
+    # the folder whose empty-flange run the calibration subtracted (``baseline_identity``): a tool run against the
+    # same one shares its noise (``shared_baseline``); None: not recorded (files from before, or not known)
+    baseline_source: str | None = None
 
     @property
     def reference(self) -> tuple:
@@ -111,7 +115,8 @@ class GainCalibration:
                    {"standing_angles_rad": [[j + 1, float(a)] for j, a in self.standing_angles]}),
                 **({} if self.zeros is None else {"zero_offsets": self.zeros.to_json()}),
                 **({} if self.reference_friction is None else
-                   {"reference_friction": self.reference_friction.to_json()})}
+                   {"reference_friction": self.reference_friction.to_json()}),
+                **({} if self.baseline_source is None else {"baseline_source_run": self.baseline_source})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -131,9 +136,12 @@ class GainCalibration:
         zeros = None if d.get("zero_offsets") is None else zero_offsets.ZeroOffsets.from_json(d["zero_offsets"])
         fric = d.get("reference_friction")
         fric = None if fric is None else reference_friction.ReferenceFriction.from_json(fric)
+        source = d.get("baseline_source_run")
+        if source is not None and not isinstance(source, str):
+            raise ValueError(f"baseline_source_run must be a folder name, got {source!r}")
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
-                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric)
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric, source)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -150,7 +158,8 @@ def fit_gains(config: Config, run_dir: Path, known_mass_kg: float, known_cog_m: 
     (``fit_from_sweeps`` on the run folder's phases)."""
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     loaded, empty, commands = phases_for(Path(run_dir), nominal, baseline_dir)
-    return fit_from_sweeps(loaded, empty, config, known_mass_kg, known_cog_m, commands=commands, run_dir=str(run_dir))
+    cal = fit_from_sweeps(loaded, empty, config, known_mass_kg, known_cog_m, commands=commands, run_dir=str(run_dir))
+    return replace(cal, baseline_source=empty_run_source(Path(run_dir), baseline_dir))
 
 
 def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], config: Config,

@@ -15,6 +15,7 @@ from payload_agent.analysis.run_deltas import check_segmentation, phases_for
 from payload_agent.configuration.config import Config
 from payload_agent.errors import DataError
 from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+from payload_agent.evaluation.baseline_identity import empty_run_source, same_baseline
 from payload_agent.evaluation.controller_gains import controller_gains, declared_gains, records_controller_targets
 from payload_agent.evaluation.calibration import (RUN_CALIBRATION, effective_calibration, effective_gains,
                                                   run_calibration)
@@ -47,7 +48,7 @@ def analyse_run(config: Config, run_dir: Path, solver: str | None = None, baseli
     relaxed where the loaded phase started, ``rundata.mount_angles``, where the manifest records it) go into
     the general solver's covariance and into the quality gate's pose comparison.
     """
-    gains_used = run_gains(config, run_dir, gains)
+    gains_used = run_gains(config, run_dir, gains, baseline_dir)
     notes: list[str] = []
     loaded, empty, commands = phases_for(run_dir, np.asarray(gains_used.nm_per_unit, float), baseline_dir, notes=notes)
     result = analyse(loaded, empty, AnalysisOptions.from_config(config, solver), gains_used, commands=commands,
@@ -79,13 +80,15 @@ def add_inertia(config: Config, result: RunResult, run_dir: Path, baseline_dir: 
     return result
 
 
-def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | None = None) -> Gains:
+def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | None = None,
+              baseline_dir: Path | None = None) -> Gains:
     """The drive gains a run is analysed with, and what is known about their error (see ``analyse_run``).
 
     ``run_dir`` None: the gains a run started now would use (the stored calibration, else the controller's
     constants as the stored baseline's sweeps give them, else, when the driver records the controller's target
     signals, nominal ones with the constants' declared σ, else nominal), which is what ``plan --target-std``
-    predicts with."""
+    predicts with. With a calibration and a run folder: whether the run subtracts the empty run the calibration
+    subtracted (``baseline_dir``: the run's baseline if not its own; ``Gains.shared_baseline``)."""
     gain_rel_std = gain_reference = None
     # the copy the session made when the run began: solve uses the same
     cal = run_calibration(run_dir) if run_dir is not None else None
@@ -123,7 +126,9 @@ def run_gains(config: Config, run_dir: Path | None, gains: Sequence[float] | Non
                  None if gain_rel_std is None else tuple(float(v) for v in gain_rel_std),
                  None if gain_reference is None else (tuple(float(v) for v in gain_reference[0]),
                                                       tuple(int(j) for j in gain_reference[1]), *gain_reference[2:]),
-                 None if cal is None else cal.zeros)
+                 None if cal is None else cal.zeros,
+                 shared_baseline=(cal is not None and run_dir is not None
+                                  and same_baseline(cal.baseline_source, empty_run_source(run_dir, baseline_dir))))
 
 
 def _stored_baseline(config: Config) -> Path | None:

@@ -34,9 +34,9 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
      payload's torque. One parameter per joint, a_j·Δ_j, of standard deviation σ_a·√(E[Δ_j²]);
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
-     from one standing angle to the next (gear ripple growing with load): its measured effect on θ, less
-     what a drive-gain calibration at the same angles absorbed (``gain_reference``), shrunk to the size the
-     data show beyond noise (``systematics.gain_scatter``);
+     from one standing angle to the next (gear ripple growing with load): its effect on θ, less what a
+     drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
+     data tell it given the scatter's size (posterior mean and covariance, ``systematics.gain_scatter``);
    - tool cable / wrist torques: where the loaded run's start is known, a spring on the wrist relaxed there,
      tested and, when present, its measured effect on θ with that effect's uncertainty (``cable_spring``; where
      ``robot.tool_cable_fitted`` declares one, its effect for every stiffness κ ≥ 0 the data allow);
@@ -320,7 +320,8 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
     """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load): their
-    measured effect on θ, less what a drive-gain calibration absorbed (``systematics.gain_scatter``)."""
+    effect on θ, less what a drive-gain calibration absorbed, from each cluster's posterior given the measured
+    scatter (``systematics.gain_scatter``; the still wrist's clusters, measured worse than the scatter, at its size)."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
                             {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model, ctx.gain_reference)
     if out is None:
@@ -335,11 +336,11 @@ def gain_scatter_terms(ctx: Context) -> list[Term]:
                 j, w = out.shares[label]
                 A[:, k] = -w * response[j]
         sens[THREE_STEP] = A
-    shrink = out.effect_shrink()
-    if shrink <= 0:
-        return []
-    along = {which: (A @ out.scatter.eps)[:, None] for which, A in sens.items()}
-    return [Term("torque-gain scatter", np.array([shrink]), along, out.note + f", its effect {shrink:.2f} × as measured")]
+    cols = out.effect_columns()
+    along = {which: A @ cols for which, A in sens.items()}
+    return [Term("torque-gain scatter", np.ones(cols.shape[1]), along,
+                 out.note + ", each cluster's error as measured where the data tell it better than the scatter, "
+                 "the scatter's size where they do not")]
 
 
 TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms, gain_scatter_terms]

@@ -33,14 +33,19 @@ plain fit by s_k = (YᵀWY)⁻¹·Σ_{g∈k} Y_gᵀW_g·Y_gθ̂. The moving join
 gain column on every group would make the overall scale unidentifiable); their slow once-per-turn ripple
 (0.1 of the mesh part) is left out.
 
-What goes into σ. τ > 0 (the likelihood-ratio test) says a scatter is there; its size in θ is the
-*measured effect* β̂ = S·ε̂ (S = [s_k]), shrunk to what the data show beyond noise, s²·β̂β̂ᵀ with s² =
-max(q − r, 0)/q, q = β̂ᵀ(S·C·Sᵀ)⁻¹β̂ (``ScatterTerm.effect_shrink``, the wrist torques' form). The random-
-effects size τ²·Σ_k s_k s_kᵀ it replaced rests on 2–7 clusters, whose ε̂ are each measured to ±0.1 % on
-joints 2 and 3: their realised effect is known far better than a variance of so few. Without a
-calibration (ripple on joints 1–3 of a simulated sim-ec66, 4 kg) the random-effects form left a 14 g
-error at 2.4 σ; in the benchmark's ripple ablation at the default procedure the measured form brought the
-mass rms(err/σ) from 0.48 to 0.80 (next paragraph for the calibration).
+What goes into σ. τ > 0 (the likelihood-ratio test) says a scatter is there. Each cluster's error is then
+known as well as the data tell it: given its measurement ε̂_k ~ N(ε_k, C) and the scatter ε ~ N(0, τ²·I),
+ε has the posterior mean ε̃ = τ²·(C + τ²·I)⁻¹·ε̂ and covariance P = C − C·(C + τ²·I)⁻¹·C
+(``ScatterTerm.posterior``), and S·(ε̃ε̃ᵀ + P)·Sᵀ goes into σ (S = [s_k]): the realised effect where a cluster
+is measured far better than τ (joints 2 and 3, ε̂ to ±0.1 %), the scatter's own size τ² where it is not (the
+still wrist: a few N·m of payload torque give ε̂ to ±0.5–2 %, against a ripple of ±0.7 %). Under the model
+E[ε̃ε̃ᵀ] + P = τ²·I, so the term is the true effect's size on average, neither shrunk nor counted twice.
+The form before (until session 14; docs/benchmarks.md, sessions 13 and 15) put the measured effect β̂ = S·ε̂
+in whole, shrunk by one factor for all clusters, s² = max(q − r, 0)/q, q = β̂ᵀ(S·C·Sᵀ)⁻¹β̂: the well-measured clusters of joints 2
+and 3 passed the shrink, and with them the wrist clusters' noise, read as effect (realistic+ripple, 10 %:
+σ_y 0.8–1.5 mm of "scatter" against errors the clean arm has too, rms(err/σ) of y 0.61). The random-effects
+size τ²·Σ_k s_k s_kᵀ alone ignores what ε̂ says: without a calibration (ripple on joints 1–3 of a
+simulated sim-ec66, 4 kg) it left a 14 g error at 2.4 σ.
 
 After a drive-gain calibration the scatter's effect is another one. The reference run stands at the
 same angles and carries the same ε_k (it scales the gear torque, and the reference payload's torque has
@@ -69,7 +74,6 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.model.kinematics import Kinematics
-from payload_agent.evaluation.systematics import offsets
 from payload_agent.solvers import general
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import FitResult, Group, fit
@@ -299,10 +303,21 @@ class ScatterTerm:
     note: str
     combined: str  # the key of the combined fit in ``sens``
 
-    def effect_shrink(self) -> float:
-        """s: the share of the measured effect β̂ = S·ε̂ on the combined fit that the data show beyond their noise,
-        s² = max(q − r, 0)/q with q = β̂ᵀD⁻¹β̂, D = S·C·Sᵀ, r = rank D (as the wrist torques', ``systematics.wrist``)."""
-        return offsets.shrink(self.sens[self.combined], self.scatter.eps, self.scatter.eps_cov)[0]
+    def posterior(self) -> tuple[np.ndarray, np.ndarray]:
+        """(ε̃, P): the clusters' gain errors given their measurement ε̂ ~ N(ε, C) and the scatter ε ~ N(0, τ²·I),
+        posterior mean τ²·(C + τ²·I)⁻¹·ε̂ and covariance C − C·(C + τ²·I)⁻¹·C (module docstring)."""
+        t2 = self.scatter.tau ** 2
+        C = np.asarray(self.scatter.eps_cov, float)
+        G = np.linalg.solve(C + t2 * np.eye(len(C)), np.eye(len(C)))
+        P = C - C @ G @ C
+        return t2 * (G @ self.scatter.eps), 0.5 * (P + P.T)
+
+    def effect_columns(self) -> np.ndarray:
+        """(k, 1 + k): ε̃ and a square root of P side by side, unit-σ columns whose sum of squares is ε̃ε̃ᵀ + P
+        (through a fit's S they put S·(ε̃ε̃ᵀ + P)·Sᵀ into its covariance)."""
+        mean, P = self.posterior()
+        w, V = np.linalg.eigh(P)
+        return np.hstack([mean[:, None], V * np.sqrt(np.maximum(w, 0.0))])
 
 
 def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iterable[float] | None,

@@ -1,0 +1,149 @@
+"""The calibration and the tool run subtract ONE empty baseline: its noise is in both and cancels in part, and the
+general fit's σ counts it once, with its correlation (issue 22 item 5; evaluation.shared_baseline).
+
+A simulated EC66 at 20 % sweep speed (short sweeps: noise matters) records an empty run, a tool run and a
+calibration run with the reference payload. The tool is close to the reference, where the baseline's noise cancels
+almost wholly: the uncorrected σ counts it twice (in the fit's noise and in the gains' σ), the corrected one not.
+The product's plumbing: ``calibrate`` records which empty run it subtracted, and a run against the same one is
+analysed with the correlation, a run against another without."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from payload_agent.configuration.config import parse_config
+from payload_agent.evaluation import systematics
+from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+from payload_agent.evaluation.baseline_identity import empty_run_source, same_baseline
+from payload_agent.evaluation.calibration import RUN_CALIBRATION, GainCalibration, fit_from_sweeps
+from payload_agent.evaluation.pipeline import run_gains
+from payload_agent.fakes.arms import ec66_spec
+from payload_agent.fakes.offline import record_plan
+from payload_agent.fakes.physics import FrictionParams, PayloadTruth
+from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.motion.planner import make_plan
+
+from benchmarks.reference import REFERENCE
+from benchmarks.remedies import scaled
+from conftest import ROOT
+
+TOOL = PayloadTruth.point(3.2, (10.0, -5.0, 70.0))  # near the 3 kg reference at (0, 0, 80) mm; the agent is not told
+NOISE_NM = 0.3
+DRAWS = 8
+
+
+def _config():
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+    procedure = dataclasses.replace(config.procedure, speed_percent=20.0, inertia=None)
+    return dataclasses.replace(config, procedure=procedure)
+
+
+@pytest.fixture(scope="module")
+def clean_runs():
+    """Noise-free empty, tool and reference runs of one arm; the tests add the sensor noise, draw by draw."""
+    config = _config()
+    plan = make_plan(config)
+    robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=3, noise_nm=0.0,
+                     friction=FrictionParams((4.0, 4.0, 3.0, 1.0, 1.0, 0.5), (8.0, 8.0, 5.0, 1.0, 1.0, 0.5),
+                                             np.full(6, 0.05)))
+    empty, _ = record_plan(robot, plan)
+    robot.set_payload(TOOL)
+    loaded, _ = record_plan(robot, plan)
+    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
+    ref, _ = record_plan(robot, plan)
+    return config, empty, loaded, ref
+
+
+def _noisy(sweeps, rng):
+    return {k: dataclasses.replace(s, effort_nm=s.effort_nm + rng.normal(0.0, NOISE_NM, s.effort_nm.shape))
+            for k, s in sweeps.items()}
+
+
+def _calibrate(config, ref, empty):
+    return fit_from_sweeps(ref, empty, config, REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0,
+                           joints=systematics.RIGID)
+
+
+def _estimate(config, loaded, empty, cal, shared):
+    gains = Gains(tuple(cal.gains_nm_per_unit), "test calibration", None, tuple(cal.gain_rel_std(0.0)),
+                  cal.reference, cal.zeros, shared_baseline=shared)
+    options = AnalysisOptions(config.robot.kinematics, systematics.RIGID, None, "general")
+    scale = np.asarray(cal.scale)
+    return analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=()).primary
+
+
+def _both(config, empty, loaded, ref, rng):
+    """(σ with the correlation, σ without, the mass) of one noisy draw of the three runs."""
+    e, lo, r = _noisy(empty, rng), _noisy(loaded, rng), _noisy(ref, rng)
+    cal = _calibrate(config, r, e)
+    shared, independent = _estimate(config, lo, e, cal, True), _estimate(config, lo, e, cal, False)
+    assert shared.mass_kg == independent.mass_kg  # the estimate is the same; only its σ changes
+    assert any("empty baseline" in n for n in shared.notes)
+    assert not any("empty baseline" in n for n in independent.notes)
+    return shared.mass_std_kg, independent.mass_std_kg
+
+
+def test_with_a_tool_like_the_reference_the_baseline_counts_once(clean_runs):
+    """Without the correlation, the baseline is about half of the fit's noise and half of the gains' σ (the other
+    halves: the tool run's and the reference run's own noise, which stay). With it, most of those halves cancel,
+    never more than all of them."""
+    config, empty, loaded, ref = clean_runs
+    with_corr, without = _both(config, empty, loaded, ref, np.random.default_rng(7))
+    assert 0.6 < with_corr / without < 0.9, (with_corr, without)
+    assert with_corr ** 2 >= 0.5 * without ** 2 * 0.9  # the tool and reference runs' own halves remain
+
+
+def test_the_baseline_noise_really_cancels_in_the_calibrated_mass(clean_runs):
+    """Over draws of the baseline's noise alone (tool and reference runs fixed), the calibrated mass moves by what
+    the corrected σ leaves for the baseline, far less than the independent sum claims (half its variance)."""
+    config, empty, loaded, ref = clean_runs
+    rng = np.random.default_rng(11)
+    with_corr, without = _both(config, empty, loaded, ref, np.random.default_rng(7))
+    lo, r = _noisy(loaded, rng), _noisy(ref, rng)
+    masses = []
+    for _ in range(DRAWS):
+        e = _noisy(empty, rng)
+        masses.append(_estimate(config, lo, e, _calibrate(config, r, e), True).mass_kg)
+    spread = float(np.std(masses, ddof=1))
+    claimed_independent = np.sqrt(0.5) * without  # the baseline's share as two independent parts
+    left_by_correction = np.sqrt(max(with_corr ** 2 - 0.5 * without ** 2, 0.0))
+    assert spread < 0.7 * claimed_independent, (spread, claimed_independent)
+    assert spread < 2.0 * left_by_correction, (spread, left_by_correction)
+
+
+def _manifest(folder, empty_phase):
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "manifest.json").write_text(json.dumps({"phases": {"empty": empty_phase, "loaded": {}}}))
+    return folder
+
+
+def test_which_empty_run_a_folder_subtracts(tmp_path):
+    own = _manifest(tmp_path / "own", {"status": "complete"})
+    copied = _manifest(tmp_path / "copied", {"from_baseline": {"dir": "state/x/baseline", "source_run": str(own)}})
+    unknown = _manifest(tmp_path / "unknown", {"from_baseline": {"dir": "state/x/baseline"}})
+    assert empty_run_source(own) == str(own.resolve())
+    assert empty_run_source(copied) == str(own.resolve())
+    assert empty_run_source(tmp_path / "elsewhere", baseline_dir=own) == str(own.resolve())
+    assert empty_run_source(unknown) is None
+    assert empty_run_source(tmp_path / "no-such-folder") is None
+    assert same_baseline(empty_run_source(own), empty_run_source(copied))
+    assert not same_baseline(None, None)
+
+
+def test_a_run_against_the_calibrations_baseline_is_analysed_with_the_correlation(tmp_path, clean_runs):
+    config, empty, _, ref = clean_runs
+    cal_run = _manifest(tmp_path / "calibration-run", {"status": "complete"})  # recorded its own empty run
+    cal = dataclasses.replace(_calibrate(config, ref, empty), baseline_source=empty_run_source(cal_run))
+    assert GainCalibration.from_json(json.loads(json.dumps(cal.to_json()))) == cal  # gains.json keeps it
+    same = _manifest(tmp_path / "same", {"from_baseline": {"dir": "b", "source_run": str(cal_run)}})
+    other = _manifest(tmp_path / "other", {"status": "complete"})  # a fresh empty run of its own
+    for folder in (same, other):
+        (folder / RUN_CALIBRATION).write_text(json.dumps(cal.to_json()))
+    assert run_gains(config, same).shared_baseline
+    assert not run_gains(config, other).shared_baseline
+    old = {k: v for k, v in cal.to_json().items() if k != "baseline_source_run"}  # a gains.json from before
+    (same / RUN_CALIBRATION).write_text(json.dumps(old))
+    assert not run_gains(config, same).shared_baseline
