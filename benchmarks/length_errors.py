@@ -9,10 +9,16 @@ calibrated gains and its angles corrected by the calibration's zeros, solved as 
 the simulated UR5e with its non-zero DH lengths off by a uniform draw within ±``--dh-error-mm``
 (``ArmSpec.with_dh_errors``, the stream ``simulation.dh_length_error_mm`` uses); its error minus the exact arm's
 is what the lengths did. Beside it: the plan's first-order prediction for the drawn errors
-(``general.kinematic_sensitivities`` with the calibration's absorption, as ``design`` and the run compute it, and
-without it), and the plan's term at the declared ``robot.kinematics.length_uncertainty_mm``.
+(``general.kinematic_sensitivities`` with the older absorption rule, the tool run's sweeps standing in for the
+calibration's; without any; and with the calibration's own measured response, ``calibration_lengths``, which the
+plan and the run use when the calibration stored it), and the plan's term at the declared
+``robot.kinematics.length_uncertainty_mm``.
 
-    .venv/bin/python -m benchmarks.length_errors [--arms 12] [--dh-error-mm 0.5]
+Noise-free, the fits' residual weights (and the calibration's zeros' data information) are set by the length
+errors themselves, which makes the calibration's response to them nonlinear; ``--noise`` records with the
+simulation's noise, common to every arm, as a real calibration's weights are the noise's.
+
+    .venv/bin/python -m benchmarks.length_errors [--arms 12] [--dh-error-mm 0.5] [--noise]
 """
 
 from __future__ import annotations
@@ -45,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-with", default="5:60,0,80", metavar="KG:X,Y,Z")
     p.add_argument("--calibrate-speed", type=float, default=3.0)
     p.add_argument("--candidate", default="j2_quarter:5:0:20", metavar="PROCEDURE:SPEED:FROM:TO")
+    p.add_argument("--noise", action="store_true",
+                   help="record with the simulation's effort noise, the same draws for every arm (they cancel in "
+                        "each arm's difference to the exact arm), so that the fits' weights are the noise's as on a "
+                        "real arm, not set by the length errors' own residuals")
     args = p.parse_args(argv)
     config = load_config(ROOT / "configs" / "sim-ur5e.yaml")
     sim, kin, decl = config.simulation, config.robot.kinematics, config.robot.joints
@@ -59,7 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     friction = FrictionParams(np.array(sim.coulomb_nm), np.array(sim.viscous_nm_s_rad), np.array(sim.load_ratio))
 
     def record(spec, plan, payload):
-        robot = SimRobot(spec, q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.002, seed=1, friction=friction)
+        noise = dict(noise_nm=sim.noise_nm, noise_rest_nm=sim.noise_rest_nm) if args.noise else {}
+        robot = SimRobot(spec, q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.002, seed=1, friction=friction,
+                         **noise)
         empty, _ = record_plan(robot, plan)
         robot.set_payload(PayloadTruth.point(payload[0], list(payload[1])))
         return record_plan(robot, plan)[0], empty
@@ -86,37 +98,39 @@ def main(argv: list[str] | None = None) -> int:
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
     reference = (tuple(design.nominal_theta(*ref)), tuple(cal.fitted_joints))
     S = {"absorbed": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, reference),
-         "raw": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, None)}
+         "raw": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, None),
+         "measured": general.kinematic_sensitivities(sweeps, kin, groups, w, inv, theta, cal.reference)}
     J = np.zeros((3, 4))
     J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
     to_units = 1000.0 * np.vstack([np.eye(4)[0], J])  # θ change -> (g, mm, mm, mm)
     lengths = general.length_parameters(kin)
     declared = config.robot.length_uncertainty_m
-    print(f"sim-ur5e, calibrated with {ref[0]:g} kg at {ref[1]} mm ({args.calibrate_speed:g} %), run "
+    print(f"{'with the simulation noise (common draws)' if args.noise else 'noise-free'}; sim-ur5e, calibrated with {ref[0]:g} kg at {ref[1]} mm ({args.calibrate_speed:g} %), run "
           f"{cand.describe()}; exact arm's own error {np.round(exact - [1000 * truth[0], *truth[1]], 3)}")
     print("the plan's length term at the declared " + f"{1000 * declared:g} mm: " + ", ".join(
         f"{k} " + " / ".join(f"{v:.3f}" for v in declared * np.sqrt(np.sum((S[k] @ to_units.T) ** 2, axis=0)))
         for k in S) + f" ({', '.join(NAMES)})")
     rows = []
     print("\n| arm | length errors mm (" + ", ".join(f"{k}{i + 1}" for i, k in lengths) + ") | actual | plan (absorbed) |"
-          " plan (no absorption) |\n|---|---|---|---|---|")
+          " plan (no absorption) | plan (calibration's response) |\n|---|---|---|---|---|---|")
     for arm in range(1, args.arms + 1):
         spec = SPECS["ur5e"]().with_dh_errors(np.random.default_rng((arm, DH_ERROR_STREAM)), args.dh_error_mm / 1000.0)
         dp = np.array([getattr(spec.dh[i], f"{k}_m") - getattr(SPECS["ur5e"]().dh[i], f"{k}_m") for i, k in lengths])
         actual = identified(spec)[0] - exact
         pred = {k: to_units @ (S[k].T @ dp) for k in S}
-        rows.append(np.concatenate([actual, pred["absorbed"], pred["raw"]]))
+        rows.append(np.concatenate([actual, pred["absorbed"], pred["raw"], pred["measured"]]))
         cell = lambda v: " ".join(f"{x:+.3f}" for x in v)  # noqa: E731
-        print(f"| {arm} | {cell(1000 * dp)} | {cell(actual)} | {cell(pred['absorbed'])} | {cell(pred['raw'])} |",
+        print(f"| {arm} | {cell(1000 * dp)} | {cell(actual)} | {cell(pred['absorbed'])} | {cell(pred['raw'])} | {cell(pred['measured'])} |",
               flush=True)
     R = np.array(rows)
     print(f"\nover {len(R)} arms (uniform ±{args.dh_error_mm:g} mm: std {args.dh_error_mm / np.sqrt(3):.3f} mm per length)")
     print("| quantity | rms actual | rms plan (absorbed) | rms(actual − absorbed) | rms plan (raw) | rms(actual − raw) |"
-          "\n|---|---|---|---|---|---|")
+          " rms plan (calibration's response) | rms(actual − response) |\n|---|---|---|---|---|---|---|---|")
     rms = lambda v: float(np.sqrt(np.mean(v ** 2)))  # noqa: E731
     for k, n in enumerate(NAMES):
-        a, pa, pr = R[:, k], R[:, 4 + k], R[:, 8 + k]
-        print(f"| {n} | {rms(a):.3f} | {rms(pa):.3f} | {rms(a - pa):.3f} | {rms(pr):.3f} | {rms(a - pr):.3f} |")
+        a, pa, pr, pm = R[:, k], R[:, 4 + k], R[:, 8 + k], R[:, 12 + k]
+        print(f"| {n} | {rms(a):.3f} | {rms(pa):.3f} | {rms(a - pa):.3f} | {rms(pr):.3f} | {rms(a - pr):.3f} "
+              f"| {rms(pm):.3f} | {rms(a - pm):.3f} |")
     return 0
 
 
