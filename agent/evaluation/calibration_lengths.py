@@ -1,7 +1,7 @@
 """The drive-gain calibration's own response to each DH-length error, measured where the calibration is made.
 
 A DH length off by δp_k changes the reference payload's torque on the calibration's own sweeps by
-∂Y/∂p_k·θ_ref·δp_k (``general.length_derivatives``: exact, positions are linear in the lengths); the calibration's
+∂Y/∂p_k·θ_ref·δp_k (as ``general.length_derivatives``: positions are linear in the lengths); the calibration's
 fit (``gain_scales`` then ``zero_offsets.refit``, as ``calibration.fit_from_sweeps`` makes it) turns that into a
 change of its gain scales and joint zeros. This module adds that torque for one length at a time, at a step small
 against any noise and large against rounding, refits exactly as the calibration fits and stores the change per

@@ -49,7 +49,8 @@ NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 __all__ = ["NAME", "GRAVITY_JOINTS", "ZERO_ROW_TOL", "select_sweeps", "build_groups", "length_parameters",
-           "perturbed", "length_derivatives", "absorbed_length_error", "angle_derivatives", "length_absorption", "kinematic_sensitivities",
+           "perturbed", "length_derivatives", "absorbed_length_error", "angle_derivatives", "length_absorption",
+           "kinematic_sensitivities",
            "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate"]
 
 
@@ -153,7 +154,7 @@ def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: lis
     return eps
 
 
-ANGLE_STEP_RAD = 1e-4  # finite step of ∂(Yθ)/∂q_i (as ``zero_offsets``: small against the levers, large against rounding)
+ANGLE_STEP_RAD = 1e-4  # finite step of ∂(Yθ)/∂q_i (as ``zero_offsets``): small against the levers, large against rounding
 
 
 def angle_derivatives(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], theta: np.ndarray,

@@ -70,8 +70,8 @@ def extra_rows(response: LengthResponse, params: Sequence[tuple[int, str]], grou
                dq: Mapping[int, np.ndarray]) -> list[np.ndarray]:
     """Per length of ``params`` (``general.length_parameters``): what the calibration's response adds to the
     run's rows per metre of that length's error (module docstring). ``dq``: ∂(Y·θ)/∂q_i over the stacked rows
-    for every joint of ``zero_joints(response)`` (``general.angle_derivatives``). Raises ValueError when the response was
-    measured for other lengths (another kinematics: the calibration's fingerprint prevents it)."""
+    for every joint of ``zero_joints(response)`` (``general.angle_derivatives``). Raises ValueError when the
+    response was measured for other lengths (another kinematics: the calibration's fingerprint prevents it)."""
     if tuple(params) != tuple(response.lengths):
         raise ValueError(f"the calibration's length response is for DH lengths {response.lengths}, "
                          f"the kinematics has {tuple(params)}")
