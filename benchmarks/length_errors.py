@@ -83,9 +83,9 @@ def _record(b: Bench, spec, plan, payload):
     return record_plan(robot, plan)[0], empty
 
 
-def identified(b: Bench, spec):
+def identified(b: Bench, spec, solve=None):
     """The arm ``spec`` calibrated (``fit_from_sweeps``, as ``calibrate`` stores it) and then run: the run's
-    (g, mm, mm, mm) and the calibration."""
+    (g, mm, mm, mm) by ``solve(deltas, kin)`` (default ``general.solve``), the calibration and the run's deltas."""
     from payload_agent.evaluation import systematics, zero_offsets
     from payload_agent.evaluation.calibration import fit_from_sweeps
     from payload_agent.solvers import general
@@ -98,8 +98,9 @@ def identified(b: Bench, spec):
               for phase in (loaded, empty)]
     if cal.zeros is not None:
         scaled = [zero_offsets.corrected(phase, cal.zeros) for phase in scaled]
-    est = general.solve(systematics.prepare(*scaled, decl, None).deltas, b.config.robot.kinematics)
-    return np.array([1000 * est.mass_kg, *(1000 * np.asarray(est.cog_m))]), cal
+    deltas = systematics.prepare(*scaled, decl, None).deltas
+    est = (solve or general.solve)(deltas, b.config.robot.kinematics)
+    return np.array([1000 * est.mass_kg, *(1000 * np.asarray(est.cog_m))]), cal, deltas
 
 
 def predictions(b: Bench, cal) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -152,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     b = bench(args.calibrate_with, args.calibrate_speed, args.candidate, args.noise)
     config, kin, ref, truth, cand = b.config, b.config.robot.kinematics, b.reference, b.truth, b.candidate
-    exact, cal = identified(b, SPECS["ur5e"]())
+    exact, cal, _ = identified(b, SPECS["ur5e"]())
     S, to_units = predictions(b, cal)
     lengths = general.length_parameters(kin)
     declared = config.robot.length_uncertainty_m

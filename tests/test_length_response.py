@@ -23,9 +23,9 @@ from payload_agent.solvers.length_response import LengthResponse
 @pytest.fixture(scope="module")
 def arms():
     b = length_errors.bench(noise=True)
-    exact, cal = length_errors.identified(b, SPECS["ur5e"]())
+    exact, cal, _ = length_errors.identified(b, SPECS["ur5e"]())
     spec = SPECS["ur5e"]().with_dh_errors(np.random.default_rng((2, DH_ERROR_STREAM)), 0.5e-3)
-    off, cal_off = length_errors.identified(b, spec)
+    off, cal_off, _ = length_errors.identified(b, spec)
     return b, exact, cal, off, cal_off, length_errors.arm_errors_m(spec, b.config.robot.kinematics)
 
 
