@@ -16,21 +16,21 @@ import pytest
 from benchmarks import length_errors
 from payload_agent.evaluation.calibration import GainCalibration
 from payload_agent.fakes.arms import DH_ERROR_STREAM, SPECS
-from payload_agent.solvers import length_response
+from payload_agent.solvers import general, length_response
 from payload_agent.solvers.length_response import LengthResponse
 
 
 @pytest.fixture(scope="module")
 def arms():
     b = length_errors.bench(noise=True)
-    exact, cal, _ = length_errors.identified(b, SPECS["ur5e"]())
+    exact, cal, deltas = length_errors.identified(b, SPECS["ur5e"]())
     spec = SPECS["ur5e"]().with_dh_errors(np.random.default_rng((2, DH_ERROR_STREAM)), 0.5e-3)
     off, cal_off, _ = length_errors.identified(b, spec)
-    return b, exact, cal, off, cal_off, length_errors.arm_errors_m(spec, b.config.robot.kinematics)
+    return b, exact, cal, off, cal_off, length_errors.arm_errors_m(spec, b.config.robot.kinematics), deltas
 
 
 def test_the_response_predicts_what_the_length_errors_do_to_the_calibration(arms):
-    _, _, cal, _, cal_off, dp = arms
+    _, _, cal, _, cal_off, dp, _ = arms
     r = cal.length_response
     assert r is not None and len(r.lengths) == len(dp)
     moved = (np.asarray(cal_off.scale) - cal.scale) / cal.scale
@@ -44,7 +44,7 @@ def test_the_response_predicts_what_the_length_errors_do_to_the_calibration(arms
 
 
 def test_the_run_length_term_with_the_response_predicts_the_arm_and_the_older_rule_does_not(arms):
-    b, exact, cal, off, _, dp = arms
+    b, exact, cal, off, _, dp, _ = arms
     actual = off - exact  # g, mm, mm, mm
     S, to_units = length_errors.predictions(b, cal)
     measured, older = (to_units @ (S[k].T @ dp) for k in ("measured", "absorbed"))
@@ -72,3 +72,13 @@ def test_gains_json_round_trip_and_old_files_without_the_response():
     bad["length_response"][0]["length"] = "alpha_rad"
     with pytest.raises(ValueError, match="length_response"):
         GainCalibration.from_json(bad)
+
+
+def test_the_run_says_when_its_calibration_predates_the_response(arms):
+    b, _, cal, _, _, _, deltas = arms
+    kin, std = b.config.robot.kinematics, b.config.robot.length_uncertainty_m
+    new = general.solve(deltas, kin, length_std_m=std, gain_reference=cal.reference)
+    old = general.solve(deltas, kin, length_std_m=std, gain_reference=(cal.reference[0], cal.reference[1]))
+    assert not any("predates" in n for n in new.notes)
+    assert any("predates its measured response" in n for n in old.notes)
+    assert new.mass_std_kg > old.mass_std_kg  # j2_quarter after paper_bd: the older rule took most of the term out
