@@ -186,16 +186,18 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
     c = tuple(float(v) for v in known_cog_m)
     theta_ref = [known_mass_kg, *(known_mass_kg * np.asarray(c))]
 
-    def gains_and_zeros(ds, fitted=None):
-        scale, scale_std, found = fit_gains_from_deltas(ds, kin, nominal, known_mass_kg, known_cog_m)
-        scale, scale_std, zeros = zero_offsets.refit(ds, kin, theta_ref, found if fitted is None else fitted, scale,
-                                                     scale_std, decl.zero_offset_std_rad)
-        return scale, scale_std, found, zeros
-
-    scale, scale_std, fitted, zeros = gains_and_zeros(deltas)
+    scale, scale_std, fitted = fit_gains_from_deltas(deltas, kin, nominal, known_mass_kg, known_cog_m)
+    scale, scale_std, zeros = zero_offsets.refit(deltas, kin, theta_ref, fitted, scale, scale_std,
+                                                 decl.zero_offset_std_rad)
     shift = lambda z: np.zeros(len(nominal)) if z is None else z.shift_rad()  # noqa: E731
-    lengths = calibration_lengths.measure(deltas, kin, theta_ref, lambda ds: (lambda r: (r[0], shift(r[3])))(
-        gains_and_zeros(ds, fitted)), (scale, shift(zeros)))
+
+    def refitted(ds):  # the same fit of the same joints on shifted torques: (scales, zero shifts)
+        s, s_std, _ = fit_gains_from_deltas(ds, kin, nominal, known_mass_kg, known_cog_m)
+        s = np.where(np.isin(np.arange(len(nominal)), fitted), s, scale)
+        s, _, z = zero_offsets.refit(ds, kin, theta_ref, fitted, s, s_std, decl.zero_offset_std_rad)
+        return s, shift(z)
+
+    lengths = calibration_lengths.measure(deltas, kin, theta_ref, refitted, (scale, shift(zeros)))
     fric = reference_friction.measure(prepared.loaded, prepared.empty, deltas, commands, decl.friction_change_std)
     return GainCalibration(
         gains_nm_per_unit=tuple(float(v) for v in nominal * scale), fitted_joints=fitted,
