@@ -41,11 +41,12 @@ import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.analysis.run_deltas import phases_for
-from payload_agent.evaluation import systematics, zero_offsets
+from payload_agent.evaluation import calibration_lengths, systematics, zero_offsets
 from payload_agent.evaluation.baseline_identity import empty_run_source
 from payload_agent.evaluation.systematics import gain_scatter, reference_friction
 from payload_agent.errors import DataError
 from payload_agent.recording.rundata import SweepData
+from payload_agent.solvers.length_response import LengthResponse
 from payload_agent.types import SweepKey
 from payload_agent.recording.state import RobotState, write_json_atomic
 # the gain-scale fit itself (``gain_scales``), named here too: callers know it as the calibration's
@@ -81,6 +82,9 @@ class GainCalibration:
     # the folder whose empty-flange run the calibration subtracted (``baseline_identity``): a tool run against the
     # same one shares its noise (``shared_baseline``); None: not recorded (files from before, or not known)
     baseline_source: str | None = None
+    # the fit's own change of its scales and zeros per metre of each DH length's error (``calibration_lengths``);
+    # None in files written before it was measured: a run's length term then keeps the older rule
+    length_response: LengthResponse | None = None
 
     @property
     def reference(self) -> tuple:
@@ -92,6 +96,8 @@ class GainCalibration:
         if self.standing_angles is None:
             return base
         stood = (*base, self.standing_angles)
+        if self.length_response is not None:  # 5th entry (``length_response.of_reference``)
+            return (*stood, self.reference_friction, self.length_response)
         return stood if self.reference_friction is None else (*stood, self.reference_friction)
 
     @property
@@ -116,7 +122,8 @@ class GainCalibration:
                 **({} if self.zeros is None else {"zero_offsets": self.zeros.to_json()}),
                 **({} if self.reference_friction is None else
                    {"reference_friction": self.reference_friction.to_json()}),
-                **({} if self.baseline_source is None else {"baseline_source_run": self.baseline_source})}
+                **({} if self.baseline_source is None else {"baseline_source_run": self.baseline_source}),
+                **({} if self.length_response is None else {"length_response": self.length_response.to_json()})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -139,9 +146,11 @@ class GainCalibration:
         source = d.get("baseline_source_run")
         if source is not None and not isinstance(source, str):
             raise ValueError(f"baseline_source_run must be a folder name, got {source!r}")
+        lengths = None if d.get("length_response") is None else LengthResponse.from_json(d["length_response"])
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
-                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric, source)
+                   str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric, source,
+                   lengths)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -174,7 +183,8 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
     2. the gain scales of the loaded joints (``gain_scales``), then refitted with the zeros of joints 2 and 3
        (``zero_offsets``);
     3. the reference run's constant-friction change against the baseline per joint, measured with the prior of
-       the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains.
+       the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains;
+    4. the fit's own response to each DH length's error (``calibration_lengths``: steps 2 on shifted torques).
 
     ``joints``: the declared systematics (default the config's ``robot.joints``); ``commands``: the plan's sweep
     commands (constant-speed windows); ``run_dir``: recorded as given."""
@@ -182,10 +192,21 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
     nominal = np.asarray(config.effort.gains_nm_per_unit, float)
     prepared = systematics.prepare(loaded, empty, decl, commands)
     deltas, kin = prepared.deltas, config.robot.kinematics
-    scale, scale_std, fitted = fit_gains_from_deltas(deltas, kin, nominal, known_mass_kg, known_cog_m)
     c = tuple(float(v) for v in known_cog_m)
-    scale, scale_std, zeros = zero_offsets.refit(deltas, kin, [known_mass_kg, *(known_mass_kg * np.asarray(c))],
-                                                 fitted, scale, scale_std, decl.zero_offset_std_rad)
+    theta_ref = [known_mass_kg, *(known_mass_kg * np.asarray(c))]
+
+    scale, scale_std, fitted = fit_gains_from_deltas(deltas, kin, nominal, known_mass_kg, known_cog_m)
+    scale, scale_std, zeros = zero_offsets.refit(deltas, kin, theta_ref, fitted, scale, scale_std,
+                                                 decl.zero_offset_std_rad)
+    shift = lambda z: np.zeros(len(nominal)) if z is None else z.shift_rad()  # noqa: E731
+
+    def refitted(ds):  # the same fit of the same joints on shifted torques: (scales, zero shifts)
+        s, s_std, _ = fit_gains_from_deltas(ds, kin, nominal, known_mass_kg, known_cog_m)
+        s = np.where(np.isin(np.arange(len(nominal)), fitted), s, scale)
+        s, _, z = zero_offsets.refit(ds, kin, theta_ref, fitted, s, s_std, decl.zero_offset_std_rad)
+        return s, shift(z)
+
+    lengths = calibration_lengths.measure(deltas, kin, theta_ref, refitted, (scale, shift(zeros)))
     fric = reference_friction.measure(prepared.loaded, prepared.empty, deltas, commands, decl.friction_change_std)
     return GainCalibration(
         gains_nm_per_unit=tuple(float(v) for v in nominal * scale), fitted_joints=fitted,
@@ -194,7 +215,8 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
         robot=config.robot.name, effort_unit=config.effort.unit,
         nominal_fingerprint=calibration_fingerprint(config), run_dir=run_dir,
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric)
+        standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric,
+        length_response=lengths)
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

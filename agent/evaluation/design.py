@@ -104,7 +104,8 @@ class NoiseModel:
     # ``controller_gains``): a run fits them, and carries their uncertainty, for the joints that sweep in it only
     gain_swept_only: bool = False
     length_std_m: float = 0.0  # DH-length standard uncertainty
-    # (θ_ref, fitted joints) of the drive-gain calibration, whose fit absorbed part of the length errors
+    # the drive-gain calibration's reference (``GainCalibration.reference``: θ_ref, fitted joints, ..., its measured
+    # response to the DH lengths when stored), whose fit absorbed part of the length errors
     gain_reference: tuple | None = None
     # evaluation.systematics' declarations (config.robot.joints: zero uncertainty, friction asymmetry and
     # change) and each joint's friction level (N·m: the stored baseline's, or the simulation's Coulomb
@@ -186,7 +187,7 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
     the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
     reports."""
-    from payload_agent.solvers import general, wls
+    from payload_agent.solvers import general, length_response, wls
 
     kin = config.robot.kinematics
     sweeps = planned_sweeps(plan, noise.sample_period_s)
@@ -227,7 +228,9 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
                                                 noise.inflation, noise.friction_known)
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
     # (procedure and sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
-    ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]))
+    # (the calibration's measured response to the DH lengths, when it stored one, is part of what the term depends on)
+    ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]),
+                                                     length_response.of_reference(noise.gain_reference))
     # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
     key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,

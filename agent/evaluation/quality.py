@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from statistics import NormalDist
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -61,7 +61,7 @@ from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.results import Estimate, RunResult
-from payload_agent.solvers import general, wls
+from payload_agent.solvers import general, length_response, wls
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.evaluation import cable_check
 from payload_agent.evaluation.solver_checks import make_check as _check, solver_checks
@@ -129,13 +129,14 @@ def _output_jacobian(theta: np.ndarray) -> np.ndarray:
 
 
 def _pose_fit(res: wls.FitResult, groups: list[wls.Group], rows: np.ndarray, dY: list[np.ndarray],
-              eps: dict[int, np.ndarray], gain_rel_std: np.ndarray | None) -> dict[str, Any]:
-    """One pose's own fit ``res`` of ``groups``: θ, its noise covariance, and its first-order response to the
-    common errors.
+              eps: dict[int, np.ndarray], gain_rel_std: np.ndarray | None,
+              absorbed: Callable[[np.ndarray], list[np.ndarray] | None] | None = None) -> dict[str, Any]:
+    """One pose's own fit ``res`` of ``groups``: θ, its noise covariance, its first-order response to the errors.
 
     ``G`` (4 × joints): ∂θ/∂ε_j of a relative gain error of joint j (``wls.gain_covariance``);
     ``S`` (K × 4): ∂θ/∂p_k of DH length k, less what the calibration's gain fit absorbed
-    (``general.kinematic_sensitivities``); ``rows`` selects this pose's rows of the stacked groups.
+    (``general.kinematic_sensitivities``); ``rows`` selects this pose's rows of the stacked groups. ``absorbed``:
+    the calibration's stored response on this pose's rows for θ (``general.length_absorption``), in place of ``eps``.
     """
     theta, w, inv = res.theta, res.weights, res.normal_inverse
     Y = np.vstack([g.Y for g in groups])
@@ -151,8 +152,9 @@ def _pose_fit(res: wls.FitResult, groups: list[wls.Group], rows: np.ndarray, dY:
         out["G"] = G
     if dY:
         S = []
+        extra = None if absorbed is None else absorbed(theta)
         for k, d in enumerate(dY):
-            v = d[rows] @ theta
+            v = d[rows] @ theta + (0.0 if extra is None else extra[k])
             for j, e in eps.items():
                 v[joint_of_row == j] -= e[k] * pred[joint_of_row == j]
             S.append(inv @ (Y.T @ (w * v)))
@@ -193,14 +195,19 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
     pose_of = {d.key.name: d.key.pose for d in sweeps}
     dY: list[np.ndarray] = []
     eps: dict[int, np.ndarray] = {}
+    absorb: Callable[[np.ndarray, str], list[np.ndarray] | None] | None = None  # the calibration's own response
     if length_std > 0 and len(poses) >= 2 and groups:
         dY = general.model_length_derivatives(model)
-        if gain_reference is not None:
+        if length_response.of_reference(gain_reference) is not None:
+            absorb = lambda theta, pose: general.length_absorption(  # noqa: E731
+                [d for d in sweeps if d.key.pose == pose], kin, model.groups_of(pose), theta, [], gain_reference)
+        elif gain_reference is not None:
             eps = general.absorbed_length_error(sweeps, groups, dY, gain_reference)
     row_pose = np.repeat([pose_of[g.sweep] for g in groups], [len(g.y) for g in groups])
     for pose in poses:
         try:
-            f = _pose_fit(model.fit(pose), model.groups_of(pose), row_pose == pose, dY, eps, gain_std)
+            f = _pose_fit(model.fit(pose), model.groups_of(pose), row_pose == pose, dY, eps, gain_std,
+                          None if absorb is None else (lambda theta, p=pose: absorb(theta, p)))
             theta = f["theta"]
             if not theta[0] > 0:
                 raise DataError(f"mass {theta[0]:.4f} kg is not positive")

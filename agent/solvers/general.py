@@ -40,6 +40,7 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.types import SweepKey
 from payload_agent.solvers.fitted import FittedModel
+from payload_agent.solvers import length_response
 from payload_agent.solvers.regressor import payload_regressor
 from payload_agent.solvers.results import Estimate
 from payload_agent.solvers.wls import Group, cog_with_covariance
@@ -48,7 +49,8 @@ NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 __all__ = ["NAME", "GRAVITY_JOINTS", "ZERO_ROW_TOL", "select_sweeps", "build_groups", "length_parameters",
-           "perturbed", "length_derivatives", "absorbed_length_error", "kinematic_sensitivities",
+           "perturbed", "length_derivatives", "absorbed_length_error", "angle_derivatives", "length_absorption",
+           "kinematic_sensitivities",
            "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate"]
 
 
@@ -152,6 +154,50 @@ def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: lis
     return eps
 
 
+ANGLE_STEP_RAD = 1e-4  # finite step of ∂(Yθ)/∂q_i (as ``zero_offsets``): small against the levers, large against rounding
+
+
+def angle_derivatives(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], theta: np.ndarray,
+                      joints: Iterable[int]) -> dict[int, np.ndarray]:
+    """∂(Y·θ)/∂q_i over ``groups``' stacked rows for each joint i of ``joints`` (one finite difference)."""
+    base = np.concatenate([g.Y @ theta for g in groups])
+    rows = tuple(sorted({g.joint for g in groups}))
+    out = {}
+    for i in joints:
+        shifted = {g.label: g.Y for g in build_groups([replace(d, q=d.q + np.eye(d.q.shape[1])[i] * ANGLE_STEP_RAD)
+                                                        for d in sweeps], kin, rows)}
+        moved = np.concatenate([shifted[g.label] @ theta if g.label in shifted else np.zeros(len(g.y)) for g in groups])
+        out[i] = (moved - base) / ANGLE_STEP_RAD
+    return out
+
+
+def length_absorption(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], theta: np.ndarray,
+                      dY: list[np.ndarray], reference: tuple | None) -> list[np.ndarray] | None:
+    """Per DH length: what the drive-gain calibration the data were scaled (and their angles corrected) with
+    adds to the run's rows per metre of its error, or None without a calibration.
+
+    The calibration's own measured response (``length_response``, stored since it is measured) where the
+    reference carries one; else the older rule (``absorbed_length_error``: the tool run's sweeps standing in for
+    the calibration's, right only for a calibration on the same procedure; its zeros not counted)."""
+    if reference is None:
+        return None
+    measured = length_response.of_reference(reference)
+    if measured is not None:
+        dq = angle_derivatives(sweeps, kin, groups, theta, length_response.zero_joints(measured))
+        return length_response.extra_rows(measured, length_parameters(kin), groups, theta, dq)
+    eps = absorbed_length_error(sweeps, groups, dY, reference)
+    pred = np.concatenate([g.Y @ theta for g in groups])
+    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
+    out = []
+    for k in range(len(dY)):
+        v = np.zeros(len(pred))
+        for j, e in eps.items():
+            rows = joint_of_row == j
+            v[rows] -= e[k] * pred[rows]
+        out.append(v)
+    return out
+
+
 def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: list[Group], w: np.ndarray,
                             inv: np.ndarray, theta: np.ndarray,
                             reference: tuple[Iterable[float], Iterable[int]] | None = None,
@@ -164,24 +210,20 @@ def kinematic_sensitivities(sweeps: list[DeltaSweep], kin: Kinematics, groups: l
     δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂)·δp_k.
 
     ``reference`` = (θ_ref, fitted joints) of a drive-gain calibration made with the same
-    kinematics on the same procedure, whose scales were applied to the data: its gain fit absorbed
+    kinematics, whose scales were applied to the data: its gain fit absorbed
     part of the same length error (joint j's scale became 1/(1 + Σ_k ε_jk·δp_k), with
     ε_jk = ⟨Y_j θ_ref, ∂Y_j/∂p_k θ_ref⟩ / ⟨Y_j θ_ref, Y_j θ_ref⟩ over joint j's rows, each
     group's mean removed from Y_j θ_ref where the calibration fits it an offset), so
-    δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂ − ε_·k ∘ Y·θ̂)·δp_k. The tool run's sweeps stand in for
-    the calibration's (same procedure). ``dY``: ``length_derivatives`` when already computed.
+    δθ̂ = Σ_k (YᵀWY)⁻¹·YᵀW·(∂Y/∂p_k·θ̂ − ε_·k ∘ Y·θ̂)·δp_k. ``length_absorption``: the calibration's
+    own measured response to each length (its scales and zeros) where it stored one, else that older rule with
+    the tool run's sweeps standing in for the calibration's. ``dY``: ``length_derivatives`` when already computed.
     """
     Y = np.vstack([g.Y for g in groups])
-    pred = Y @ theta
-    joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
     dY = length_derivatives(sweeps, kin, groups) if dY is None else dY
-    eps = absorbed_length_error(sweeps, groups, dY, reference) if reference is not None else {}
+    extra = length_absorption(sweeps, kin, groups, theta, dY, reference)
     out = []
     for k, d in enumerate(dY):
-        v = d @ theta
-        for j, e in eps.items():
-            rows = joint_of_row == j
-            v[rows] -= e[k] * pred[rows]
+        v = d @ theta if extra is None else d @ theta + extra[k]
         out.append(inv @ (Y.T @ (w * v)))
     return np.array(out).reshape(-1, len(theta))
 
@@ -256,6 +298,11 @@ def estimate(model: FittedModel, *, name: str = NAME, length_std_m: float | None
     if res.condition_number > 1e6:
         notes.append(f"the sweeps hardly observe every parameter (condition number {res.condition_number:.3g}); "
                      "add a second tool orientation")
+    if length_std_m and length_std_m > 0 and gain_reference is not None \
+            and length_response.of_reference(gain_reference) is None:
+        notes.append("DH-length term: the drive-gain calibration predates its measured response to the lengths, so "
+                     "its absorption is estimated on this run's sweeps (right only if it swept the same procedure; "
+                     "its zeros not counted); calibrate again to measure it")
     combined = [d.key.name for d in sweeps if d.key.direction == "both"]
     if combined:
         notes.append(f"bidirectional (friction-cancelling) sweeps used: {', '.join(combined)}")

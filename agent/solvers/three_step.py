@@ -195,12 +195,15 @@ def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, be
     The arm's torques follow the true lengths p + δp while the steps' levers use the nominal p; the steps are
     consistent (right lengths, right β), so β̂'s error is −∂β̂/∂p_k·δp_k, by re-running them with one length
     moved.
-    A drive-gain calibration on the same procedure (``gain_reference`` = (θ_ref, fitted joints, ...)) absorbed
-    the share ε_jk·δp_k of it into joint j's gain (``general.absorbed_length_error``), which the steps read where
-    j is joint 2 or 3: −ε_jk·∂β̂/∂g_j more (g_j: a relative gain error of joint j on every sweep)."""
+    A drive-gain calibration the data were scaled and corrected with (``gain_reference`` = (θ_ref, fitted
+    joints, ...)) moved its gains and zeros with the same length errors. Where it stored its measured response
+    (``length_response``): joint j's relative scale change r_jk adds r_jk·∂β̂/∂g_j (g_j: a relative gain error of
+    joint j on every sweep; the steps read joints 2 and 3) and its zero change ζ_ik adds −ζ_ik·∂β̂/∂q_i (the
+    corrected angles q − z move by −δz). Else the older rule: on the same procedure it absorbed the share
+    ε_jk·δp_k into joint j's gain (``general.absorbed_length_error``): −ε_jk·∂β̂/∂g_j."""
     from dataclasses import replace
 
-    from payload_agent.solvers import general
+    from payload_agent.solvers import general, length_response
 
     def beta_of(d: dict[SweepKey, DeltaSweep], k: Kinematics) -> np.ndarray:
         e = solve(d, k, **(steps or {}))
@@ -211,6 +214,29 @@ def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, be
         return np.zeros((0, 4))
     D = np.array([-(beta_of(deltas, general.perturbed(kin, row, which, LENGTH_STEP_M)) - beta) / LENGTH_STEP_M
                   for row, which in params])  # (K, 4)
+
+    def gain_step(j: int) -> np.ndarray:  # ∂β̂/∂g_j
+        shifted = {}
+        for key, d in deltas.items():
+            dtau = np.array(d.dtau, float)
+            dtau[:, j] *= 1.0 + GAIN_STEP
+            shifted[key] = replace(d, dtau=dtau)
+        return (beta_of(shifted, kin) - beta) / GAIN_STEP
+
+    measured = length_response.of_reference(gain_reference)  # type: ignore[arg-type]
+    if measured is not None:
+        if tuple(params) != measured.lengths:
+            raise ValueError(f"the calibration's length response is for DH lengths {measured.lengths}, "
+                             f"the kinematics has {tuple(params)}")
+        scale, zero = np.array(measured.scale_rel_per_m), np.array(measured.zero_rad_per_m)
+        for j in (1, 2):  # joints 2 and 3: the only rows the steps read
+            if np.any(scale[:, j] != 0):
+                D += np.outer(scale[:, j], gain_step(j))
+        for i in length_response.zero_joints(measured):
+            moved = {key: replace(d, q=np.asarray(d.q, float) + np.eye(6)[i] * general.ANGLE_STEP_RAD)
+                     for key, d in deltas.items()}
+            D -= np.outer(zero[:, i], (beta_of(moved, kin) - beta) / general.ANGLE_STEP_RAD)
+        return D
     if gain_reference is not None:
         if model is None:
             model = general.fit_model(deltas, kin)  # the rows only: no fit is made here
@@ -219,12 +245,7 @@ def length_sensitivities(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, be
         eps = general.absorbed_length_error(sweeps, [replace(g, Y=g.Y[:, :4]) for g in groups],
                                             [d[:, :4] for d in dY], gain_reference)  # type: ignore[arg-type]
         for j in sorted(set(eps) & {1, 2}):  # joints 2 and 3: the only rows the steps read
-            shifted = {}
-            for key, d in deltas.items():
-                dtau = np.array(d.dtau, float)
-                dtau[:, j] *= 1.0 + GAIN_STEP
-                shifted[key] = replace(d, dtau=dtau)
-            D -= np.outer(eps[j], (beta_of(shifted, kin) - beta) / GAIN_STEP)
+            D -= np.outer(eps[j], gain_step(j))
     return D
 
 
