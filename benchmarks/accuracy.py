@@ -94,6 +94,15 @@ def parse_procedure(text: str, label: str, base: Procedure) -> Procedure:
     return Procedure(**values)
 
 
+def add_procedure_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--speed`` and ``--procedure SPEC``: the one procedure of a benchmark that studies one (sigma_budget,
+    noise_replicas, the cable benchmarks); ``speed_or_procedure`` reads them."""
+    parser.add_argument("--speed", type=float, default=10.0,
+                        help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
+    parser.add_argument("--procedure", metavar="SPEC", help="instead of --speed: e.g. the accuracy benchmark's "
+                        f"default, {RECOMMENDED_DEFAULT} (speed, travel, accel in %%, sweep=FROM:TO in deg)")
+
+
 def speed_or_procedure(parser: argparse.ArgumentParser, speed: float, spec: str | None) -> Procedure:
     """The one procedure of a ``--speed`` / ``--procedure SPEC`` command line (sigma_budget, noise_replicas): the
     speed row's (travel, acceleration, range) at ``speed`` %, or ``spec`` over it; a bad spec is the parser's error."""

@@ -56,13 +56,12 @@ def summary(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import speed_or_procedure
+    from benchmarks.accuracy import add_procedure_arguments, speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", default="realistic,hard", help="comma-separated (benchmarks.cases.ALL_SCENARIOS)")
     p.add_argument("--payloads", type=int, default=12)
-    p.add_argument("--speed", type=float, default=10.0, help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
-    p.add_argument("--procedure", metavar="SPEC", help=f"instead of --speed: e.g. {cases.RECOMMENDED_DEFAULT}")
+    add_procedure_arguments(p)
     p.add_argument("--solver", choices=("general", "three-step"), default="general")
     args = p.parse_args(argv)
     proc = speed_or_procedure(p, args.speed, args.procedure)

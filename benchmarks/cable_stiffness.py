@@ -46,13 +46,12 @@ def standardised(scenario: str, index: int, proc: cases.Procedure, n_payloads: i
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import speed_or_procedure
+    from benchmarks.accuracy import add_procedure_arguments, speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenario", default="hard", help="benchmarks.cases.ALL_SCENARIOS")
     p.add_argument("--payloads", type=int, default=12)
-    p.add_argument("--speed", type=float, default=10.0, help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
-    p.add_argument("--procedure", metavar="SPEC", help=f"instead of --speed: e.g. {cases.RECOMMENDED_DEFAULT}")
+    add_procedure_arguments(p)
     args = p.parse_args(argv)
     if args.scenario not in cases.ALL_SCENARIOS:
         p.error(f"unknown scenario {args.scenario!r}; known: {', '.join(cases.ALL_SCENARIOS)}")

@@ -57,15 +57,14 @@ def summary(per_case: list[np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import speed_or_procedure
+    from benchmarks.accuracy import add_procedure_arguments, speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scenario", default="realistic", help="one of benchmarks.cases.ALL_SCENARIOS")
     p.add_argument("--method", default=COMP3, choices=(COMP, COMP3))
     p.add_argument("--payloads", type=int, default=24)
     p.add_argument("--replicas", type=int, default=4, help="noise draws per case besides the benchmark's own")
-    p.add_argument("--speed", type=float, default=10.0, help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
-    p.add_argument("--procedure", metavar="SPEC", help=f"instead of --speed, e.g. {cases.RECOMMENDED_DEFAULT}")
+    add_procedure_arguments(p)
     args = p.parse_args(argv)
     if args.scenario not in cases.ALL_SCENARIOS:
         p.error(f"unknown scenario {args.scenario!r}; known: {', '.join(cases.ALL_SCENARIOS)}")

@@ -130,14 +130,12 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks.accuracy import speed_or_procedure
+    from benchmarks.accuracy import add_procedure_arguments, speed_or_procedure
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", default="realistic,hard", help="comma-separated (benchmarks.cases.ALL_SCENARIOS)")
     p.add_argument("--payloads", type=int, default=6)
-    p.add_argument("--speed", type=float, default=10.0, help="sweep speed, percent (travel 10 %%, accel 20 %%, 0–55°)")
-    p.add_argument("--procedure", metavar="SPEC", help="instead of --speed: e.g. the accuracy benchmark's default, "
-                   f"{cases.RECOMMENDED_DEFAULT} (speed, travel, accel in %%, sweep=FROM:TO in deg)")
+    add_procedure_arguments(p)
     p.add_argument("--solver", choices=("general", "three-step"), default="general")
     p.add_argument("--quantity", choices=tuple(QUANTITIES), default="m", help="mass (g) or one CoM axis (mm)")
     args = p.parse_args(argv)

@@ -22,6 +22,7 @@ from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import three_step
 from payload_agent.solvers.fitted import ALL
+from recorded_runs import record_runs
 
 from conftest import ROOT
 
@@ -151,11 +152,7 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
     friction_params = FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO), asymmetry=np.array(ASYMMETRY))
     robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5, noise_nm=0.0,
                      friction=friction_params)
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(TRUTH)
-    loaded, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref_same, _ = record_plan(robot, plan)
+    empty, loaded, ref_same = record_runs(robot, plan, TRUTH, PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
     robot.set_friction_scale(1.0 - REF_DROP)
     ref_dropped, _ = record_plan(robot, plan)
     nominal = np.ones(6)

@@ -23,6 +23,7 @@ from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import general
+from recorded_runs import record_runs
 
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import scaled
@@ -45,11 +46,7 @@ def runs():
     robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=11,
                      noise_nm=NOISE_NM, friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO),
                                                                 asymmetry=np.array(ASYMMETRY)))
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(TOOL)
-    loaded, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref_same, _ = record_plan(robot, plan)
+    empty, loaded, ref_same = record_runs(robot, plan, TOOL, PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
     robot.set_friction_scale(1.0 - REF_DROP)
     ref_dropped, _ = record_plan(robot, plan)
     robot.set_payload(TOOL)

@@ -21,10 +21,10 @@ from payload_agent.evaluation.baseline_identity import empty_run_source, same_ba
 from payload_agent.evaluation.calibration import RUN_CALIBRATION, GainCalibration, fit_from_sweeps
 from payload_agent.evaluation.pipeline import run_gains
 from payload_agent.fakes.arms import ec66_spec
-from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
+from recorded_runs import record_runs
 
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import scaled
@@ -49,11 +49,7 @@ def clean_runs():
     robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=3, noise_nm=0.0,
                      friction=FrictionParams((4.0, 4.0, 3.0, 1.0, 1.0, 0.5), (8.0, 8.0, 5.0, 1.0, 1.0, 0.5),
                                              np.full(6, 0.05)))
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(TOOL)
-    loaded, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref, _ = record_plan(robot, plan)
+    empty, loaded, ref = record_runs(robot, plan, TOOL, PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
     return config, empty, loaded, ref
 
 

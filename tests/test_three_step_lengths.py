@@ -13,11 +13,11 @@ from payload_agent.configuration.config import parse_config
 from payload_agent.evaluation import systematics
 from payload_agent.evaluation.calibration import fit_from_sweeps
 from payload_agent.fakes.arms import ec66_spec
-from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import general, three_step
+from recorded_runs import record_runs
 
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import scaled
@@ -39,11 +39,7 @@ def runs():
     true_arm = dataclasses.replace(spec, dh=tuple(rows))
     plan = make_plan(config)
     robot = SimRobot(true_arm, q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=3, noise_nm=0.0)
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(TOOL)
-    loaded, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref, _ = record_plan(robot, plan)
+    empty, loaded, ref = record_runs(robot, plan, TOOL, PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
     return config, empty, loaded, ref
 
 
