@@ -93,7 +93,7 @@ def test_the_term_predicts_what_the_ripple_does_to_the_three_step_solver(config,
     assert effect is not None and effect.scatter.tau > 0
     assert set(j for j, _ in effect.shares.values()) == {1, 2}  # clusters of joints 2 and 3 only
     assert np.linalg.norm(effect.along[:, 0] - shift) < 0.1 * np.linalg.norm(shift)
-    assert "three-step" in effect.note
+    assert "three-step solver" in effect.note
 
     plain = gain_scatter.term(deltas, kin, None, {ALL: (model.groups_of(ALL), model.fit(ALL))}, ALL, model,
                               cal.reference)
@@ -113,7 +113,7 @@ def test_the_three_step_sigma_covers_its_ripple_error(config, runs, seed):
     assert abs(error[0]) > 5 * clean_sigma[0]
     assert np.all(np.abs(error) <= 1.2 * sigma), error / sigma
     assert sigma[0] < 2.0 * abs(error[0])  # covered, not swamped
-    assert any("three-step: the still joints' gain errors" in n for n in est.notes)
+    assert any("three-step solver: the still joints' gain errors" in n for n in est.notes)
 
 
 def test_no_term_on_an_arm_without_ripple_or_without_a_calibration(config, runs):

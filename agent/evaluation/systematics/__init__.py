@@ -322,10 +322,11 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
     """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load): their
     effect on θ, less what a drive-gain calibration absorbed, from each cluster's posterior given the measured
-    scatter (``systematics.gain_scatter``; the still wrist's clusters, measured worse than the scatter, at its size)."""
+    scatter (``systematics.gain_scatter``; the still wrist's clusters, measured worse than the scatter, at its size).
+    The three-step solver's columns are its own (``systematics.three_step_scatter``), zero in the general fits'."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
                             {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model, ctx.gain_reference)
-    three = None  # the three-step reads no still rows, only the calibrated gains of joints 2 and 3: its own
+    three = None  # the three-step reads no still row, only the calibrated gains of joints 2 and 3: its own
     if ctx.three_step is not None and ctx.model is not None:  # measurement of the clusters carried there
         try:
             three = three_step_scatter.effect(ctx.prepared.deltas, ctx.kin, ctx.model, ctx.gain_reference,

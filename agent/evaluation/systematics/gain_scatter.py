@@ -59,7 +59,8 @@ plain s_k put 3–6 g into the mass σ against ripple errors of 0.4–1.4 g; the
 noise-free data it predicts the calibrated fit's shift to 1 % where the plain s_k was 17× off. And
 the three-step solver, which reads joints 2 and 3 only where they move, gets −w_jk times its own response
 to a gain error of joint j (``three_step_response.gain_response``): its ripple bias (10 g mean) was exactly
-that, the still-joint ripple carried by the calibration into the moving rows.
+that, the still-joint ripple carried by the calibration into the moving rows. Its clusters are measured with that
+share in their columns (``measure(absorb_joints=...)``, ``three_step_scatter``): the plain ones give about (1 − w)·ε_k.
 
 The term is derived from the data alone: nothing about the gear is declared. It is zero for an arm
 whose still joints agree with the model within noise.

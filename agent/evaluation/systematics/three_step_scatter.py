@@ -45,9 +45,9 @@ class ThreeStepScatter:
     def note(self) -> str:
         which = ", ".join(f"{lab} {100 * self.scatter.eps[self.scatter.labels.index(lab)]:+.2f} %"
                           for lab in self.shares)
-        return (f"three-step: the still joints' gain errors the drive-gain calibration carried into joints 2 and 3 "
-                f"({which}, measured with the calibration's share in their columns; scatter {100 * self.scatter.tau:.2g} %)"
-                " in σ")
+        return (f"three-step solver: the still joints' gain errors the drive-gain calibration carried into joints 2 "
+                f"and 3 ({which}, measured with the calibration's share in their columns; scatter "
+                f"{100 * self.scatter.tau:.2g} %) in its σ")
 
 
 def effect(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, model: FittedModel,
