@@ -257,9 +257,10 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     ``gain_reference`` and ``absorb_joints`` (0-based): the drive-gain calibration the data were scaled with; for
     the clusters of these joints its scale absorbed the share w_jk of ε_k (``absorbed_shares``), so every row of
     joint j, the moving ones included, carries −w_jk·ε_k and the cluster's column gets −w_jk·Y_gθ̂ there (as the
-    wrist term's nuisance columns, ``wrist.columns``): ε̂_k is then the cluster's error itself, not its contrast
-    with the calibrated moving rows, (1 − w)·ε_k in the benchmark's ripple rows. Only joints that also move (else
-    w = 1 and the column vanishes). Default: none, the plain columns.
+    wrist term's nuisance columns, ``wrist.columns``): ε̂_k is then the cluster's error itself, where the plain
+    column measures it partly against the calibrated moving rows (0.69·ε_k for joint 3 standing at 0° in the
+    benchmark's ripple rows). Only clusters with w < 1 (at w = 1 the column vanishes: the joint never moves).
+    Default: none, the plain columns.
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
     if model is None:

@@ -5,21 +5,22 @@ stands at (the gear's mesh ripple under load, ``gain_scatter``) reaches them one
 calibration's reference run stood at the same angles with the same errors, and its scale of joint j took the share
 w_jk of cluster k's error ε_k (``gain_scatter.absorbed_shares``); every row of joint j then carries −w_jk·ε_k, and
 the three-step's estimate moves by −w_jk·ε_k·g_j (g_j: its response to a relative gain error of joint j,
-``three_step_response.gain_response``). Its mass is the small difference of the torques of joints 2 and 3, so a
-gain error of a few per mille there is a mass error of 1 % (docs/benchmarks.md, session 16).
+``three_step_response.gain_response``). Its mass is the small difference of the torques of joints 2 and 3: a few
+per mille of gain error there move it by about as much, relatively.
 
 Measured in the benchmark (realistic + ripple, 10 %, the same noise with the ripple's parts switched off one at a
-time): the three-step's ripple error is the still joints' mesh ripple through this path (11 g rms; the moving
-joints' mesh ripple moves it by 0.1 g rms, the once-per-turn part on every joint by 1.2 g). The general term's clusters (``gain_scatter.measure`` with plain columns) measure ε_k
-partly against the calibrated moving rows, which carry −w·ε_k: over 24 payloads ε̂ = 0.69·ε for joint 3 standing at
-0° (w = 0.5), 0.94·ε for joint 2 at −90° (w = 0.21), and the three-step's σ carried about 60 % of its ripple error.
-Here the clusters of joints 2 and 3 are measured with the calibration's absorption in their columns (−w_jk·Y_gθ̂ on
-every row of joint j, ``measure(absorb_joints=...)``), so ε̂_k is the cluster's own error (slopes 1.05 and 1.02;
-the term's mean column then predicts the three-step's ripple shift with a slope of 0.92, residual 2.8 g rms of
-10.7 g). Its posterior given the scatter's size (``ScatterTerm.posterior``, τ from the same fit by maximum
-likelihood) times −w_jk·g_j goes into the three-step's σ. Nothing is declared: without a calibration, or where the
-likelihood-ratio test finds no scatter, the term is zero. The general fits keep the plain columns (their rows are in
-band with them; not re-examined).
+time; docs/benchmarks.md, session 16): the three-step's ripple error, 11 g rms, is the still joints' mesh ripple
+through this path (the moving joints' mesh ripple moves it by 0.1 g rms, the once-per-turn part on every joint by
+1.2 g). The general term's clusters (``gain_scatter.measure`` with plain columns) measure ε_k partly against the
+calibrated moving rows, which carry −w·ε_k: over 24 payloads ε̂ = 0.69·ε for joint 3 standing at 0° (w = 0.5),
+0.94·ε for joint 2 at −90° (w = 0.21), and the three-step's σ carried about 60 % of its ripple error. Here the
+clusters of joints 2 and 3 are measured with the calibration's absorption in their columns (−w_jk·Y_gθ̂ on every row
+of joint j, ``measure(absorb_joints=...)``), so ε̂_k is the cluster's own error (slopes 1.05 and 1.02; the term's
+mean column then predicts the three-step's ripple shift with a slope of 0.92, residual 2.8 g rms of 10.7 g). Its
+posterior given the scatter's size (``ScatterTerm.posterior``, τ from the same fit by maximum likelihood) times
+−w_jk·g_j goes into the three-step's σ. Nothing is declared: without a calibration, or where the likelihood-ratio
+test finds no scatter, the term is zero. The general fits keep the plain columns (their rows are in band with them;
+not re-examined).
 """
 
 from __future__ import annotations
