@@ -113,8 +113,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 
         noise = dataclasses.replace(noise, joints=declaration(noise.joints, gains.zeros))
     zeros = "" if gains.zeros is None else " and the joint zeros it measured"
+    swept = effective_calibration(config).procedure
+    swept = "" if swept is None else f" (it swept {swept.describe()})"
     return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
-            source + "; the stored drive-gain calibration's uncertainty" + zeros)
+            source + "; the stored drive-gain calibration's uncertainty" + zeros + swept)
 
 
 def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
@@ -201,6 +203,9 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + ", ".join(f"{k}: {v}" for k, v in keys.items()))
     con.say(f"Written with the rest of {config.source} to {path}; run it with:\n"
             f"  payload-agent run --robot {path}")
+    advice = calibration_advice(config, best.candidate)
+    if advice:
+        con.say(advice)
     if config.procedure.inertia is not None:
         con.say(f"The robot time above is the mass and centre-of-mass part; the written file keeps "
                 f"procedure.inertia ({config.procedure.inertia}), whose wrist moves come on top (`plan` shows them).")
@@ -210,3 +215,21 @@ def plan_target(config: Config, args, start_q, con) -> dict:
                      "p_over_target": best.p_over(grams, mm), "procedure_keys": keys,
                      "robot_file": str(path), "inertia_part": config.procedure.inertia}
     return out
+
+
+def calibration_advice(config: Config, candidate) -> str:
+    """A line when the stored calibration swept another procedure than the chosen one: its gains and zeros then
+    absorb less of the arm's DH-length errors than a calibration on the chosen procedure would (docs/benchmarks.md,
+    "Session 16"). The plan does not predict how much less (that needs the other calibration's own response), so
+    this is advice, not a promise; "" when the procedures agree or the calibration does not record its own."""
+    from payload_agent.configuration.procedure import load_procedure
+    from payload_agent.evaluation.calibration import effective_calibration
+
+    cal = effective_calibration(config)
+    name = candidate.procedure or config.procedure.name
+    if cal is None or cal.procedure is None or cal.procedure.fingerprint == load_procedure(name).fingerprint:
+        return ""
+    return (f"The stored calibration swept {cal.procedure.name}, the chosen procedure is {name}: its DH-length term "
+            f"is what that calibration absorbs for another procedure. A calibration on the procedure the runs sweep "
+            f"absorbs most of it (`payload-agent calibrate --robot {config.source} --known-mass KG --known-cog X,Y,Z "
+            f"--procedure {name}`), which can make a faster candidate meet the target; plan again after it.")
