@@ -186,9 +186,16 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + (f"with the approach move {where}:" if start_q is not None else
                "without the approach move (give --from-deg or --connect to count it):"))
     con.say(choice.describe(grams, mm))
+    from payload_agent.evaluation.design import nominal_theta
+    from payload_agent.session.target_advice import calibration_advice
+
+    advice = calibration_advice(config, choice, noise_for(config)[0], nominal_theta(payload.mass_kg, payload.cog_mm),
+                                grams, mm, start_q)
+    if advice:
+        con.say(advice)
     out: dict = {"noise_source": source, "payload": {"mass_kg": payload.mass_kg, "cog_mm": list(payload.cog_mm),
                                                       "source": payload.source},
-                 "approach_counted": start_q is not None, "chosen": None}
+                 "approach_counted": start_q is not None, "chosen": None, "calibration_advice": advice or None}
     if choice.best is None:
         return out
     best = choice.best
@@ -203,9 +210,6 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + ", ".join(f"{k}: {v}" for k, v in keys.items()))
     con.say(f"Written with the rest of {config.source} to {path}; run it with:\n"
             f"  payload-agent run --robot {path}")
-    advice = calibration_advice(config, best.candidate)
-    if advice:
-        con.say(advice)
     if config.procedure.inertia is not None:
         con.say(f"The robot time above is the mass and centre-of-mass part; the written file keeps "
                 f"procedure.inertia ({config.procedure.inertia}), whose wrist moves come on top (`plan` shows them).")
@@ -216,20 +220,3 @@ def plan_target(config: Config, args, start_q, con) -> dict:
                      "robot_file": str(path), "inertia_part": config.procedure.inertia}
     return out
 
-
-def calibration_advice(config: Config, candidate) -> str:
-    """A line when the stored calibration swept another procedure than the chosen one: its gains and zeros then
-    absorb less of the arm's DH-length errors than a calibration on the chosen procedure would (docs/benchmarks.md,
-    "Session 16"). The plan does not predict how much less (that needs the other calibration's own response), so
-    this is advice, not a promise; "" when the procedures agree or the calibration does not record its own."""
-    from payload_agent.configuration.procedure import load_procedure
-    from payload_agent.evaluation.calibration import effective_calibration
-
-    cal = effective_calibration(config)
-    name = candidate.procedure or config.procedure.name
-    if cal is None or cal.procedure is None or cal.procedure.fingerprint == load_procedure(name).fingerprint:
-        return ""
-    return (f"The stored calibration swept {cal.procedure.name}, the chosen procedure is {name}: its DH-length term "
-            f"is what that calibration absorbs for another procedure. A calibration on the procedure the runs sweep "
-            f"absorbs most of it (`payload-agent calibrate --robot {config.source} --known-mass KG --known-cog X,Y,Z "
-            f"--procedure {name}`), which can make a faster candidate meet the target; plan again after it.")
