@@ -49,31 +49,37 @@ def test_a_faster_candidate_kept_out_by_its_length_term_is_named_with_the_calibr
     noise, source, choice = _choice(config)
     assert "it swept paper_bd, 0–55°, sweep 10 %" in source
     theta = design.nominal_theta(2.0, (0.0, 0.0, 100.0))
-    p, q = kept_out_by_lengths(config, choice, noise, theta, 2.0, 1.0)
-    # it misses the target as planned, meets it without the length term, and nothing faster does
-    assert not p.meets(2.0, 1.0) and q.meets(2.0, 1.0) and q.mass_std_g < p.mass_std_g
+    found = kept_out_by_lengths(config, choice, noise, theta, 2.0, 1.0)
+    assert found and len({p.candidate.procedure for p, _ in found}) == len(found)  # one per procedure
     no_lengths = dataclasses.replace(noise, length_std_m=0.0)
-    for other in choice.table:
-        if other.usable and other.robot_time_s < p.robot_time_s:
-            assert not design.predict(config, other.candidate, no_lengths, theta).meets(2.0, 1.0)
+    for p, q in found:
+        # each misses the target as planned, meets it without the length term, and nothing faster of its procedure
+        # does
+        assert not p.meets(2.0, 1.0) and q.meets(2.0, 1.0) and q.mass_std_g < p.mass_std_g
+        for other in choice.table:
+            if (other.usable and other.robot_time_s < p.robot_time_s
+                    and other.candidate.procedure == p.candidate.procedure):
+                assert not design.predict(config, other.candidate, no_lengths, theta).meets(2.0, 1.0)
     advice = calibration_advice(config, choice, noise, theta, 2.0, 1.0)
-    name = p.candidate.procedure
-    assert advice.startswith(p.candidate.describe()) and "swept paper_bd, 0–55°, sweep 10 %" in advice
-    assert f"--procedure {name}`" in advice and "plan again" in advice
+    assert "swept paper_bd, 0–55°, sweep 10 %" in advice and "plan again" in advice
+    for p, _ in found:
+        assert p.candidate.describe() in advice and f"--procedure {p.candidate.procedure}`" in advice
 
 
 def test_no_advice_when_the_calibration_swept_that_procedure_or_does_not_say_or_no_length_term(monkeypatch, tmp_path):
     theta = design.nominal_theta(2.0, (0.0, 0.0, 100.0))
     config = _calibrated_ec66(monkeypatch, tmp_path / "a", "paper_bd", 2.0)
     noise, _, choice = _choice(config)
-    p, _ = kept_out_by_lengths(config, choice, noise, theta, 2.0, 1.0)
+    (p, _), *others = kept_out_by_lengths(config, choice, noise, theta, 2.0, 1.0)
     same = _calibrated_ec66(monkeypatch, tmp_path / "b", p.candidate.procedure, 2.0)
     noise, _, choice = _choice(same)
-    assert kept_out_by_lengths(same, choice, noise, theta, 2.0, 1.0) is not None
-    assert calibration_advice(same, choice, noise, theta, 2.0, 1.0) == ""
+    assert kept_out_by_lengths(same, choice, noise, theta, 2.0, 1.0)
+    advice = calibration_advice(same, choice, noise, theta, 2.0, 1.0)
+    assert f"--procedure {p.candidate.procedure}`" not in advice  # the calibration's own procedure is not advised
+    assert (advice == "") == (not others)
     unknown = _calibrated_ec66(monkeypatch, tmp_path / "c", None, 2.0)
     noise, source, choice = _choice(unknown)
     assert "it swept" not in source and calibration_advice(unknown, choice, noise, theta, 2.0, 1.0) == ""
     exact = _calibrated_ec66(monkeypatch, tmp_path / "d", "paper_bd", 0.0)
     noise, _, choice = _choice(exact)
-    assert kept_out_by_lengths(exact, choice, noise, theta, 2.0, 1.0) is None
+    assert kept_out_by_lengths(exact, choice, noise, theta, 2.0, 1.0) == []

@@ -219,4 +219,3 @@ def plan_target(config: Config, args, start_q, con) -> dict:
                      "p_over_target": best.p_over(grams, mm), "procedure_keys": keys,
                      "robot_file": str(path), "inertia_part": config.procedure.inertia}
     return out
-
