@@ -265,13 +265,16 @@ def _closing_turns(build, wrists: dict[str, np.ndarray], after: tuple[float, ...
     that it ends within ``MAX_SINGLE_MOVE_RAD`` of ``close_to``: of the choices whose every target lies within the
     limits and whose every move (the travels into and between the orientations included) turns no joint more than
     that, the one with the smallest largest turn (the closing move counted), then the least travel; None when none.
-    A fixed enumeration order with ties to the first: the plan does not depend on where a run starts.
+    A fixed enumeration order with ties to the first: the plan does not depend on where a run starts. With more
+    than two orientations (3^9 and more choices) every orientation takes the same shift per joint (27 choices).
     """
     lo, hi = np.array(wrist_limits, float).T
     names = list(wrists)
+    each = len(names) <= 2
     best, best_key = None, None
-    for shifts in itertools.product((0, -1, 1), repeat=3 * len(names)):
-        turned = {n: wrists[n] + 2 * math.pi * np.array(shifts[3 * i:3 * i + 3], float) for i, n in enumerate(names)}
+    for shifts in itertools.product((0, -1, 1), repeat=3 * len(names) if each else 3):
+        turned = {n: wrists[n] + 2 * math.pi * np.array(shifts[3 * i:3 * i + 3] if each else shifts, float)
+                  for i, n in enumerate(names)}
         moves = build(turned)
         targets = np.array([m.target_rad for m in moves], float)[:, 3:]
         if np.any(targets < lo - 1e-9) or np.any(targets > hi + 1e-9):
