@@ -31,17 +31,23 @@ COULOMB, VISCOUS, LOAD_RATIO = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5), (8.0, 8.0, 5.0, 1
 DROP = 0.10  # the tool run's friction level below the baseline's
 
 
-@pytest.fixture(scope="module")
-def runs():
-    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+def _recorded(config, noise_nm):
+    """(empty, loaded, loaded with the friction level DROP lower) on the simulated arm."""
     plan = make_plan(config)
-    robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5, noise_nm=0.3,
-                     friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO)))
+    robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5,
+                     noise_nm=noise_nm, friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO)))
     empty, _ = record_plan(robot, plan)
     robot.set_payload(TRUTH)
     same, _ = record_plan(robot, plan)
     robot.set_friction_scale(1.0 - DROP)
     dropped, _ = record_plan(robot, plan)
+    return empty, same, dropped
+
+
+@pytest.fixture(scope="module")
+def runs():
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+    empty, same, dropped = _recorded(config, 0.3)
     speed = {j: abs(plan_speed) for j, plan_speed in _sweep_speeds(same).items()}
     return config, empty, same, dropped, speed
 
@@ -67,14 +73,41 @@ def _changes(loaded, empty, prior_rel=0.08):
     return out
 
 
-def test_the_constant_part_shows_a_drop_the_net_change_hides(runs):
-    _, empty, _, dropped, speed = runs
+@pytest.mark.parametrize("noise_nm", [0.3, 0.05])
+def test_the_coulomb_part_shows_a_drop_the_net_change_hides(runs, noise_nm):
+    """The measured change is of the Coulomb part alone, the part a direction asymmetry multiplies: the legs' ramps
+    split it from the viscous part, which at this sweep speed is half as large again (counting it overstated the
+    residual friction 1.4–1.5×: issue 22, session 16). At the benchmark's noise the two differ by about 2 σ of the
+    measurement; at a sixth of it the test tells them apart."""
+    config, empty, _, dropped, speed = runs
+    if noise_nm != 0.3:
+        empty, _, dropped = _recorded(config, noise_nm)
     for j, (change, net) in _changes(dropped, empty).items():
-        true = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])  # the constant part: Coulomb + viscous at speed
-        assert change.measured, change
-        assert abs(change.measured_nm - true) < 3.5 * change.measured_std_nm + 0.03, (j, change, true)
+        true = -DROP * COULOMB[j]  # the Coulomb part
+        with_viscous = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])  # the constant part at the sweep speed
+        assert change.measured and change.coulomb_only, change
+        assert abs(change.measured_nm - true) < 3.0 * change.measured_std_nm, (j, change, true)
+        if noise_nm < 0.1:
+            assert abs(change.measured_nm - true) < 0.3 * abs(with_viscous - true), (j, change, true, with_viscous)
         # the whole gap's change is no measure of it: the tool's load torque raises the load-dependent part
-        assert net > true + 0.25, (j, net, true)
+        assert net > with_viscous + 0.25, (j, net, with_viscous)
+
+
+def test_legs_cut_to_their_constant_speed_windows_keep_the_viscous_part_as_a_margin(runs):
+    """Where the recording holds no ramps, the speeds along the legs cannot split Coulomb from viscous: the change is
+    then of the constant part c₀ (Coulomb + viscous at the sweep speed), as before session 16."""
+    from payload_agent.analysis.delta import window_of
+
+    _, empty, _, dropped, speed = runs
+
+    def cut(sweeps):
+        return {k: dataclasses.replace(s, t=s.t[window_of(s).slice], q=s.q[window_of(s).slice],
+                                       effort_nm=s.effort_nm[window_of(s).slice]) for k, s in sweeps.items()}
+
+    for j, (change, _) in _changes(cut(dropped), cut(empty)).items():
+        with_viscous = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])
+        assert change.measured and not change.coulomb_only, change
+        assert abs(change.measured_nm - with_viscous) < 3.5 * change.measured_std_nm + 0.03, (j, change, with_viscous)
 
 
 def test_no_change_measured_keeps_the_residual_friction_term_far_below_the_declared_prior(runs):

@@ -271,8 +271,9 @@ def friction_terms(ctx: Context) -> list[Term]:
         std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
                                                               ctx.gain_reference, joints, rel, constant)
         ref = f"; also in the drive-gain calibration's reference run, {ref}"
-    measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
-                if change[j].measured]
+    measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
+                + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
+                for j in joints if change[j].measured]
     prior = [f"j{j + 1}" for j in joints if not change[j].measured]
     how = ("measured " + ", ".join(measured) + " N·m") if measured else ""
     if prior:
@@ -280,7 +281,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
-                 f"the change of the constant friction part between the runs ({how}){ref} in σ")]
+                 f"the change of the Coulomb friction part between the runs ({how}){ref} in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
