@@ -24,11 +24,12 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
    - residual friction: the two-direction average cancels friction odd in speed; a Coulomb
      direction asymmetry a_j leaves a_j·s·C_j even in speed, which cancels against the baseline only if
      the friction level s did not change. The change of the part the asymmetry acts on is MEASURED per
-     joint (``systematics.friction``: along each sweep the legs' half gap is split into a constant part,
-     Coulomb + viscous at the sweep speed, and a part growing with the load torque; the constant part's
-     change between the empty and the loaded run, pooled over the joint's sweeps). The net change of the
-     whole gap is no measure of it: the tool's load raises the load-dependent part, which is symmetric
-     and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
+     joint (``systematics.friction``: along each sweep's whole legs, ramps included, the legs' half gap is
+     split into a Coulomb part, a viscous part growing with speed and a part growing with the load torque;
+     the Coulomb part's change between the empty and the loaded run, pooled over the joint's sweeps; the
+     constant part at the sweep speed, viscous included as a margin, where the legs' speeds cannot split
+     it). The net change of the whole gap is no measure of it: the tool's load raises the load-dependent
+     part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
      prior the measurement is combined with. The asymmetry itself stays DECLARED
      (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
