@@ -117,6 +117,42 @@ def test_no_change_measured_keeps_the_residual_friction_term_far_below_the_decla
         assert change.rms_nm < 0.5 * change.prior_std_nm, (j, change)
 
 
+def test_the_residual_friction_term_predicts_the_shift_the_asymmetry_leaves(runs):
+    """The same arm, payload, noise seed and friction drop, with and without a Coulomb direction asymmetry on joint
+    2: the asymmetry leaves a·ΔC in the two-direction average and moves the mass. The term's parameter for joint 2,
+    taken at the true asymmetry, predicts that shift: its size is the measured Coulomb change, not the constant part
+    with the viscous one (which overstated it by half: issue 22, session 16)."""
+    from payload_agent.solvers import general
+
+    config = runs[0]
+    kin = config.robot.kinematics
+    joints = dataclasses.replace(config.robot.joints, friction_asymmetry_std=0.087)
+    a = 0.12
+
+    def analysed(asymmetry):
+        plan = make_plan(config)
+        robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5,
+                         noise_nm=0.05, friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO),
+                                                                asymmetry=np.array([0.0, asymmetry, 0, 0, 0, 0])))
+        empty, _ = record_plan(robot, plan)
+        robot.set_payload(TRUTH)
+        robot.set_friction_scale(1.0 - DROP)
+        loaded, _ = record_plan(robot, plan)
+        prepared = systematics.prepare(loaded, empty, joints)
+        fric = next(t for t in systematics.evaluate(prepared, kin, joints).terms if t.name == "residual friction")
+        return general.fit_model(prepared.deltas, kin).fit().theta[:4], fric
+
+    theta_sym, _ = analysed(0.0)
+    theta_asym, fric = analysed(a)
+    shift_g = 1000.0 * (theta_asym[0] - theta_sym[0])
+    assert abs(shift_g) > 3.0, shift_g  # grams on a 3 kg tool
+    k = 0  # the term's joints in order: 2, 3
+    assert "j2 " in fric.note and "viscous" not in fric.note, fric.note  # the Coulomb part's change
+    change_nm = fric.std[k] / 0.087  # √E[Δ²] of joint 2's Coulomb change, as measured
+    predicted_g = 1000.0 * a * abs(fric.sens[ALL][0, k]) * change_nm  # the term carries the size, not the sign
+    assert abs(predicted_g - abs(shift_g)) < 0.15 * abs(shift_g), (predicted_g, shift_g)
+
+
 def test_a_sweep_without_load_variation_falls_back_on_the_prior():
     flat = friction.FrictionGap(5.0, 0.01, 5.0, float("inf"), 0.0)
     change = friction.coulomb_change([flat], [flat], 0.4)
