@@ -253,7 +253,7 @@ def friction_terms(ctx: Context) -> list[Term]:
     for j in joints:
         mine = [pj for pj in pairs if pj[1] == j]
         level = max(abs(empty[pj].level_nm) for pj in mine)  # the baseline's friction level: the prior's scale
-        change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level)
+        change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level, rel)
         constant[j] = friction.constant_level([empty[pj] for pj in mine])  # what the asymmetry multiplies
 
     def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:

@@ -59,6 +59,7 @@ class FrictionGap:
     # what a direction asymmetry multiplies; std inf where the legs' speeds vary too little to split it off
     coulomb_nm: float = float("nan")
     coulomb_std_nm: float = float("inf")
+    viscous_nm: float = 0.0  # s·V·|q̇| at the sweep's top speed, from the same split (0 where not split)
 
     @property
     def coulomb_split(self) -> bool:
@@ -105,22 +106,22 @@ def _whole_legs(up: SweepData, down: SweepData, j: int) -> tuple[np.ndarray, np.
     return (0.5 * sign * (tu - td_at))[keep], (0.5 * (tu + td_at))[keep], (0.5 * (vu[inside] + vd_at))[keep]
 
 
-def _split_speed(gap: np.ndarray, mean: np.ndarray, speed: np.ndarray) -> tuple[float, float]:
-    """(s·C, its std) of gap = s·C + s·V·|q̇| + s·L·|mean| (least squares, autocorrelation-corrected); std inf where
+def _split_speed(gap: np.ndarray, mean: np.ndarray, speed: np.ndarray) -> tuple[float, float, float]:
+    """(s·C, its std, s·V at the top speed) of gap = s·C + s·V·|q̇| + s·L·|mean| (least squares, autocorrelation-corrected); std inf where
     the speeds span less than ``MIN_SPEED_SPREAD`` of the top speed (no ramps in the recording)."""
     from payload_agent.solvers.wls import autocorrelation_time
 
     if float(np.ptp(speed)) < MIN_SPEED_SPREAD * float(np.max(speed)):
-        return float("nan"), float("inf")
+        return float("nan"), float("inf"), 0.0
     A = np.column_stack([np.ones(len(gap)), speed, np.abs(mean)])
     AtA = A.T @ A
     if np.linalg.cond(AtA) > 1e12:
-        return float("nan"), float("inf")
+        return float("nan"), float("inf"), 0.0
     coef = np.linalg.solve(AtA, A.T @ gap)
     r = gap - A @ coef
     tau = autocorrelation_time(r)[0]
     var = float(r @ r) / max(len(r) - 3, 1) * max(tau, 1.0)
-    return float(coef[0]), float(np.sqrt(var * np.linalg.inv(AtA)[0, 0]))
+    return float(coef[0]), float(np.sqrt(var * np.linalg.inv(AtA)[0, 0])), float(coef[1] * np.max(speed))
 
 
 def _split(gap: np.ndarray, mean: np.ndarray) -> tuple[float, float, float]:
@@ -163,8 +164,8 @@ def friction_gaps(sweeps: Mapping[SweepKey, SweepData], commands: Mapping | None
         std = 1.2533 * float(np.std(gap)) * np.sqrt(max(tau, 1.0) / len(gap))  # median of ~normal noise
         c0, c0_std, slope = _split(gap, mean)
         whole = _whole_legs(up, sweeps[dkey], j)
-        coulomb, coulomb_std = _split_speed(*whole) if whole is not None else (float("nan"), float("inf"))
-        found = FrictionGap(med, std, c0, c0_std, slope, coulomb, coulomb_std)
+        coulomb, coulomb_std, viscous = _split_speed(*whole) if whole is not None else (float("nan"), float("inf"), 0.0)
+        found = FrictionGap(med, std, c0, c0_std, slope, coulomb, coulomb_std, viscous)
         if (key.pose, j) not in out or abs(found.level_nm) > abs(out[(key.pose, j)].level_nm):
             out[(key.pose, j)] = found
     return out
@@ -195,23 +196,37 @@ class CoulombChange:
                     and (self.prior_std_nm <= 0.0 or self.measured_std_nm <= self.prior_std_nm))
 
 
-def coulomb_change(loaded: list[FrictionGap], empty: list[FrictionGap], prior_std_nm: float) -> CoulombChange:
-    """The change of the part a direction asymmetry acts on, of one joint, from its sweeps' gaps in both runs
-    (``loaded[i]`` and ``empty[i]`` the same sweep), combined with the declared prior N(0, prior_std_nm²): the
-    Coulomb part's where every sweep of both runs split it from the viscous part, else the constant part's."""
-    coulomb = bool(loaded) and all(g.coulomb_split for g in (*loaded, *empty))
-    if coulomb:
-        d = np.array([lo.coulomb_nm - em.coulomb_nm for lo, em in zip(loaded, empty)], float)
-        v = np.array([lo.coulomb_std_nm ** 2 + em.coulomb_std_nm ** 2 for lo, em in zip(loaded, empty)], float)
-    else:
-        d = np.array([lo.constant_nm - em.constant_nm for lo, em in zip(loaded, empty)], float)
-        v = np.array([lo.constant_std_nm ** 2 + em.constant_std_nm ** 2 for lo, em in zip(loaded, empty)], float)
+def _pooled(d: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+    """Inverse-variance mean of the finite entries and its variance ((0, inf) with none)."""
     ok = np.isfinite(v) & (v > 0)
-    if ok.any():
-        w = 1.0 / v[ok]
-        meas, meas_var = float(np.sum(w * d[ok]) / np.sum(w)), float(1.0 / np.sum(w))
-    else:
-        meas, meas_var = 0.0, float("inf")
+    if not ok.any():
+        return 0.0, float("inf")
+    w = 1.0 / v[ok]
+    return float(np.sum(w * d[ok]) / np.sum(w)), float(1.0 / np.sum(w))
+
+
+def coulomb_change(loaded: list[FrictionGap], empty: list[FrictionGap], prior_std_nm: float,
+                   change_rel: float | None = None) -> CoulombChange:
+    """The change of the part a direction asymmetry acts on, of one joint, from its sweeps' gaps in both runs
+    (``loaded[i]`` and ``empty[i]`` the same sweep), combined with the declared prior N(0, prior_std_nm²).
+
+    Two measures: the Coulomb part's change, where every sweep of both runs split it from the viscous part, and the
+    constant part's (Coulomb + viscous at the sweep speed), more precise but off by the viscous part's change. The
+    Coulomb part's is used where its variance is below the constant part's plus the square of that possible offset,
+    ``change_rel`` (the declared relative change) × the baseline's viscous part at the sweep speed: at a 10 % sweep
+    of the EC66 the viscous part is half the Coulomb part, at 1 % a twentieth, where the split only adds noise
+    (the intercept then extrapolates from short ramps). ``change_rel`` None: the Coulomb part's wherever split."""
+    d0 = np.array([lo.constant_nm - em.constant_nm for lo, em in zip(loaded, empty)], float)
+    v0 = np.array([lo.constant_std_nm ** 2 + em.constant_std_nm ** 2 for lo, em in zip(loaded, empty)], float)
+    meas, meas_var = _pooled(d0, v0)
+    coulomb = False
+    if loaded and all(g.coulomb_split for g in (*loaded, *empty)):
+        dc = np.array([lo.coulomb_nm - em.coulomb_nm for lo, em in zip(loaded, empty)], float)
+        vc = np.array([lo.coulomb_std_nm ** 2 + em.coulomb_std_nm ** 2 for lo, em in zip(loaded, empty)], float)
+        meas_c, var_c = _pooled(dc, vc)
+        offset = 0.0 if change_rel is None else float(change_rel) * max(abs(g.viscous_nm) for g in empty)
+        if change_rel is None or var_c < meas_var + offset ** 2:
+            meas, meas_var, coulomb = meas_c, var_c, True
     prior_var = float(prior_std_nm) ** 2
     if prior_var <= 0.0:
         mean, var = (meas, meas_var) if np.isfinite(meas_var) else (0.0, 0.0)

@@ -102,7 +102,8 @@ def measure(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     for j in sorted({j for _, j in pairs}):
         mine = [pj for pj in pairs if pj[1] == j]
         constant = friction.constant_level([em[pj] for pj in mine])
-        change = friction.coulomb_change([lo[pj] for pj in mine], [em[pj] for pj in mine], change_prior_rel * constant)
+        change = friction.coulomb_change([lo[pj] for pj in mine], [em[pj] for pj in mine], change_prior_rel * constant,
+                                         change_prior_rel)
         out.append(JointChange(j, change, constant))
     return ReferenceFriction(float(change_prior_rel), tuple(out)) if out else None
 
