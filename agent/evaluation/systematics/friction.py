@@ -27,7 +27,8 @@ leg stops), so a regression of the gap over the whole legs on [1, |q̇|, |mean|]
 intercept at zero speed and zero load) from the viscous one (``FrictionGap.coulomb_nm``), and ``coulomb_change``
 pools its change. Samples slower than ``RAMP_MIN_SPEED_SHARE`` of the top speed are left out (stiction and the
 Stribeck rise near rest are not in the affine model). Where the legs' speeds do not span enough of the range to
-split them (a recording cut to the constant-speed windows), c₀ stays the measure, the viscous part a margin.
+split them (a recording cut to the constant-speed windows), or where the split costs more precision than the
+viscous part's plausible change (slow sweeps, ``coulomb_change``), c₀ stays the measure, the viscous part a margin.
 """
 
 from __future__ import annotations
