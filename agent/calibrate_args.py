@@ -1,9 +1,17 @@
-"""`payload-agent calibrate`'s command-line values, checked: the reference payload and the sweep-speed override.
+"""`payload-agent calibrate`'s command-line values, checked: the reference payload, the sweep-speed override and
+the procedure override.
 
 A calibration is run once per robot and every later run carries its drive-gain uncertainty, so a slower
 calibration than the YAML's identification speed can pay (``--speed-percent``; docs/benchmarks.md, issue 22:
 on sim-ec66 a 5 kg reference off the flange axis at 5 % cut the gains' share of a 2 kg tool's mass σ from 0.78
 to 0.28 g). The override changes the sweep speed only; the safety gate checks the plan as for every run.
+
+A calibration absorbs into its gains and zeros part of the arm's DH-length errors, and which part depends on where
+its sweeps lie: a calibration that swept the procedure the tool runs will sweep absorbs nearly all of it (the
+reference's lever changes as the tool's does), one on another procedure does not (docs/benchmarks.md, "Session 15:
+the length term after a calibration on another procedure"). ``--procedure`` lets the user calibrate on the
+procedure ``plan --target-std`` chose; it changes which poses and sweeps are recorded (the inertia part is left
+out: the calibration does not use it), and the safety gate checks that plan whole as for every run.
 """
 
 from __future__ import annotations
@@ -11,7 +19,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from pathlib import Path
+
 from payload_agent.configuration.config import Config
+from payload_agent.configuration.procedure import load_procedure
 from payload_agent.errors import ConfigError
 from payload_agent.types import PayloadSetting
 
@@ -38,3 +49,27 @@ def with_speed(config: Config, speed_percent: float | None) -> Config:
         raise ConfigError("--speed-percent", f"expected a sweep speed above 0 and at most the robot's cap of {cap:g} % "
                                              f"(safety.max_speed_percent in {config.source}), got {speed_percent:g}")
     return dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, speed_percent=speed_percent))
+
+
+def with_procedure(config: Config, name_or_file: str | None) -> Config:
+    """The config with ``--procedure`` (a bundled procedure's name or a procedure file) as the procedure whose poses
+    and sweeps the calibration records (unchanged without one); the file is read and checked as the YAML's
+    ``procedure.name`` is, and a file's path is kept absolute (the calibration records it)."""
+    if name_or_file is None:
+        return config
+    path = Path(name_or_file).expanduser()
+    if path.suffix in (".yaml", ".yml"):
+        if not path.is_file():
+            raise ConfigError("--procedure", f"no procedure file {str(path)!r} (give a bundled procedure's name or "
+                                             "the path of a procedure YAML file)")
+        name_or_file = str(path.resolve())
+    try:
+        load_procedure(name_or_file)
+    except ConfigError as exc:  # the file's own key path stays in the message: it says what to fix in the file
+        where = "" if exc.source is None else f"{exc.source}: {exc.key_path}: "
+        raise ConfigError("--procedure", where + exc.problem) from None
+    # the calibration fits its gains and zeros on the sweeps alone: the inertia part's wrist moves would add robot
+    # time and nothing to it, and after the empty run they can end a whole turn from another procedure's first pose
+    # (j2_quarter on sim-ur5e: a 270° approach of joint 6 that the safety gate refuses before the loaded run)
+    return dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, name=name_or_file,
+                                                                     inertia=None))

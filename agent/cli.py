@@ -159,6 +159,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the calibration's sweep speed instead of the YAML's procedure.speed_percent: slower pins "
                           "the drive gains tighter, and every later run carries their uncertainty (a calibration is "
                           "run once per robot, not per tool)")
+    cal.add_argument("--procedure", metavar="NAME|FILE",
+                     help="the procedure to calibrate on instead of the YAML's procedure.name: a bundled procedure's "
+                          "name or a procedure file (its sweep range and speed stay the YAML's; the inertia part is "
+                          "left out). A calibration on the procedure your runs sweep takes most of the arm's DH-length "
+                          "error out of their σ, e.g. the one `plan --target-std` chose")
     _session_args(cal)
 
     hist = add("history", "list past identifications of this robot", json_ok=True)

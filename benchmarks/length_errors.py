@@ -19,6 +19,7 @@ errors themselves, which makes the calibration's response to them nonlinear; ``-
 simulation's noise, common to every arm, as a real calibration's weights are the noise's.
 
     .venv/bin/python -m benchmarks.length_errors [--arms 12] [--dh-error-mm 0.5] [--noise]
+        [--calibrate-procedure NAME|FILE] [--candidate PROCEDURE:SPEED:FROM:TO]
 """
 
 from __future__ import annotations
@@ -51,8 +52,9 @@ class Bench:
 
 
 def bench(calibrate_with: str = "5:60,0,80", calibrate_speed: float = 3.0, candidate: str = "j2_quarter:5:0:20",
-          noise: bool = False) -> Bench:
+          noise: bool = False, calibrate_procedure: str | None = None) -> Bench:
     """The set-up of ``main`` (its options as strings, as on the command line)."""
+    from payload_agent.calibrate_args import with_procedure
     from payload_agent.configuration.config import load_config
     from payload_agent.evaluation import design
     from payload_agent.motion.planner import make_plan
@@ -61,8 +63,8 @@ def bench(calibrate_with: str = "5:60,0,80", calibrate_speed: float = 3.0, candi
     kg, cog = calibrate_with.split(":")
     name, speed, lo, hi = candidate.split(":")
     cand = design.Candidate(float(speed), 25.0, float(lo), float(hi), 1, 100.0, name)
-    cal_plan = make_plan(dataclasses.replace(config, procedure=dataclasses.replace(
-        config.procedure, speed_percent=calibrate_speed, inertia=None)))
+    cal_plan = make_plan(with_procedure(dataclasses.replace(config, procedure=dataclasses.replace(
+        config.procedure, speed_percent=calibrate_speed, inertia=None)), calibrate_procedure))
     payload = config.simulation.payload
     return Bench(config, (float(kg), tuple(float(v) for v in cog.split(","))),
                  (payload.mass_kg, tuple(payload.cog_mm)), cand, cal_plan, design.plan_for(config, cand), noise)
@@ -146,19 +148,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-with", default="5:60,0,80", metavar="KG:X,Y,Z")
     p.add_argument("--calibrate-speed", type=float, default=3.0)
     p.add_argument("--candidate", default="j2_quarter:5:0:20", metavar="PROCEDURE:SPEED:FROM:TO")
+    p.add_argument("--calibrate-procedure", metavar="NAME|FILE",
+                   help="the calibration's procedure (as `calibrate --procedure`; default the YAML's, paper_bd)")
     p.add_argument("--noise", action="store_true",
                    help="record with the simulation's effort noise, the same draws for every arm (they cancel in "
                         "each arm's difference to the exact arm), so that the fits' weights are the noise's as on a "
                         "real arm, not set by the length errors' own residuals")
     args = p.parse_args(argv)
-    b = bench(args.calibrate_with, args.calibrate_speed, args.candidate, args.noise)
+    b = bench(args.calibrate_with, args.calibrate_speed, args.candidate, args.noise, args.calibrate_procedure)
     config, kin, ref, truth, cand = b.config, b.config.robot.kinematics, b.reference, b.truth, b.candidate
     exact, cal, _ = identified(b, SPECS["ur5e"]())
     S, to_units = predictions(b, cal)
     lengths = general.length_parameters(kin)
     declared = config.robot.length_uncertainty_m
     print(f"{'with the simulation noise (common draws)' if args.noise else 'noise-free'}; sim-ur5e, calibrated with "
-          f"{ref[0]:g} kg at {ref[1]} mm ({args.calibrate_speed:g} %), run "
+          f"{ref[0]:g} kg at {ref[1]} mm ({b.cal_plan.procedure.name}, {args.calibrate_speed:g} %), run "
           f"{cand.describe()}; exact arm's own error {np.round(exact - [1000 * truth[0], *truth[1]], 3)}")
     print("the plan's length term at the declared " + f"{1000 * declared:g} mm: " + ", ".join(
         f"{k} " + " / ".join(f"{v:.3f}" for v in declared * np.sqrt(np.sum((S[k] @ to_units.T) ** 2, axis=0)))

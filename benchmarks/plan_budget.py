@@ -14,7 +14,8 @@ columns are the information per second, σ m (noise alone) · √(constant-speed
 seconds the candidate's shape would need for the target mass given its other terms (∞: they alone exceed it).
 
     .venv/bin/python -m benchmarks.plan_budget --robot sim-ec66 [--seed 1] [--target-std 2,1] [--max-s 15]
-        [--rows 6] [--procedure NAME] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]] [--retry-sweeps N]
+        [--rows 6] [--procedure NAME] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]
+        [--calibrate-procedure NAME|FILE]] [--retry-sweeps N]
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.seeded_runs import parse_reference, seed_config  # noqa: E402
 from payload_agent.evaluation import design  # noqa: E402
+from payload_agent.evaluation.calibration import effective_calibration  # noqa: E402
 from payload_agent.session import target as targets  # noqa: E402
 from payload_agent.solvers.wls import cog_with_covariance  # noqa: E402
 
@@ -80,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    p.add_argument("--calibrate-procedure", metavar="NAME|FILE",
+                   help="the calibration's procedure (as `calibrate --procedure`; default the YAML's)")
     p.add_argument("--procedure", metavar="NAME", help="show only this procedure's candidates (and the chosen one)")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="the calibration run's retries of a failed sweep (a loaded host), as seeded_runs")
@@ -87,8 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     grams, mm = targets.parse_target(args.target_std)
     with tempfile.TemporaryDirectory(prefix="plan-budget-") as tmp:
         config = seed_config(args.robot, args.seed, Path(tmp), args.calibrate, parse_reference(args.calibrate_with),
-                             args.calibrate_speed, args.retry_sweeps)
+                             args.calibrate_speed, args.retry_sweeps, calibrate_procedure=args.calibrate_procedure)
         noise, source = targets.noise_for(config)
+        cal = effective_calibration(config) if args.calibrate else None
         sim = config.simulation
         theta = design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm)
         choice = design.choose(config, grams, mm, noise, nominal_mass_kg=sim.payload.mass_kg,
@@ -99,7 +104,11 @@ def main(argv: list[str] | None = None) -> int:
                       key=lambda q: max(q.mass_std_g / grams, q.cog_std_mm / mm))[:args.rows]
         shown = near + ([choice.best] if choice.best is not None and choice.best not in near else [])
         rows = [(q, budget(config, q.candidate, noise, theta, grams)) for q in shown]
-    print(f"{args.robot}, seed {args.seed}{', calibrated' if args.calibrate else ''}: {source}")
+    calibrated = f", calibrated on {args.calibrate_procedure or 'the YAML procedure'}" if args.calibrate else ""
+    print(f"{args.robot}, seed {args.seed}{calibrated}: {source}")
+    if cal is not None:
+        print("the calibration's gains: " + ", ".join(
+            f"joint {j + 1} ±{100 * cal.scale_std[j]:.3f} %" for j in cal.fitted_joints) + " fitted, others nominal")
     print(f"target {grams:g} g / {mm:g} mm for the simulation's payload; chosen: "
           + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.1f} s)" if choice.best else "none"))
     head = " | ".join(("noise", "+ wrist", "+ gains", "+ DH lengths", "+ zeros", "+ friction (plan)"))

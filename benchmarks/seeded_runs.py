@@ -7,7 +7,8 @@ mean error (a bias shows here), its standard error, rms(error/σ) and the share 
 hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
-        [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]]]
+        [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]
+        [--calibrate-procedure NAME|FILE]]]
         [--driver-option KEY=VALUE] [--dh-error-mm MM]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
@@ -18,7 +19,8 @@ the effort noise and the stream's samples per second in it; the run still record
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
-``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise). ``--dh-error-mm``: each
+``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
+its procedure (the YAML's otherwise). ``--dh-error-mm``: each
 seed's simulated arm has its non-zero DH lengths off by up to that (uniform, drawn from the seed) while the agent
 keeps the YAML's; the JSON then holds the drawn errors and the plan's DH-length term (``pred_length_std``).
 """
@@ -57,9 +59,10 @@ def parse_reference(text: str | None) -> tuple:
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
                 calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False,
-                dh_error_mm: float = 0.0):
+                dh_error_mm: float = 0.0, calibrate_procedure: str | None = None):
     """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
-    YAML's procedure stored, then calibrated, first when asked); ``dh_error_mm``: the simulated arm's DH lengths off
+    YAML's procedure stored, then calibrated, first when asked: on ``calibrate_procedure``, a procedure's name or
+    file, as ``calibrate --procedure``, else the YAML's); ``dh_error_mm``: the simulated arm's DH lengths off
     by up to that (``simulation.dh_length_error_mm``, drawn from the seed: another arm per seed)."""
     data = yaml.safe_load((ROOT / "configs" / f"{robot}.yaml").read_text())
     data["simulation"]["seed"] = seed
@@ -74,13 +77,11 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
     if baseline:  # `payload-agent baseline`: the plan then measures the noise and the stream in it
         run_identification(config, RunOptions(mode="baseline", **_quiet(retry_sweeps)), _silent())
     if calibrate:
-        import dataclasses
-
+        from payload_agent.calibrate_args import with_procedure, with_speed
         from payload_agent.types import PayloadSetting
 
         kg, cog_mm = reference
-        cal_config = config if calibrate_speed is None else dataclasses.replace(
-            config, procedure=dataclasses.replace(config.procedure, speed_percent=calibrate_speed))
+        cal_config = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
         run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
             kg, tuple(c / 1000.0 for c in cog_mm)), **_quiet(retry_sweeps)), _silent(),
             SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
@@ -97,9 +98,9 @@ def _silent() -> OperatorUI:
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
-            baseline: bool = False, dh_error_mm: float = 0.0) -> dict:
+            baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None) -> dict:
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
-                         dh_error_mm)
+                         dh_error_mm, calibrate_procedure)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     if target:
@@ -197,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate", action="store_true", help="calibrate the drive gains first (each seed)")
     p.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    p.add_argument("--calibrate-procedure", metavar="NAME|FILE",
+                   help="the calibration's procedure (as `calibrate --procedure`; default the YAML's)")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
@@ -215,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
-                            args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm)
+                            args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
+                            args.calibrate_procedure)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

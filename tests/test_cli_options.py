@@ -187,6 +187,54 @@ def test_doctor_and_plan_connect_name_host_and_port_of_an_unreachable_controller
     assert "127.0.0.1" in err and str(port) in err and "Traceback" not in err
 
 
+def test_a_bad_calibrate_procedure_is_refused_by_name_before_anything_starts(tmp_path, sim_ec66_data, capsys,
+                                                                            monkeypatch):
+    """`calibrate --procedure`: an unknown name lists the bundled ones, a missing file says so, a malformed file
+    names its own key, and a wrist procedure (no sweeps) is refused; nothing connects or moves."""
+    from payload_agent.session import runner
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
+    started = []
+    monkeypatch.setattr(runner, "run_identification", lambda *a, **k: started.append(a))
+    path = _robot_file(tmp_path, sim_ec66_data)
+    malformed = tmp_path / "tilted.yaml"
+    malformed.write_text("name: tilted\ndescription: d\nposes:\n  p: {tool_x: up, tool_z: -up}\n"
+                         "sweeps:\n  - {pose: p, joint: 2}\n")
+    for bad, says in (("j2_quartet", "bundled: j2_pair, j2_quarter, j2_triple, paper_bd"),
+                      (str(tmp_path / "none.yaml"), "no procedure file"),
+                      (str(malformed), f"{malformed}: poses.p.tool_z: must be perpendicular"),
+                      ("wrist_inertia", "sweeps: is required")):
+        rc = cli.main(["calibrate", "--robot", str(path), "--yes", "--known-mass", "3", "--known-cog", "0,0,80",
+                       "--procedure", bad])
+        err = capsys.readouterr().err
+        assert rc == 2 and "--procedure" in err and says in err, err
+        assert "Traceback" not in err
+    assert started == []  # refused before any session (nothing connected, nothing moved)
+
+
+def test_calibrate_procedure_replaces_the_procedure_only_and_leaves_the_inertia_part_out(tmp_path, sim_ec66_data,
+                                                                                         monkeypatch):
+    """`calibrate --procedure`: the named procedure (a file's path made absolute, so gains.json records where it
+    is), the YAML's sweep range and speed kept, no wrist moves (the calibration does not use them)."""
+    from payload_agent.calibrate_args import with_procedure
+    from payload_agent.configuration.config import load_config
+    from payload_agent.motion.planner import make_plan
+
+    config = load_config(_robot_file(tmp_path, tweak(sim_ec66_data, "procedure.inertia", True)))
+    assert config.procedure.inertia is not None and config.procedure.name == "paper_bd"
+    assert with_procedure(config, None) is config
+    quarter = with_procedure(config, "j2_quarter")
+    assert quarter.procedure.name == "j2_quarter" and quarter.procedure.inertia is None
+    assert (quarter.procedure.sweep_from_deg, quarter.procedure.sweep_to_deg, quarter.procedure.speed_percent) == (
+        config.procedure.sweep_from_deg, config.procedure.sweep_to_deg, config.procedure.speed_percent)
+    plan = make_plan(quarter)
+    assert not plan.wrist_moves and {(m.sweep.pose, m.sweep.joint) for m in plan.sweeps} == {("p", 2), ("q", 2)}
+    copy = tmp_path / "mine.yaml"
+    copy.write_text((ROOT / "procedures" / "j2_triple.yaml").read_text())
+    monkeypatch.chdir(tmp_path)
+    assert with_procedure(config, "mine.yaml").procedure.name == str(copy.resolve())
+
+
 def test_calibrate_speed_outside_the_cap_is_refused_by_name_before_anything_starts(tmp_path, sim_ec66_data, capsys,
                                                                                     monkeypatch):
     from payload_agent.session import runner

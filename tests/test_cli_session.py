@@ -232,6 +232,30 @@ def test_readme_calibrate_example_works_on_the_simulator(tmp_path, capsys, monke
     assert gains["reference_mass_kg"] == 3.0 and 2 in gains["fitted_joints"]
 
 
+def test_calibrate_on_a_named_procedure_sweeps_it_and_records_it(tmp_path, capsys, monkeypatch):
+    """`calibrate --procedure j2_pair` on the simulated EC66 whose YAML says paper_bd: the calibration run sweeps
+    j2_pair's two joint-2 sweeps (no inertia part), gains.json records the procedure it swept, and the plan names
+    it (issue 22: how much of the DH lengths a calibration absorbs depends on where it swept)."""
+    from payload_agent.configuration.procedure import load_procedure
+    from payload_agent.session import target
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg-state"))
+    robot = sim_robot(tmp_path, "calproc")
+    assert yaml.safe_load(robot.read_text())["procedure"]["name"] == "paper_bd"
+    rc, out, err = _main(["calibrate", "--robot", str(robot), "--yes", "--known-mass", "3.0", "--known-cog",
+                          "0,0,80", "--procedure", "j2_pair"], capsys)
+    assert rc == 0, err[-3000:]
+    gains = json.loads((tmp_path / "xdg-state" / "payload-agent" / "calproc" / "gains.json").read_text())
+    assert gains["procedure"] == {"name": "j2_pair", "fingerprint": load_procedure("j2_pair").fingerprint,
+                                  "sweep_deg": [0.0, 55.0], "speed_percent": 10.0}
+    manifest = json.loads((Path(gains["run_dir"]) / "manifest.json").read_text())
+    assert manifest["procedure"] == "j2_pair"
+    sweeps = {(m["sweep"]["pose"], m["sweep"]["joint"]) for m in manifest["plan"] if m.get("sweep")}
+    assert sweeps == {(s.pose, s.joint) for s in load_procedure("j2_pair").sweeps}
+    assert not any(m.get("wrist") for m in manifest["plan"])
+    assert "it swept j2_pair, 0–55°, sweep 10 %" in target.noise_for(load_config(robot))[1]
+
+
 def test_doctor_connects_identifies_measures_and_never_moves(tmp_path, monkeypatch):
     from payload_agent.session.doctor import run_doctor
     from payload_agent.session.simulation import SimulatedCell

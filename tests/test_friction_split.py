@@ -31,17 +31,23 @@ COULOMB, VISCOUS, LOAD_RATIO = (4.0, 4.0, 3.0, 1.0, 1.0, 0.5), (8.0, 8.0, 5.0, 1
 DROP = 0.10  # the tool run's friction level below the baseline's
 
 
-@pytest.fixture(scope="module")
-def runs():
-    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+def _recorded(config, noise_nm):
+    """(empty, loaded, loaded with the friction level DROP lower) on the simulated arm."""
     plan = make_plan(config)
-    robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5, noise_nm=0.3,
-                     friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO)))
+    robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5,
+                     noise_nm=noise_nm, friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO)))
     empty, _ = record_plan(robot, plan)
     robot.set_payload(TRUTH)
     same, _ = record_plan(robot, plan)
     robot.set_friction_scale(1.0 - DROP)
     dropped, _ = record_plan(robot, plan)
+    return empty, same, dropped
+
+
+@pytest.fixture(scope="module")
+def runs():
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+    empty, same, dropped = _recorded(config, 0.3)
     speed = {j: abs(plan_speed) for j, plan_speed in _sweep_speeds(same).items()}
     return config, empty, same, dropped, speed
 
@@ -67,14 +73,41 @@ def _changes(loaded, empty, prior_rel=0.08):
     return out
 
 
-def test_the_constant_part_shows_a_drop_the_net_change_hides(runs):
-    _, empty, _, dropped, speed = runs
+@pytest.mark.parametrize("noise_nm", [0.3, 0.05])
+def test_the_coulomb_part_shows_a_drop_the_net_change_hides(runs, noise_nm):
+    """The measured change is of the Coulomb part alone, the part a direction asymmetry multiplies: the legs' ramps
+    split it from the viscous part, which at this sweep speed is half as large again (counting it overstated the
+    residual friction 1.4–1.5×: issue 22, session 16). At the benchmark's noise the two differ by about 2 σ of the
+    measurement; at a sixth of it the test tells them apart."""
+    config, empty, _, dropped, speed = runs
+    if noise_nm != 0.3:
+        empty, _, dropped = _recorded(config, noise_nm)
     for j, (change, net) in _changes(dropped, empty).items():
-        true = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])  # the constant part: Coulomb + viscous at speed
-        assert change.measured, change
-        assert abs(change.measured_nm - true) < 3.5 * change.measured_std_nm + 0.03, (j, change, true)
+        true = -DROP * COULOMB[j]  # the Coulomb part
+        with_viscous = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])  # the constant part at the sweep speed
+        assert change.measured and change.coulomb_only, change
+        assert abs(change.measured_nm - true) < 3.0 * change.measured_std_nm, (j, change, true)
+        if noise_nm < 0.1:
+            assert abs(change.measured_nm - true) < 0.3 * abs(with_viscous - true), (j, change, true, with_viscous)
         # the whole gap's change is no measure of it: the tool's load torque raises the load-dependent part
-        assert net > true + 0.25, (j, net, true)
+        assert net > with_viscous + 0.25, (j, net, with_viscous)
+
+
+def test_legs_cut_to_their_constant_speed_windows_keep_the_viscous_part_as_a_margin(runs):
+    """Where the recording holds no ramps, the speeds along the legs cannot split Coulomb from viscous: the change is
+    then of the constant part c₀ (Coulomb + viscous at the sweep speed), as before session 16."""
+    from payload_agent.analysis.delta import window_of
+
+    _, empty, _, dropped, speed = runs
+
+    def cut(sweeps):
+        return {k: dataclasses.replace(s, t=s.t[window_of(s).slice], q=s.q[window_of(s).slice],
+                                       effort_nm=s.effort_nm[window_of(s).slice]) for k, s in sweeps.items()}
+
+    for j, (change, _) in _changes(cut(dropped), cut(empty)).items():
+        with_viscous = -DROP * (COULOMB[j] + VISCOUS[j] * speed[j])
+        assert change.measured and not change.coulomb_only, change
+        assert abs(change.measured_nm - with_viscous) < 3.5 * change.measured_std_nm + 0.03, (j, change, with_viscous)
 
 
 def test_no_change_measured_keeps_the_residual_friction_term_far_below_the_declared_prior(runs):
@@ -82,6 +115,57 @@ def test_no_change_measured_keeps_the_residual_friction_term_far_below_the_decla
     for j, (change, _) in _changes(same, empty).items():
         assert change.measured and abs(change.measured_nm) < 3.5 * change.measured_std_nm + 0.02, (j, change)
         assert change.rms_nm < 0.5 * change.prior_std_nm, (j, change)
+
+
+def test_the_residual_friction_term_predicts_the_shift_the_asymmetry_leaves(runs):
+    """The same arm, payload, noise seed and friction drop, with and without a Coulomb direction asymmetry on joint
+    2: the asymmetry leaves a·ΔC in the two-direction average and moves the mass. The term's parameter for joint 2,
+    taken at the true asymmetry, predicts that shift: its size is the measured Coulomb change, not the constant part
+    with the viscous one (which overstated it by half: issue 22, session 16)."""
+    from payload_agent.solvers import general
+
+    config = runs[0]
+    kin = config.robot.kinematics
+    joints = dataclasses.replace(config.robot.joints, friction_asymmetry_std=0.087)
+    a = 0.12
+
+    def analysed(asymmetry):
+        plan = make_plan(config)
+        robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=5,
+                         noise_nm=0.05, friction=FrictionParams(COULOMB, VISCOUS, np.full(6, LOAD_RATIO),
+                                                                asymmetry=np.array([0.0, asymmetry, 0, 0, 0, 0])))
+        empty, _ = record_plan(robot, plan)
+        robot.set_payload(TRUTH)
+        robot.set_friction_scale(1.0 - DROP)
+        loaded, _ = record_plan(robot, plan)
+        prepared = systematics.prepare(loaded, empty, joints)
+        fric = next(t for t in systematics.evaluate(prepared, kin, joints).terms if t.name == "residual friction")
+        return general.fit_model(prepared.deltas, kin).fit().theta[:4], fric
+
+    theta_sym, _ = analysed(0.0)
+    theta_asym, fric = analysed(a)
+    shift_g = 1000.0 * (theta_asym[0] - theta_sym[0])
+    assert abs(shift_g) > 3.0, shift_g  # grams on a 3 kg tool
+    k = 0  # the term's joints in order: 2, 3
+    assert "j2 " in fric.note and "viscous" not in fric.note, fric.note  # the Coulomb part's change
+    change_nm = fric.std[k] / 0.087  # √E[Δ²] of joint 2's Coulomb change, as measured
+    predicted_g = 1000.0 * a * abs(fric.sens[ALL][0, k]) * change_nm  # the term carries the size, not the sign
+    assert abs(predicted_g - abs(shift_g)) < 0.15 * abs(shift_g), (predicted_g, shift_g)
+
+
+@pytest.mark.parametrize("viscous_nm, coulomb_only", [(2.0, True), (0.2, False)])
+def test_the_coulomb_split_is_used_where_the_viscous_part_it_removes_outweighs_its_noise(viscous_nm, coulomb_only):
+    """A 10 % sweep of the EC66: viscous part 2 N·m at speed, its plausible change (8 %) 0.16 N·m, far above what the
+    split costs in precision; a 1 % sweep: 0.2 N·m, whose change is below the split's noise, so the constant part's
+    change (Coulomb + viscous, more precise) is the measure there."""
+    def gap(constant, coulomb):
+        return friction.FrictionGap(constant + 1.0, 0.01, constant, 0.03, 0.05, coulomb, 0.08, viscous_nm)
+
+    loaded, empty = [gap(5.7, 3.8)], [gap(6.0, 4.0)]
+    change = friction.coulomb_change(loaded, empty, 0.5, change_rel=0.08)
+    assert change.coulomb_only == coulomb_only
+    assert change.measured_nm == pytest.approx(-0.2 if coulomb_only else -0.3)
+    assert friction.coulomb_change(loaded, empty, 0.5).coulomb_only  # no declared change given: split wherever it can
 
 
 def test_a_sweep_without_load_variation_falls_back_on_the_prior():

@@ -58,6 +58,36 @@ FORMAT = "payload-agent-gains/1"
 
 
 @dataclass(frozen=True)
+class SweptProcedure:
+    """The procedure a calibration swept: how much of the arm's DH-length errors its gains and zeros absorb for a
+    tool run depends on it (``length_response``; nearly all when the run sweeps the same procedure and range)."""
+
+    name: str  # a bundled procedure's name or a procedure file's path, as the calibration's config gave it
+    fingerprint: str  # the procedure file's (``Procedure.fingerprint``)
+    sweep_deg: tuple[float, float]
+    speed_percent: float
+
+    @classmethod
+    def of(cls, config: Config) -> "SweptProcedure":
+        from payload_agent.configuration.procedure import load_procedure
+
+        pc = config.procedure
+        return cls(pc.name, load_procedure(pc.name).fingerprint, (pc.sweep_from_deg, pc.sweep_to_deg), pc.speed_percent)
+
+    def describe(self) -> str:
+        return f"{self.name}, {self.sweep_deg[0]:g}–{self.sweep_deg[1]:g}°, sweep {self.speed_percent:g} %"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "fingerprint": self.fingerprint, "sweep_deg": list(self.sweep_deg),
+                "speed_percent": self.speed_percent}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "SweptProcedure":
+        lo, hi = (float(v) for v in d["sweep_deg"])
+        return cls(str(d["name"]), str(d["fingerprint"]), (lo, hi), float(d["speed_percent"]))
+
+
+@dataclass(frozen=True)
 class GainCalibration:
     """Per-joint drive gains fitted with a reference payload, and what they are valid for."""
 
@@ -85,6 +115,7 @@ class GainCalibration:
     # the fit's own change of its scales and zeros per metre of each DH length's error (``calibration_lengths``);
     # None in files written before it was measured: a run's length term then keeps the older rule
     length_response: LengthResponse | None = None
+    procedure: SweptProcedure | None = None  # what it swept; None in files written before it was recorded
 
     @property
     def reference(self) -> tuple:
@@ -123,7 +154,8 @@ class GainCalibration:
                 **({} if self.reference_friction is None else
                    {"reference_friction": self.reference_friction.to_json()}),
                 **({} if self.baseline_source is None else {"baseline_source_run": self.baseline_source}),
-                **({} if self.length_response is None else {"length_response": self.length_response.to_json()})}
+                **({} if self.length_response is None else {"length_response": self.length_response.to_json()}),
+                **({} if self.procedure is None else {"procedure": self.procedure.to_json()})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -147,10 +179,11 @@ class GainCalibration:
         if source is not None and not isinstance(source, str):
             raise ValueError(f"baseline_source_run must be a folder name, got {source!r}")
         lengths = None if d.get("length_response") is None else LengthResponse.from_json(d["length_response"])
+        swept = None if d.get("procedure") is None else SweptProcedure.from_json(d["procedure"])
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
                    str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric, source,
-                   lengths)
+                   lengths, swept)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -216,7 +249,7 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
         nominal_fingerprint=calibration_fingerprint(config), run_dir=run_dir,
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
         standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric,
-        length_response=lengths)
+        length_response=lengths, procedure=SweptProcedure.of(config))
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

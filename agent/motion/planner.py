@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -20,6 +21,10 @@ from payload_agent.errors import PlanError
 from payload_agent.types import SweepKey
 from payload_agent.configuration.procedure import Procedure, load_procedure
 from payload_agent.configuration.wrist_procedure import WristProcedure, load_wrist_procedure
+
+# The most any joint may turn in one move (the safety gate refuses more): a plan's own moves, and the approach of a
+# run that starts where the last one ended (the plan "closes its loop"), stay within it.
+MAX_SINGLE_MOVE_RAD = math.radians(200.0)
 
 
 @dataclass(frozen=True)
@@ -134,8 +139,36 @@ def make_plan(config: Config, procedure: Procedure | None = None) -> Plan:
             moves.append(Move(f"{label} down", "sweep", tuple(start), sweep_speed, accel,
                               SweepKey(sw.pose, sw.joint, "down", pc.speed_percent)))
     if pc.inertia:
-        moves.extend(wrist_moves(config, load_wrist_procedure(pc.inertia), geo, wrist_limits, moves[-1].target_rad))
+        moves.extend(wrist_moves(config, load_wrist_procedure(pc.inertia), geo, wrist_limits, moves[-1].target_rad,
+                                 close_to=moves[0].target_rad))
+    moves.extend(closing_travel(moves, travel_speed, accel))
     return turned_to(config, Plan(proc, tuple(moves)), np.zeros(len(robot.joint_limits_rad)))  # the first pose near 0
+
+
+def closing_travel(moves: list[Move], speed: float, accel: float) -> list[Move]:
+    """A travel move that ends the plan where the next run's approach can reach its start, or none.
+
+    A run may start where the last one ended (the empty run, then the loaded run; the next session), and its
+    approach turns no joint more than ``MAX_SINGLE_MOVE_RAD``. Where the plan ends farther than that from its
+    first target, it ends with one travel move back to a pose it has already stood in (a move's target) from
+    which the first target lies within reach: of those the travel move itself can reach, the one nearest the
+    first target (the approach runs at the slow approach speed), ties to the latest. None found: no move, and
+    the safety gate refuses any session that would start the plan where it ends (``SafetyGate.check_after``).
+    """
+    if len(moves) < 2:
+        return []
+    first, end = moves[0].target_rad, moves[-1].target_rad
+    if _largest_turn(end, first) <= MAX_SINGLE_MOVE_RAD:
+        return []
+    reachable = [(_largest_turn(m.target_rad, first), -i, m) for i, m in enumerate(moves[:-1])
+                 if _largest_turn(end, m.target_rad) <= MAX_SINGLE_MOVE_RAD
+                 and _largest_turn(m.target_rad, first) <= MAX_SINGLE_MOVE_RAD]
+    if not reachable:
+        return []
+    back = min(reachable, key=lambda r: (round(r[0], 9), r[1]))[2]
+    return [Move(f"return toward {moves[0].label.removeprefix('approach ')} (to {back.label.removeprefix('to ')})",
+                 "travel", back.target_rad, speed, accel)]
+
 
 
 def turned_to(config: Config, plan: Plan, start_q: np.ndarray | None) -> Plan:
@@ -175,12 +208,18 @@ def _nearest_turn(w: np.ndarray, prefer: np.ndarray, limits: list[tuple[float, f
 
 
 def wrist_moves(config: Config, wp: WristProcedure, geo: ArmGeometry, wrist_limits: list[tuple[float, float]],
-                after: tuple[float, ...]) -> list[Move]:
+                after: tuple[float, ...], close_to: tuple[float, ...] | None = None) -> list[Move]:
     """The inertia part, after the move to ``after``: per wrist move of ``wp``, a travel to its start (where the arm
     is not there already), then there and back, both recorded.
 
     Speed and acceleration are the wrist procedure's own (its accel_percent of ``Config.wrist_accel_rad_s2``); the
     safety gate refuses them by move name when the YAML's caps forbid them (they are never slowed down to fit).
+
+    ``close_to``: the plan's first target. Each orientation's wrist angles are first the least travel from the one
+    before; where the part would then end more than ``MAX_SINGLE_MOVE_RAD`` from ``close_to`` in some joint (the
+    next run, starting where this one ends, could not approach its start), the whole-turn equivalents of the
+    orientations' wrist angles that end nearest it are chosen instead (``_closing_turns``): the same orientations
+    and the same recorded motion, only which way round the joints stand.
     """
     robot, pc = config.robot, config.procedure
     speed = robot.max_joint_speed_rad_s * wp.speed_percent / 100.0
@@ -193,19 +232,58 @@ def wrist_moves(config: Config, wp: WristProcedure, geo: ArmGeometry, wrist_limi
     for name, pose in wp.poses.items():  # each orientation: the least wrist travel from the one before
         R = geo.tool_rotation(np.array([geo.base, q2, q3, 0, 0, 0]), pose.tool_x, pose.tool_z)
         wrists[name] = prefer = _nearest_turn(geo.wrist_for(q2, q3, R, wrist_limits, prefer), prefer, wrist_limits)
-    out: list[Move] = []
-    for k, mv in enumerate(wp.moves):
-        start = np.array([geo.base, q2e, q3e, *wrists[mv.pose]])
-        end = start.copy()
-        for j, lo, hi in zip(mv.joints, mv.from_deg, mv.to_deg):
-            start[j - 1] += math.radians(lo)
-            end[j - 1] += math.radians(hi)
-        name = f"w{k + 1}-{mv.pose}-{mv.label}"
-        if np.max(np.abs(np.asarray(out[-1].target_rad if out else after) - start)) > 1e-9:
-            out.append(Move(f"to {name} start", "travel", tuple(start), travel, travel_accel))
-        out.append(Move(f"{name} fwd", "wrist", tuple(end), speed, accel, wrist=f"{name}-fwd"))
-        out.append(Move(f"{name} back", "wrist", tuple(start), speed, accel, wrist=f"{name}-back"))
-    return out
+
+    def build(wrists: dict[str, np.ndarray]) -> list[Move]:
+        out: list[Move] = []
+        for k, mv in enumerate(wp.moves):
+            start = np.array([geo.base, q2e, q3e, *wrists[mv.pose]])
+            end = start.copy()
+            for j, lo, hi in zip(mv.joints, mv.from_deg, mv.to_deg):
+                start[j - 1] += math.radians(lo)
+                end[j - 1] += math.radians(hi)
+            name = f"w{k + 1}-{mv.pose}-{mv.label}"
+            if np.max(np.abs(np.asarray(out[-1].target_rad if out else after) - start)) > 1e-9:
+                out.append(Move(f"to {name} start", "travel", tuple(start), travel, travel_accel))
+            out.append(Move(f"{name} fwd", "wrist", tuple(end), speed, accel, wrist=f"{name}-fwd"))
+            out.append(Move(f"{name} back", "wrist", tuple(start), speed, accel, wrist=f"{name}-back"))
+        return out
+
+    out = build(wrists)
+    if close_to is None or not out or _largest_turn(out[-1].target_rad, close_to) <= MAX_SINGLE_MOVE_RAD:
+        return out
+    return _closing_turns(build, wrists, after, close_to, wrist_limits) or out
+
+
+def _largest_turn(a, b) -> float:
+    """The largest joint travel of a PTP move from ``a`` to ``b``."""
+    return float(np.max(np.abs(np.asarray(a, float) - np.asarray(b, float))))
+
+
+def _closing_turns(build, wrists: dict[str, np.ndarray], after: tuple[float, ...], close_to: tuple[float, ...],
+                   wrist_limits: list[tuple[float, float]]) -> list[Move] | None:
+    """The inertia part (``build``) with each orientation's wrist joints shifted by whole turns (-1, 0, +1 each) so
+    that it ends within ``MAX_SINGLE_MOVE_RAD`` of ``close_to``: of the choices whose every target lies within the
+    limits and whose every move (the travels into and between the orientations included) turns no joint more than
+    that, the one with the smallest largest turn (the closing move counted), then the least travel; None when none.
+    A fixed enumeration order with ties to the first: the plan does not depend on where a run starts. With more
+    than two orientations (3^9 and more choices) every orientation takes the same shift per joint (27 choices).
+    """
+    lo, hi = np.array(wrist_limits, float).T
+    names = list(wrists)
+    each = len(names) <= 2
+    best, best_key = None, None
+    for shifts in itertools.product((0, -1, 1), repeat=3 * len(names) if each else 3):
+        turned = {n: wrists[n] + 2 * math.pi * np.array(shifts[3 * i:3 * i + 3] if each else shifts, float)
+                  for i, n in enumerate(names)}
+        moves = build(turned)
+        targets = np.array([m.target_rad for m in moves], float)[:, 3:]
+        if np.any(targets < lo - 1e-9) or np.any(targets > hi + 1e-9):
+            continue
+        steps = [_largest_turn(a, m.target_rad) for a, m in zip([after, *[m.target_rad for m in moves[:-1]]], moves)]
+        key = (round(max(*steps, _largest_turn(moves[-1].target_rad, close_to)), 9), round(sum(steps), 9))
+        if key[0] <= MAX_SINGLE_MOVE_RAD and (best_key is None or key < best_key):
+            best, best_key = moves, key
+    return best
 
 
 def expected_durations(plan: Plan, start_q: np.ndarray | None) -> list[float]:
@@ -224,11 +302,13 @@ def remaining_plan(config: Config, plan: Plan, done: set[str]) -> Plan:
 
     Each remaining sweep is preceded by a move to its start (at travel speed) unless the arm is
     already there; the first move is the slow approach. The safety gate checks the result whole,
-    like any plan.
+    like any plan. It ends where the whole plan ends (a travel move there, where one move reaches it), so that
+    a run after it (the loaded run after redone empty sweeps) starts where the session's check expected it.
     """
     pc, robot = config.procedure, config.robot
     travel = robot.max_joint_speed_rad_s * pc.travel_speed_percent / 100.0
     approach = robot.max_joint_speed_rad_s * config.safety.approach_speed_percent / 100.0
+    travel_accel = robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0
     moves: list[Move] = []
     for i, m in enumerate(plan.moves):
         if m.recorded_name is None or m.recorded_name in done:
@@ -236,7 +316,9 @@ def remaining_plan(config: Config, plan: Plan, done: set[str]) -> Plan:
         start = plan.moves[i - 1].target_rad
         if not moves or moves[-1].target_rad != start:
             kind, speed = ("approach", approach) if not moves else ("travel", travel)
-            moves.append(Move(f"to {m.recorded_name} start", kind, start, speed,
-                              min(m.accel_rad_s2, robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0)))
+            moves.append(Move(f"to {m.recorded_name} start", kind, start, speed, min(m.accel_rad_s2, travel_accel)))
         moves.append(m)
+    end = plan.moves[-1].target_rad if plan.moves else None
+    if moves and moves[-1].target_rad != end and _largest_turn(moves[-1].target_rad, end) <= MAX_SINGLE_MOVE_RAD:
+        moves.append(Move(f"to where the plan ends ({plan.moves[-1].label})", "travel", end, travel, travel_accel))
     return Plan(plan.procedure, tuple(moves))

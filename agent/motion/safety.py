@@ -20,11 +20,10 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import SafetyError
 from payload_agent.motion import workspace
-from payload_agent.motion.planner import Move, Plan, move_duration_s
+from payload_agent.motion.planner import MAX_SINGLE_MOVE_RAD, Move, Plan, move_duration_s, turned_to
 from payload_agent.recording.resting_pose import RestingPose
 
 PATH_CHECK_POINTS = 60
-MAX_SINGLE_MOVE_RAD = math.radians(200.0)
 
 
 @dataclass
@@ -115,8 +114,10 @@ class SafetyGate:
                 prev = tgt
                 continue
             if np.max(np.abs(tgt - prev)) > MAX_SINGLE_MOVE_RAD:
-                problems.append(f"{where}: a joint turns {math.degrees(np.max(np.abs(tgt - prev))):.0f}° in one "
-                                f"move (more than {math.degrees(MAX_SINGLE_MOVE_RAD):.0f}°)")
+                j = int(np.argmax(np.abs(tgt - prev)))
+                problems.append(f"{where}: joint {j + 1} turns {math.degrees(abs(tgt[j] - prev[j])):.0f}° in one "
+                                f"move (more than {math.degrees(MAX_SINGLE_MOVE_RAD):.0f}°), from "
+                                f"{math.degrees(prev[j]):.1f}° to {math.degrees(tgt[j]):.1f}°")
             for k in range(PATH_CHECK_POINTS + 1):
                 out = workspace.outside(s, self.kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3])
                 if out is not None:
@@ -134,6 +135,29 @@ class SafetyGate:
             "path" + ("" if s.tool_radius_m else " (the tool not checked: no safety.tool_radius_mm)"),
         ]
         return Verdict(not problems, problems, checks if not problems else [])
+
+    def check_after(self, plan: Plan, previous: Plan, previous_start_q: np.ndarray | None = None) -> Verdict:
+        """The check of ``plan`` started where ``previous`` ends (its last target; ``previous_start_q`` where it
+        has no moves): a session's second run (the loaded run after the empty run, the reference after the empty
+        run of ``calibrate``), checked with the first before anything moves. The problems say so."""
+        end = previous.moves[-1].target_rad if previous.moves else previous_start_q
+        verdict = self.check(plan, None if end is None else np.asarray(end, float))
+        verdict.problems = [f"started where the run before it ends: {p}" for p in verdict.problems]
+        return verdict
+
+    def check_loop(self, plan: Plan) -> Verdict:
+        """Whether the plan closes its loop: what starting the next run where this one ends (the plan turned to
+        that end pose as a session turns it, ``planner.turned_to``) adds to the problems it has anyway (from its own
+        first target). A plan that does not close cannot record the empty and the loaded run in one session, and
+        each run needs the arm moved back within reach of its start first."""
+        if not plan.moves:
+            return self.check(plan, None)
+        end = np.asarray(plan.moves[-1].target_rad, float)
+        anyway = set(self.check(plan, np.asarray(plan.moves[0].target_rad, float)).problems)
+        verdict = self.check(turned_to(self.config, plan, end), end)
+        verdict.problems = [p for p in verdict.problems if p not in anyway]
+        verdict.ok = not verdict.problems
+        return verdict
 
     def _driver_limit_problems(self, where: str, m: Move) -> list[str]:
         """A move above what the driver's move command accepts (``DriverOptions.command_limits``)."""

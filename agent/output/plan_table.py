@@ -38,6 +38,16 @@ def format_plan(plan: Plan, durations: Sequence[float]) -> str:
     return "\n".join(lines)
 
 
+def loop_sentence(loop: Any) -> str:
+    """Whether the plan closes its loop (``SafetyGate.check_loop``'s verdict), as a sentence for ``plan``."""
+    if loop.ok:
+        return ("the plan closes its loop: a run may start where the last one ended (from the plan's end pose the "
+                "safety gate passes the next run's approach)")
+    return ("the plan does NOT close its loop: from where it ends the safety gate refuses the next run ("
+            + "; ".join(loop.problems) + "), so a session recording the empty and the loaded run is refused before "
+            "it moves, and each run needs the arm moved back within reach of the plan's start first")
+
+
 def plan_json(plan: Plan, durations: Sequence[float]) -> dict[str, Any]:
     moves = []
     for i, (m, d) in enumerate(zip(plan.moves, durations), 1):

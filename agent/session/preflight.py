@@ -24,6 +24,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError, PayloadAgentError
 from payload_agent.motion import workspace
 from payload_agent.motion.planner import Plan, make_plan
+from payload_agent.output.plan_table import loop_sentence
 from payload_agent.motion.safety import APPROACH_UNKNOWN, PATH_CHECK_POINTS, SafetyGate, Verdict
 
 
@@ -133,6 +134,7 @@ def preflight(config: Config, *, calibration: bool = True, apply: bool = False, 
         envelope = sweep_envelope_problems(config, result.plan)
         result.problems += envelope
         result.verdict = SafetyGate(config).check(result.plan, None)
+        result.notes.append(loop_sentence(SafetyGate(config).check_loop(result.plan)))
         if not envelope:  # the sweep problems already say it, with the key
             for p in result.verdict.problems:
                 if not p.startswith(APPROACH_UNKNOWN):

@@ -95,7 +95,7 @@ class Session:
             chosen = mode.select(config, plan, opts, state, current, probe.info, out)
             if opts.return_to_start:
                 chosen = _returning(config, chosen, probe.q)
-            durations = _show_and_confirm(config, opts, ui, driver, gate, chosen.todo[0][2], probe.q, chosen.phases)
+            durations = _show_and_confirm(config, opts, ui, driver, gate, chosen, probe.q)
             changing = len(chosen.todo) > 1 or mode.empties_flange
             first, mounted, _ = chosen.todo[0]
             _prepare_tool(first, mounted, cell, mode, opts, ui, changing)  # asked before any folder exists
@@ -202,14 +202,17 @@ def _say_check(out, probe: Probe, check) -> None:
 
 
 def _show_and_confirm(config: Config, opts: RunOptions, ui: OperatorUI, driver: Driver, gate: SafetyGate,
-                      plan: Plan, start_q: np.ndarray, phases: list) -> list[float]:
-    """Show the plan and the gate's verdict; refuse a failing plan; ask before the robot moves."""
+                      chosen: Selection, start_q: np.ndarray) -> list[float]:
+    """Show the plan and the gate's verdict; refuse a failing plan, or a later run that cannot start where the
+    one before it ends; ask before the robot moves."""
+    plan, phases = chosen.todo[0][2], chosen.phases
     verdict = gate.check(plan, start_q)
     durations = expected_durations(plan, start_q)
     ui.out(format_plan(plan, durations))
     ui.out("Safety gate: " + verdict.describe())
     if not verdict.ok:
         gate.approve(plan, start_q)  # raises SafetyError with every problem listed
+    _refuse_unreachable_runs(gate, chosen, start_q, ui.out)
     _confirm_without_pose_check(config, driver, plan, opts, ui)
     if opts.asks:
         what = " and ".join({"empty": "the empty-flange run", "loaded": "the loaded run"}[p] for p, _ in phases)
@@ -217,6 +220,31 @@ def _show_and_confirm(config: Config, opts: RunOptions, ui: OperatorUI, driver: 
         if answer.strip().lower() not in ("y", "yes"):
             raise MotionAbortedError("the operator declined; nothing moved")
     return durations
+
+
+def _refuse_unreachable_runs(gate: SafetyGate, chosen: Selection, start_q: np.ndarray, out) -> None:
+    """Each later run of the session (the loaded run after the empty run) starts where the one before it ends:
+    the gate checks it from there now, before the first move, and a failure refuses the whole session (the
+    standards: the plan is validated whole before the first move; found after the empty run, it would be refused
+    only once that run had moved)."""
+    names = {"empty": "the empty-flange run", "loaded": "the loaded run"}
+    q = start_q
+    for (before, _, first), (phase, _, then) in zip(chosen.todo, chosen.todo[1:]):
+        verdict = gate.check_after(then, first, q)
+        q = first.moves[-1].target_rad if first.moves else q
+        if verdict.ok:
+            out(f"Safety gate, {names[phase]} from where {names[before]} ends: SAFE")
+            continue
+        end = ", ".join(f"{np.degrees(v):.1f}" for v in q)
+        begin = ", ".join(f"{np.degrees(v):.1f}" for v in then.moves[0].target_rad)
+        raise SafetyError(
+            f"the safety gate refused the session before its first move: {names[phase]} starts where "
+            f"{names[before]} ends ([{end}] deg) and its first target is [{begin}] deg:\n"
+            + "\n".join(f"  - {p}" for p in verdict.problems)
+            + "\nThe plan does not close its loop (`payload-agent plan` says whether it does). Record the runs in "
+            "two sessions (`payload-agent baseline` with the empty flange; move the arm to within 200° of that first "
+            "target in every joint; then this command, which uses the stored baseline), or change the procedure "
+            "so that it ends within reach of its start.")
 
 
 def _open_recorder(config: Config, mode: Mode, opts: RunOptions, plan: Plan, probe: Probe, driver: Driver,

@@ -113,8 +113,10 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
 
         noise = dataclasses.replace(noise, joints=declaration(noise.joints, gains.zeros))
     zeros = "" if gains.zeros is None else " and the joint zeros it measured"
+    swept = effective_calibration(config).procedure
+    swept = "" if swept is None else f" (it swept {swept.describe()})"
     return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
-            source + "; the stored drive-gain calibration's uncertainty" + zeros)
+            source + "; the stored drive-gain calibration's uncertainty" + zeros + swept)
 
 
 def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
@@ -184,9 +186,16 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + (f"with the approach move {where}:" if start_q is not None else
                "without the approach move (give --from-deg or --connect to count it):"))
     con.say(choice.describe(grams, mm))
+    from payload_agent.evaluation.design import nominal_theta
+    from payload_agent.session.target_advice import calibration_advice
+
+    advice = calibration_advice(config, choice, noise_for(config)[0], nominal_theta(payload.mass_kg, payload.cog_mm),
+                                grams, mm, start_q)
+    if advice:
+        con.say(advice)
     out: dict = {"noise_source": source, "payload": {"mass_kg": payload.mass_kg, "cog_mm": list(payload.cog_mm),
                                                       "source": payload.source},
-                 "approach_counted": start_q is not None, "chosen": None}
+                 "approach_counted": start_q is not None, "chosen": None, "calibration_advice": advice or None}
     if choice.best is None:
         return out
     best = choice.best

@@ -24,11 +24,12 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
    - residual friction: the two-direction average cancels friction odd in speed; a Coulomb
      direction asymmetry a_j leaves a_j·s·C_j even in speed, which cancels against the baseline only if
      the friction level s did not change. The change of the part the asymmetry acts on is MEASURED per
-     joint (``systematics.friction``: along each sweep the legs' half gap is split into a constant part,
-     Coulomb + viscous at the sweep speed, and a part growing with the load torque; the constant part's
-     change between the empty and the loaded run, pooled over the joint's sweeps). The net change of the
-     whole gap is no measure of it: the tool's load raises the load-dependent part, which is symmetric
-     and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
+     joint (``systematics.friction``: along each sweep's whole legs, ramps included, the legs' half gap is
+     split into a Coulomb part, a viscous part growing with speed and a part growing with the load torque;
+     the Coulomb part's change between the empty and the loaded run, pooled over the joint's sweeps; the
+     constant part at the sweep speed, viscous included as a margin, where the legs' speeds cannot split
+     it). The net change of the whole gap is no measure of it: the tool's load raises the load-dependent
+     part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
      prior the measurement is combined with. The asymmetry itself stays DECLARED
      (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
@@ -253,7 +254,7 @@ def friction_terms(ctx: Context) -> list[Term]:
     for j in joints:
         mine = [pj for pj in pairs if pj[1] == j]
         level = max(abs(empty[pj].level_nm) for pj in mine)  # the baseline's friction level: the prior's scale
-        change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level)
+        change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level, rel)
         constant[j] = friction.constant_level([empty[pj] for pj in mine])  # what the asymmetry multiplies
 
     def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:
@@ -272,8 +273,9 @@ def friction_terms(ctx: Context) -> list[Term]:
         std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
                                                               ctx.gain_reference, joints, rel, constant)
         ref = f"; also in the drive-gain calibration's reference run, {ref}"
-    measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}" for j in joints
-                if change[j].measured]
+    measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
+                + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
+                for j in joints if change[j].measured]
     prior = [f"j{j + 1}" for j in joints if not change[j].measured]
     how = ("measured " + ", ".join(measured) + " N·m") if measured else ""
     if prior:
@@ -281,7 +283,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
-                 f"the change of the constant friction part between the runs ({how}){ref} in σ")]
+                 f"the change of the Coulomb friction part between the runs ({how}){ref} in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

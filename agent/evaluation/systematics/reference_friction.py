@@ -48,13 +48,14 @@ class JointChange:
         return {"joint": self.joint + 1, "measured_nm": c.measured_nm,
                 "measured_std_nm": c.measured_std_nm if math.isfinite(c.measured_std_nm) else None,
                 "prior_std_nm": c.prior_std_nm, "mean_nm": c.mean_nm, "std_nm": c.std_nm,
-                "baseline_constant_nm": self.baseline_constant_nm}
+                "baseline_constant_nm": self.baseline_constant_nm, "coulomb_only": c.coulomb_only}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "JointChange":
         std = d.get("measured_std_nm")
         change = friction.CoulombChange(float(d["measured_nm"]), float("inf") if std is None else float(std),
-                                        float(d["prior_std_nm"]), float(d["mean_nm"]), float(d["std_nm"]))
+                                        float(d["prior_std_nm"]), float(d["mean_nm"]), float(d["std_nm"]),
+                                        bool(d.get("coulomb_only", False)))  # absent: stored before session 16
         if not all(math.isfinite(v) for v in (change.measured_nm, change.prior_std_nm, change.mean_nm, change.std_nm)):
             raise ValueError(f"reference_friction joint {d.get('joint')}: a value is not a finite number")
         return cls(int(d["joint"]) - 1, change, float(d["baseline_constant_nm"]))
@@ -101,7 +102,8 @@ def measure(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     for j in sorted({j for _, j in pairs}):
         mine = [pj for pj in pairs if pj[1] == j]
         constant = friction.constant_level([em[pj] for pj in mine])
-        change = friction.coulomb_change([lo[pj] for pj in mine], [em[pj] for pj in mine], change_prior_rel * constant)
+        change = friction.coulomb_change([lo[pj] for pj in mine], [em[pj] for pj in mine], change_prior_rel * constant,
+                                         change_prior_rel)
         out.append(JointChange(j, change, constant))
     return ReferenceFriction(float(change_prior_rel), tuple(out)) if out else None
 
