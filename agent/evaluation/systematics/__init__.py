@@ -66,7 +66,8 @@ from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
-                                                  reference_friction, three_step_response, wrist)
+                                                  reference_friction, three_step_response,
+                                                  three_step_scatter, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
@@ -323,26 +324,31 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
 def gain_scatter_terms(ctx: Context) -> list[Term]:
     """Torque-gain errors that differ between the angles still joints stand at (gear ripple under load): their
     effect on θ, less what a drive-gain calibration absorbed, from each cluster's posterior given the measured
-    scatter (``systematics.gain_scatter``; the still wrist's clusters, measured worse than the scatter, at its size)."""
+    scatter (``systematics.gain_scatter``; the still wrist's clusters, measured worse than the scatter, at its size).
+    The three-step solver's columns are its own (``systematics.three_step_scatter``), zero in the general fits'."""
     out = gain_scatter.term(ctx.prepared.deltas, ctx.kin, ctx.gain_rel_std,
                             {w: (ctx.groups[w], f) for w, f in ctx.fits.items()}, ALL, ctx.model, ctx.gain_reference)
-    if out is None:
+    three = None  # the three-step reads no still row, only the calibrated gains of joints 2 and 3: its own
+    if ctx.three_step is not None and ctx.model is not None:  # measurement of the clusters carried there
+        try:
+            three = three_step_scatter.effect(ctx.prepared.deltas, ctx.kin, ctx.model, ctx.gain_reference,
+                                              ctx.three_step)
+        except DataError:  # not solvable with a gain step: no three-step response (its estimate says so)
+            pass
+    parts, notes = [], []
+    if out is not None:
+        cols = out.effect_columns()
+        parts.append({which: A @ cols for which, A in out.sens.items()})
+        notes.append(out.note + ", each cluster's error as measured where the data tell it better than the "
+                     "scatter, the scatter's size where they do not")
+    if three is not None:
+        parts.append({THREE_STEP: three.along})
+        notes.append(three.note)
+    if not parts:
         return []
-    sens = dict(out.sens)
-    if ctx.three_step is not None:  # still joints' rows it does not read; the calibrated gains of joints 2, 3 it does
-        response = {j: three_step_response.gain_response(ctx.prepared.deltas, ctx.kin, j, ctx.three_step)
-                    for j in sorted({j for j, _ in out.shares.values()})}
-        A = np.zeros((4, len(out.labels)))
-        for k, label in enumerate(out.labels):
-            if label in out.shares:
-                j, w = out.shares[label]
-                A[:, k] = -w * response[j]
-        sens[THREE_STEP] = A
-    cols = out.effect_columns()
-    along = {which: A @ cols for which, A in sens.items()}
-    return [Term("torque-gain scatter", np.ones(cols.shape[1]), along,
-                 out.note + ", each cluster's error as measured where the data tell it better than the scatter, "
-                 "the scatter's size where they do not")]
+    keys = [*ctx.fits, *([THREE_STEP] if ctx.three_step is not None else [])]
+    along = {k: np.hstack([p.get(k, np.zeros((4, next(iter(p.values())).shape[1]))) for p in parts]) for k in keys}
+    return [Term("torque-gain scatter", np.ones(along[ALL].shape[1]), along, "; ".join(notes))]
 
 
 TERMS: list[Callable[[Context], list[Term]]] = [joint_terms, friction_terms, wrist_terms, gain_scatter_terms]

@@ -59,7 +59,9 @@ plain s_k put 3–6 g into the mass σ against ripple errors of 0.4–1.4 g; the
 noise-free data it predicts the calibrated fit's shift to 1 % where the plain s_k was 17× off. And
 the three-step solver, which reads joints 2 and 3 only where they move, gets −w_jk times its own response
 to a gain error of joint j (``three_step_response.gain_response``): its ripple bias (10 g mean) was exactly
-that, the still-joint ripple carried by the calibration into the moving rows.
+that, the still-joint ripple carried by the calibration into the moving rows. Its clusters are measured with that
+share in their columns (``measure(absorb_joints=...)``, ``three_step_scatter``): the plain ones give part of ε_k
+(0.69 of it for joint 3 at 0°).
 
 The term is derived from the data alone: nothing about the gear is declared. It is zero for an arm
 whose still joints agree with the model within noise.
@@ -247,10 +249,18 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
 
 def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
             gain_rel_std: Iterable[float] | None = None, tol_rad: float = SAME_ANGLE_RAD,
-            model: FittedModel | None = None) -> GainScatter:
+            model: FittedModel | None = None, gain_reference: tuple | None = None,
+            absorb_joints: Iterable[int] = ()) -> GainScatter:
     """The gain scatter between standing angles in these deltas (see the module docstring).
 
     ``model``: the analysis' fitted model of these deltas (its combined fit is the plain fit here).
+    ``gain_reference`` and ``absorb_joints`` (0-based): the drive-gain calibration the data were scaled with; for
+    the clusters of these joints its scale absorbed the share w_jk of ε_k (``absorbed_shares``), so every row of
+    joint j, the moving ones included, carries −w_jk·ε_k and the cluster's column gets −w_jk·Y_gθ̂ there (as the
+    wrist term's nuisance columns, ``wrist.columns``): ε̂_k is then the cluster's error itself, where the plain
+    column measures it partly against the calibrated moving rows (0.69·ε_k for joint 3 standing at 0° in the
+    benchmark's ripple rows). Only clusters with w < 1 (at w = 1 the column vanishes: the joint never moves).
+    Default: none, the plain columns.
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
     if model is None:
@@ -265,11 +275,18 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
             labels.append(name)
     if not labels:
         return GainScatter([], np.zeros(0), np.zeros((0, 0)), 0.0, np.zeros((0, 4)))
+    absorb = set(int(j) for j in absorb_joints)
+    shares = {} if gain_reference is None or not absorb else {
+        c: (j, w) for c, (j, w) in absorbed_shares(sweeps, groups, labels, gain_reference, tol_rad).items()
+        if j in absorb and w < 1.0}
     aug = []
     for g, name in zip(groups, names):
         extra = np.zeros((len(g.y), len(labels)))
         if name in labels:
             extra[:, labels.index(name)] = g.Y @ theta
+        for c, (j, w) in shares.items():
+            if g.joint == j:
+                extra[:, labels.index(c)] -= w * (g.Y @ theta)
         aug.append(replace(g, Y=np.hstack([g.Y, extra])))
     res = fit(aug, gain)
     k = slice(4, 4 + len(labels))

@@ -13,7 +13,8 @@ So each term gets the three-step's own ∂θ/∂p (θ = [m, m·c]), under the ke
   deltas, one label at a time, and the three steps re-run (``offset_response``);
 - the torque-gain scatter acts on still joints only, whose rows the three steps do not read, but a drive-gain
   calibration carried a share of it into the gains of joints 2 and 3, which the three steps do read: that
-  share times the three-step's response to a gain error of the joint (``gain_response``);
+  share times the three-step's response to a gain error of the joint (``gain_response``; the clusters as
+  ``three_step_scatter`` measures them);
 - a constant torque in the calibration's reference run (the friction a direction asymmetry leaves there, when the
   friction level changed between the baseline and the reference run) is fitted into the gains of joints 2 and 3,
   which the three steps then read (``reference_offset_response``). The three-step's mass comes from the small
