@@ -55,6 +55,7 @@ class RunRecorder:
         self._manifest_lock = threading.Lock()
         self._phase: str | None = None
         self._file: TextIO | None = None
+        self._frozen = False  # the open sweep takes no more samples (``freeze_sweep``)
         self._entry: dict[str, Any] | None = None
         self._targets: bool | None = None  # the open sweep file has the target columns (None: no header yet)
         self._last_flush = 0.0
@@ -126,7 +127,7 @@ class RunRecorder:
         entry.update(target_deg=[round(math.degrees(v), 6) for v in move.target_rad], started_utc=utc_now(),
                      status="recording", samples=0)
         with self._lock:
-            self._file, self._entry, self._targets = f, entry, None
+            self._file, self._entry, self._targets, self._frozen = f, entry, None, False
         self.manifest["phases"][self._phase].setdefault("sweeps" if move.sweep else "wrist_moves", []).append(entry)
         self.write_manifest()
 
@@ -146,6 +147,13 @@ class RunRecorder:
             redone.append({"name": name, "file": kept, "problem": f"recorded again after status {e.get('status')!r}",
                            "stream": e.get("stream")})
         entries[key] = [e for e in entries[key] if e not in earlier]
+
+    def freeze_sweep(self) -> None:
+        """Stop appending samples to the open sweep's file (``end_sweep`` closes it): called before the driver's
+        stream statistics for the sweep are ended, so that they count every sample the file holds (a sample
+        delivered in between would be in the file and not in the statistics)."""
+        with self._lock:
+            self._frozen = True
 
     def end_sweep(self, status: str, stream: dict[str, Any] | None = None) -> None:
         """Close the sweep's file; ``stream`` is the driver's stream statistics for it (manifest)."""
@@ -171,7 +179,7 @@ class RunRecorder:
         with self._lock:
             self.samples_seen += 1
             self.last_sample = s
-            if self._file is None:
+            if self._file is None or self._frozen:
                 return
             if self._targets is None:
                 self._targets = s.target_current is not None and s.target_moment is not None

@@ -142,6 +142,7 @@ class PhaseRunner:
                 if self.progress is not None:
                     self.progress.end_move()
                 if move.recorded_name is not None:
+                    self.recorder.freeze_sweep()  # first: the statistics then count every sample the file holds
                     stats = self.driver.end_stats()
                     if stats is not None and stats.gaps:
                         self.recorder.end_sweep("gap", stats.to_json())
@@ -171,6 +172,7 @@ class PhaseRunner:
                     pass  # no record: the next session approaches slowly, as after any other stop
             if self.progress is not None:
                 self.progress.close()
+            self.recorder.freeze_sweep()
             stats = self.driver.end_stats()
             self.recorder.end_sweep("aborted", None if stats is None else stats.to_json())
             report = getattr(exc, "stop_report", None) or self.driver.last_stop_report
