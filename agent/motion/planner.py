@@ -170,7 +170,6 @@ def closing_travel(moves: list[Move], speed: float, accel: float) -> list[Move]:
                  "travel", back.target_rad, speed, accel)]
 
 
-
 def turned_to(config: Config, plan: Plan, start_q: np.ndarray | None) -> Plan:
     """The same plan with each joint's targets shifted by the whole turns that bring its first target nearest
     where the robot stands, where every target stays within the joint limits less the margin.
