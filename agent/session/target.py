@@ -161,12 +161,13 @@ def baseline_friction_nm(empty) -> tuple[float, ...] | None:
 
 
 def plan_for_target(config: Config, text: str, payload: ExpectedPayload | None = None,
-                    start_q=None) -> tuple[Choice, str]:
+                    start_q=None, noise: tuple[NoiseModel, str] | None = None) -> tuple[Choice, str]:
     """The choice for ``--target-std TEXT`` and where its noise came from; ``start_q`` (where the robot stands,
-    radians) makes every robot time count the approach move."""
+    radians) makes every robot time count the approach move; ``noise``: ``noise_for(config)`` when the caller
+    has it already."""
     grams, mm = parse_target(text)
     payload = payload or expected_payload(config)
-    noise, source = noise_for(config)
+    noise, source = noise or noise_for(config)
     return choose(config, grams, mm, noise, nominal_mass_kg=payload.mass_kg, nominal_cog_mm=payload.cog_mm,
                   start_q=start_q), source
 
@@ -181,7 +182,8 @@ def plan_target(config: Config, args, start_q, con) -> dict:
     where = "from where the robot stands"
     if start_q is None and config.simulation is not None:
         start_q, where = np.radians(config.simulation.start_deg), "from the simulation's start_deg"
-    choice, source = plan_for_target(config, args.target_std, payload, start_q)
+    noise = noise_for(config)  # reads the stored baseline and calibration: once, for the choice and the advice
+    choice, source = plan_for_target(config, args.target_std, payload, start_q, noise)
     con.say(f"Procedures for the target ({source}); predicted for the payload {payload.describe()}; robot time "
             + (f"with the approach move {where}:" if start_q is not None else
                "without the approach move (give --from-deg or --connect to count it):"))
@@ -189,7 +191,7 @@ def plan_target(config: Config, args, start_q, con) -> dict:
     from payload_agent.evaluation.design import nominal_theta
     from payload_agent.session.target_advice import calibration_advice
 
-    advice = calibration_advice(config, choice, noise_for(config)[0], nominal_theta(payload.mass_kg, payload.cog_mm),
+    advice = calibration_advice(config, choice, noise[0], nominal_theta(payload.mass_kg, payload.cog_mm),
                                 grams, mm, start_q)
     if advice:
         con.say(advice)
