@@ -60,10 +60,12 @@ def configs(robot: str, args) -> tuple:
     return config, cal, design.with_candidate(config, cand), cand
 
 
-def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
-    """One seed: calibrate, record empty and loaded, analyse; the pose-agreement checks and the gate's verdict."""
+def record(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
+    """One seed recorded offline as ``seeded_runs --calibrate`` runs it: the drive-gain calibration, then an empty and a
+    loaded run of ``run_config``'s procedure. {"loaded", "empty" (at the calibrated gains), "gains", "commands",
+    "mount_rad", "config"}: what ``evaluation.analyse`` takes (also ``benchmarks.wrist_null``'s)."""
     from payload_agent.analysis.segmenter import sweep_commands
-    from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+    from payload_agent.evaluation.analyse import Gains
     from payload_agent.evaluation.calibration import fit_from_sweeps
     from payload_agent.fakes.arms import SPECS
     from payload_agent.fakes.base import sim_robot_kwargs
@@ -97,8 +99,17 @@ def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     scale = np.asarray(cal.scale, float)  # the efforts at the calibrated gains, as the agent loads them
     gains = Gains(cal.gains_nm_per_unit, "calibration", rel_std=cal.gain_rel_std(), reference=cal.reference,
                   zeros=cal.zeros)
-    result = analyse(scaled(loaded, scale), scaled(empty, scale), AnalysisOptions.from_config(run_config), gains,
-                     commands=sweep_commands(plan.moves), mount_rad=mount_rad)
+    return {"loaded": scaled(loaded, scale), "empty": scaled(empty, scale), "gains": gains,
+            "commands": sweep_commands(plan.moves), "mount_rad": mount_rad, "config": run_config}
+
+
+def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
+    """One seed: calibrate, record empty and loaded, analyse; the pose-agreement checks and the gate's verdict."""
+    from payload_agent.evaluation.analyse import AnalysisOptions, analyse
+
+    r = record(config, cal_config, run_config, seed, reference)
+    result = analyse(r["loaded"], r["empty"], AnalysisOptions.from_config(run_config), r["gains"],
+                     commands=r["commands"], mount_rad=r["mount_rad"])
     q = result.quality
     pose = [c for c in q["checks"] if " pose " in c["check"] and " vs " in c["check"]]
     others = [c["check"] for c in q["checks"] if not c["passed"] and c not in pose]

@@ -1,0 +1,53 @@
+"""The tool-cable term below its presence test: the measured effect's share beyond noise, not its uncertainty too.
+
+Offline runs of the simulated EC66 (``fakes.offline.record_plan``) as ``tests/test_cable_spring.py`` records them: an
+arm without a cable whose run's test statistic lands between its null mean and its 95 % quantile (seed 3: a chance
+term), and an arm with a cable the test finds. The plain fit's error does not contain the noise of the spring's
+stiffnesses (``wrist.spring_shares``), so below the test σ gets w·β̂β̂ᵀ (rank one), not w·(β̂β̂ᵀ + D).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from payload_agent.evaluation import systematics
+from payload_agent.evaluation.systematics import cable_spring, offsets
+from payload_agent.solvers.fitted import ALL
+
+from test_cable_spring import CABLE_NM_PER_RAD, _record, _spring
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return {"clean": _record(None, seed=3), "cable": _record(CABLE_NM_PER_RAD)}
+
+
+def _term_and_parts(kin, loaded, empty, mount):
+    """(the tool-cable term's covariance of the combined fit, the spring, β̂ = A·M·κ*, D = A·M·C·MᵀAᵀ)."""
+    prep, model, s = _spring(kin, loaded, empty, mount)
+    syst = systematics.evaluate(prep, kin, systematics.RIGID, terms=[systematics.wrist_terms], model=model)
+    res = model.fit(ALL)
+    labels = sorted({offsets.wrist_joint(g, d) for g in model.groups for d in model.sweeps if d.key.name == g.sweep}
+                    - {None})
+    sens = offsets.offset_sensitivities(list(model.sweeps), model.groups_of(ALL), res.weights, res.normal_inverse,
+                                        offsets.wrist_joint)
+    AM = np.column_stack([sens[lab] for lab in labels]) @ s.levers
+    return syst.covariance(), s, AM @ s.stiffness_nm_per_rad, AM @ s.cov @ AM.T
+
+
+def test_below_the_test_the_term_is_the_measured_effects_share_alone(runs):
+    cov, s, beta, D = _term_and_parts(*runs["clean"])
+    assert not s.present and 0.2 < s.weight < 0.9  # a chance term on an arm without a cable
+    scale = float(np.max(np.abs(cov)))
+    assert np.allclose(cov, s.weight * np.outer(beta, beta), rtol=1e-6, atol=1e-9 * scale)
+    assert np.linalg.matrix_rank(cov, tol=1e-6 * scale) == 1
+    # the rule before: w·(β̂β̂ᵀ + D), D the noise of κ̂ that the plain fit's error does not contain
+    assert cov[0, 0] < s.weight * (beta[0] ** 2 + D[0, 0]) - 0.1 * s.weight * D[0, 0]
+
+
+def test_a_cable_the_test_finds_keeps_its_effect_and_that_effects_uncertainty(runs):
+    cov, s, beta, D = _term_and_parts(*runs["cable"])
+    assert s.present and s.weight == 1.0
+    assert np.allclose(cov, np.outer(beta, beta) + D, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(cov))))
+    assert cable_spring.note(s) and "found" in cable_spring.note(s)
