@@ -107,9 +107,9 @@ def test_the_reported_sigma_draws_follow_the_runs_own_wrist_rule():
 def test_the_cable_springs_draws_follow_the_runs_own_rule():
     """Where the run knows where the tool was mounted it fits a spring on the wrist (``systematics.cable_spring``):
     the plan's draws of that term (``spring_model``) against the run's own presence test, projection and weight
-    (``CableSpring.weight``, ``effect``, ``wrist.spring_shares``) on independent draws of κ̂ ~ N(0, ⅚·C), no cable on
+    (``CableSpring.weight``, ``effect``, ``cable_spring.shares``) on independent draws of κ̂ ~ N(0, ⅚·C), no cable on
     the arm."""
-    from payload_agent.evaluation.systematics import cable_spring, wrist
+    from payload_agent.evaluation.systematics import cable_spring
     from payload_agent.solvers.wls import cog_with_covariance
 
     rng = np.random.default_rng(7)
@@ -130,7 +130,7 @@ def test_the_cable_springs_draws_follow_the_runs_own_rule():
         s = cable_spring.CableSpring((3, 4, 5), np.eye(3), cable_spring.project(kappa, C), C,
                                      cable_spring.statistic(kappa, C), critical, null_mean)
         cols = cable_spring.effect(s, {"all": AM})["all"]
-        a, b = wrist.spring_shares(s.weight, s.present)  # the run's rule (``systematics.wrist_terms``)
+        a, b = cable_spring.shares(s.weight, s.present)  # the run's rule (``systematics.wrist_terms``)
         std2 = np.r_[a, np.full(cols.shape[1] - 1, b)]
         cov = base + (cols * std2) @ cols.T
         shown += s.weight > 0

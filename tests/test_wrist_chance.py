@@ -3,7 +3,7 @@
 Offline runs of the simulated EC66 (``fakes.offline.record_plan``) as ``tests/test_cable_spring.py`` records them: an
 arm without a cable whose run's test statistic lands between its null mean and its 95 % quantile (seed 3: a chance
 term), and an arm with a cable the test finds. The plain fit's error does not contain the noise of the spring's
-stiffnesses (``wrist.spring_shares``), so below the test σ gets w·β̂β̂ᵀ (rank one), not w·(β̂β̂ᵀ + D).
+stiffnesses (``cable_spring.shares``), so below the test σ gets w·β̂β̂ᵀ (rank one), not w·(β̂β̂ᵀ + D).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
   starts where the run's own empty run ended, the plan's last pose, and the tool goes on there) fits a tool
   cable's spring relaxed there (``systematics.cable_spring``): stiffnesses κ̂ (covariance C) move θ by AM·κ; the
   run projects κ̂ onto κ ≥ 0, tests its presence and puts β̂β̂ᵀ + D into σ where it finds a cable, w·β̂β̂ᵀ below the
-  test (``wrist.spring_shares``). Without a recorded mount it fits
+  test (``cable_spring.shares``). Without a recorded mount it fits
   free offsets b̂ (one per pose and wrist joint, ``systematics.wrist_terms``), β̂ = A·b̂, D = A·C·Aᵀ, shrunk by
   s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D; with no wrist torque its expectation is D·E[(χ²_r − r)⁺]/r
   (z's direction is uniform and independent of |z|²). Both with β̂'s true spread (``SPREAD_RATIO``: below), C
@@ -107,7 +107,7 @@ class WristModel:
     Free offsets (``systematics.wrist``, ``spring`` False): β̂ ~ N(0, ratio·D), a·β̂β̂ᵀ in σ with the run's
     a = s² = (q − r)⁺/q. A tool cable's spring (``systematics.cable_spring``, ``spring`` True: the run knows
     where the tool was mounted): κ̂ ~ N(0, ratio·C), β̂ = AM·κ*, κ* its projection onto κ ≥ 0, and β̂β̂ᵀ + D in σ
-    where its presence test finds a cable, w·β̂β̂ᵀ below it, w = (T − E₀[T])⁺/T (``wrist.spring_shares``). Per draw
+    where its presence test finds a cable, w·β̂β̂ᵀ below it, w = (T − E₀[T])⁺/T (``cable_spring.shares``). Per draw
     the term is a·β̂β̂ᵀ + b·D (offsets: b = 0; spring: a = w, b = 1 where found, else 0)."""
 
     spread: np.ndarray  # D (4, 4): A·C·Aᵀ of the offsets, or AM·C·AMᵀ of the spring
@@ -148,7 +148,7 @@ def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO) -> 
     """The cable spring's term of a run whose stiffnesses κ̂ (covariance C) move θ by AM·κ, drawn."""
     from scipy.optimize import nnls
 
-    from payload_agent.evaluation.systematics import cable_spring, wrist
+    from payload_agent.evaluation.systematics import cable_spring
 
     R = np.linalg.cholesky(np.linalg.inv(C)).T  # RᵀR = C⁻¹, as the run whitens
     u = np.sqrt(ratio) * _normal_draws()[:, :len(C)]  # R·κ̂
@@ -158,7 +158,7 @@ def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO) -> 
     kappa = np.zeros_like(u)
     for i in np.flatnonzero(weight > 0):  # κ*: the run's projection (``cable_spring.project``) of κ̂ = R⁻¹·u
         kappa[i] = nnls(R, u[i])[0]
-    a, b = wrist.spring_shares(weight, T > critical)  # the run's own rule: a·β̂β̂ᵀ + b·D
+    a, b = cable_spring.shares(weight, T > critical)  # the run's own rule: a·β̂β̂ᵀ + b·D
     return WristModel(AM @ C @ AM.T, True, a, kappa @ AM.T, b)
 
 

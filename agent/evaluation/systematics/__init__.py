@@ -317,10 +317,9 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
         return []
     if s is None or s.weight <= 0:
         return []
-    a, b = wrist.spring_shares(s.weight, s.present or s.declared)  # below the test: w·β̂β̂ᵀ, not w·(β̂β̂ᵀ + D)
+    a, b = cable_spring.shares(s.weight, s.present or s.declared)  # below the test: w·β̂β̂ᵀ, not w·(β̂β̂ᵀ + D)
     std = np.r_[np.sqrt(a), np.full(len(s.joints), np.sqrt(b))]
-    return [Term("tool cable", std, cable_spring.effect(s, sens),
-                 cable_spring.note(s) if b > 0 else wrist.chance_note(s))]
+    return [Term("tool cable", std, cable_spring.effect(s, sens), cable_spring.note(s))]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:

@@ -12,11 +12,12 @@ three parameters for all poses together instead of the free offsets' one per (po
 Presence: the likelihood-ratio statistic of κ = 0 against κ ≥ 0, T = κ*ᵀC⁻¹κ* with κ* the projection of
 the fitted κ̂ (covariance C) onto κ ≥ 0 in C's metric. Under κ = 0 T is chi-bar-squared, a mixture of χ²_i
 (i = 0..p) with weights set by C (docs/sources.md); its 1 − ``ALPHA`` quantile and its mean E₀[T] are
-computed for this C by a fixed-seed draw. The term is the cable's effect on θ as measured, β̂ = A·M·κ*, and
-that effect's uncertainty D = A·M·C·Mᵀ·Aᵀ (M: the levers): all of β̂β̂ᵀ + D where T exceeds the quantile
-(the cable is found), else the share the data show beyond noise, (T − E₀[T])⁺/T of it. The weak cable of the
-benchmark (10–20 mN·m/rad) was found in 3 of 6 runs; the other 3 still erred by 2–4 σ of mass the
-same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md, session 12).
+computed for this C by a fixed-seed draw. The term is built from the cable's effect on θ as measured,
+β̂ = A·M·κ*, and that effect's uncertainty D = A·M·C·Mᵀ·Aᵀ (M: the levers): all of β̂β̂ᵀ + D where T exceeds the
+quantile (the cable is found), else w·β̂β̂ᵀ with w = (T − E₀[T])⁺/T, the share the data show beyond noise
+(``shares``). The weak cable of the benchmark (10–20 mN·m/rad) was found in 3 of 6 runs; the other 3 still erred
+by 2–4 σ of mass the same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md,
+session 12).
 
 Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide:
 κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ and a
@@ -72,9 +73,9 @@ class CableSpring:
 
     @property
     def weight(self) -> float:
-        """The share of the term that goes into σ: all of it where a cable is declared or the test finds it, else
-        the share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ
-        of mass in the weak-cable ablation's undetected cases)."""
+        """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where a cable is declared or the test
+        finds it, else the share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still
+        moves θ: 2–4 σ of mass in the weak-cable ablation's undetected cases). ``shares`` says what D gets."""
         if self.declared or self.present:
             return 1.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
@@ -219,8 +220,24 @@ def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.nda
     return out
 
 
+def shares(weight, found):
+    """(a, b): the shares of the measured effect β̂β̂ᵀ and of its uncertainty D that a run puts into σ, a·β̂β̂ᵀ + b·D
+    (numbers, or arrays of the plan's draws: ``planned_terms``).
+
+    Where the presence test finds a cable (or the YAML declares one: ``weight`` is then 1), all of both. Below the
+    test the measured effect's share beyond noise only: a = w = (T − E₀[T])⁺/T, b = 0, as the free offsets' rule
+    (``wrist``: s²·β̂β̂ᵀ). The plain fit whose error σ describes does not contain κ̂'s noise: with the cable columns
+    Z beside Y, κ̂ = (ZᵀW·M_Y·Z)⁻¹ZᵀW·M_Y·y and M_Y·Y = 0, so with W the inverse noise covariance
+    Cov(θ̂_plain, κ̂) = (YᵀWY)⁻¹Yᵀ·M_YᵀWZ(…) = 0 (docs/sources.md, Hausman). θ̂_plain errs by e + β with e
+    independent of β̂, and D = Cov(β̂) is no part of it; w·β̂β̂ᵀ already sizes ββᵀ, and w·D on top counted β̂'s
+    noise twice (on 100 clean sim-ec66 runs, 38–42 % of the variance the term added below the test;
+    docs/benchmarks.md, session 17). The found branch keeps D: not yet measured without it."""
+    w = np.asarray(weight, float)
+    return w, np.where(np.asarray(found, bool), 1.0, 0.0)
+
+
 def note(spring: CableSpring) -> str:
-    """The result's note on the cable term."""
+    """The result's note on the cable term, in the words of the branch that made it (``shares``)."""
     stiff = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.stiffness_nm_per_rad))
     test = f"test statistic {spring.statistic:.1f} {'>' if spring.present else '≤'} {spring.critical:.1f}"
     if spring.declared:
@@ -228,10 +245,13 @@ def note(spring: CableSpring) -> str:
         return (f"a tool cable on the wrist, declared fitted (robot.tool_cable_fitted; a spring relaxed where the "
                 f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result for the stiffness "
                 f"the data allow, κ ≥ 0 (mean {mean} mN·m/rad), in σ")
-    found = f"found: {test}" if spring.present else f"not significant, {test}; {spring.weight:.2f} × of it"
-    return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; {found}): "
-            "its effect on the result as measured, and that effect's uncertainty, in σ")
+    if spring.present:
+        return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; found: "
+                f"{test}): its effect on the result as measured, and that effect's uncertainty, in σ")
+    return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; not "
+            f"significant, {test}): its effect on the result as measured, {spring.weight:.2f} × of it (the share "
+            "the data show beyond noise), in σ")
 
 
-__all__ = ["note", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "posterior",
+__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "posterior",
            "fit_spring", "effect"]

@@ -102,34 +102,9 @@ def measure(model: FittedModel, A: np.ndarray, labels: Sequence[str]) -> WristTo
     return WristTorques(list(labels), b, s, q)
 
 
-def spring_shares(weight, found):
-    """(a, b): the shares of a tool-cable spring's measured effect β̂β̂ᵀ and of that effect's uncertainty D that the
-    run puts into σ, a·β̂β̂ᵀ + b·D (``systematics.cable_spring``; numbers or arrays of draws, ``planned_terms``).
-
-    Where the presence test finds a cable (or the YAML declares one: ``weight`` is then 1) all of both. Below the test
-    the share the data show beyond noise of the measured effect only, a = w = (T − E₀[T])⁺/T, b = 0, as the free
-    offsets' rule above (s²·β̂β̂ᵀ): the plain fit whose error σ describes does not contain the noise of κ̂. With
-    the cable columns Z beside Y, κ̂ = (ZᵀW·M_Y·Z)⁻¹ZᵀW·M_Y·y and M_Y·Y = 0, so with W the inverse noise covariance
-    Cov(θ̂_plain, κ̂) = (YᵀWY)⁻¹Yᵀ·M_YᵀWZ(…) = 0: θ̂_plain's error is e + β, e independent of β̂ = β + (β̂ − β), and
-    D = Cov(β̂) is in no part of it. (T − E₀[T])⁺/T·β̂β̂ᵀ already sizes ββᵀ; w·D on top counted β̂'s noise a second
-    time (on 100 clean sim-ec66 runs, 38–42 % of the variance the term added below the test; docs/benchmarks.md,
-    session 17)."""
-    w = np.asarray(weight, float)
-    return w, np.where(np.asarray(found, bool), 1.0, 0.0)
-
-
-def chance_note(spring) -> str:
-    """The result's note on a tool-cable term below the presence test (``spring_shares``: the measured effect's share
-    beyond noise only)."""
-    stiff = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.stiffness_nm_per_rad))
-    return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; not "
-            f"significant, test statistic {spring.statistic:.1f} ≤ {spring.critical:.1f}): its effect on the result as "
-            f"measured, {spring.weight:.2f} × of it (the share the data show beyond noise), in σ")
-
-
 def along(b: np.ndarray, sens: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{fit: (4, 1)}: every fit's response to the measured torques (``sens``: {fit: (4, k)})."""
     return {which: A @ b[:, None] for which, A in sens.items()}
 
 
-__all__ = ["WristTorques", "columns", "measure", "spring_shares", "chance_note", "along"]
+__all__ = ["WristTorques", "columns", "measure", "along"]
