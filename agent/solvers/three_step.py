@@ -19,7 +19,8 @@ Uncertainty: every estimate is a function of the three sweeps' Δτ samples, so 
 sensitivity to each sample (``_jacobians``: through the step-1 interpolation, and through m
 into steps 2 and 3, and through x, y into step 3) times that sweep's residuals gives scores
 whose long-run variance (Bartlett kernel, bandwidth from the residuals' autocorrelation time,
-as in ``solvers.wls``) is the covariance of [m, x, y, z]; never below the independent-noise
+as in ``solvers.wls``; where the deltas carry their noise maps, the map's at every lag, scaled up where the
+kernel shows more, ``wls.modelled_excess``) is the covariance of [m, x, y, z]; never below the independent-noise
 value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top, and the DH lengths'
 uncertainty by re-running the steps with each length moved, less what a drive-gain calibration absorbed of it
 (``length_covariance``, the general solver's DH-length term through the three steps).
@@ -37,7 +38,7 @@ from payload_agent.model.arm_geometry import ArmGeometry, wrap
 from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
 from payload_agent.solvers.regressor import chain_frames, payload_regressor
 from payload_agent.solvers.results import Estimate
-from payload_agent.solvers.wls import HAC_MAX_FRACTION, autocorrelation_time, long_run_scores
+from payload_agent.solvers.wls import HAC_MAX_FRACTION, autocorrelation_time, long_run_scores, modelled_excess
 from payload_agent.types import SweepKey
 
 NAME = "three-step"
@@ -146,7 +147,8 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         "d3": (d3.dtau[:, 2], mass * (Ad + Bd @ c), 2),
     }
     J = _jacobians(beta, phi, inside, dm_dv, B3, Bd, data["b3"][0], d3.dtau[:, 2])
-    cov_beta = _covariance(J, data, gain_rel_std)
+    maps = {"b2": b2.noise_map, "b3": b3.noise_map, "d3": d3.noise_map}
+    cov_beta = _covariance(J, data, gain_rel_std, maps)
     if length_std_m is not None and length_std_m > 0:
         cov_beta = cov_beta + length_covariance(deltas, kin, beta, float(length_std_m), gain_reference, model,
                                                 dict(pose_xy=pose_xy, pose_z=pose_z, directions=directions))
@@ -276,8 +278,14 @@ def _jacobians(beta: np.ndarray, phi: np.ndarray, inside: np.ndarray, dm_dv: np.
 
 
 def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.ndarray, int]],
-                gain_rel_std: Iterable[float] | None) -> np.ndarray:
-    """Σ over sweeps of the long-run variance of the scores J_s·r_s, floored at the independent-noise value."""
+                gain_rel_std: Iterable[float] | None, noise_maps: dict | None = None) -> np.ndarray:
+    """Σ over sweeps of the long-run variance of the scores J_s·r_s, floored at the independent-noise value.
+
+    Where a sweep's noise map says how its samples' noise is made (``DeltaSweep.noise_map``: the empty run and the
+    legs interpolated onto the combined grid), the long-run variance is the map's at every lag, scaled up where the
+    residuals' kernel estimate shows more (``wls.modelled_excess``, as the general solver): the Bartlett kernel
+    alone down-weights the neighbouring samples' shared interpolation error and ran 3–7 % low in σ, most on the
+    CoM y (docs/benchmarks.md, "Session 17")."""
     cov = np.zeros((4, 4))
     cov_iid = np.zeros((4, 4))
     for name, Js in J.items():
@@ -286,7 +294,11 @@ def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.n
         n = len(r)
         _, lag = autocorrelation_time(r, max_lag=max(1, int(HAC_MAX_FRACTION * n)))
         dof = n / max(n - 1, 1)
-        cov += long_run_scores(Js.T * r[:, None], lag) * dof
+        B = long_run_scores(Js.T * r[:, None], lag) * dof
+        noise = None if noise_maps is None else noise_maps.get(name)
+        if noise is not None and noise.shape[0] == n:
+            B = modelled_excess(B, noise, lag, [(Js.T, float(np.mean(r ** 2)) * dof)])
+        cov += B
         cov_iid += float(np.mean(r ** 2)) * dof * (Js @ Js.T)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
     if np.any(ratio < 1.0):
