@@ -141,8 +141,10 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         drawn, nominal = simulated_spec(config.simulation).dh, SPECS[config.simulation.arm]().dh
         plan["dh_length_errors_mm"] = [round(1000.0 * (x.a_m - n.a_m), 4) for x, n in zip(drawn, nominal)] + [
             round(1000.0 * (x.d_m - n.d_m), 4) for x, n in zip(drawn, nominal)]
+    # the wrist term's note (a cable spring's presence test, or the free offsets'): the per-seed CoM σ follows it
+    wrist = [n for n in est.notes if "tool cable" in n or "wrist" in n]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
-            "passed": bool(outcome.result.quality.get("passed")), **plan}
+            "passed": bool(outcome.result.quality.get("passed")), "wrist_note": wrist[0] if wrist else None, **plan}
 
 
 def noise_model(config):
