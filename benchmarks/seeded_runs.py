@@ -13,7 +13,9 @@ hold the truth.
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
-chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22).
+chosen robot time and the predicted σ beside the reported one (plan matches run, issue 22). The predicted σ is a
+typical run's (the median over the plan's draws); a run whose wrist term (a tool cable's spring) enters its σ
+reports more, so the runs with and without it are shown apart, beside the plan's chance of the term.
 ``--baseline``: each seed's state gets an empty-flange baseline of the YAML's procedure first (the plan measures
 the effort noise and the stream's samples per second in it; the run still records its own empty run).
 ``--calibrate``: each seed's state gets a drive-gain calibration first (``calibrate`` with a 3 kg
@@ -116,13 +118,15 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "" if fastest is None else f" (least mass σ {fastest.mass_std_g:.2f} g: {fastest.candidate.describe()})"))
         best = choice.best
         config = design.with_candidate(config, best.candidate)
-        terms, _ = design.covariance_terms(config, design.plan_for(config, best.candidate), noise_model(config),
-                                           design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm))
+        terms, _, wrist, _ = design.terms_and_wrist_model(config, design.plan_for(config, best.candidate),
+                                                          noise_model(config),
+                                                          design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm))
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "pred_length_std": list(term_sigmas(terms["lengths"], sim)),
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
-                "p_over_target": best.p_over(*targets.parse_target(target))}
+                "p_over_target": best.p_over(*targets.parse_target(target)),
+                "pred_wrist_share": float(np.mean(wrist.a > 0))}  # the plan's chance the run's wrist term is in σ
     planned_share, planned = stream_share(config), noise_inflation.stored(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
     try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
@@ -141,8 +145,23 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         drawn, nominal = simulated_spec(config.simulation).dh, SPECS[config.simulation.arm]().dh
         plan["dh_length_errors_mm"] = [round(1000.0 * (x.a_m - n.a_m), 4) for x, n in zip(drawn, nominal)] + [
             round(1000.0 * (x.d_m - n.d_m), 4) for x, n in zip(drawn, nominal)]
+    # the wrist term's note (a cable spring's presence test, or the free offsets'): the per-seed CoM σ follows it
+    wrist = [n for n in est.notes if n.startswith(("a tool cable", "constant wrist torques"))]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
-            "passed": bool(outcome.result.quality.get("passed")), **plan}
+            "passed": bool(outcome.result.quality.get("passed")), "wrist_note": wrist[0] if wrist else None,
+            "wrist_weight": wrist_weight(wrist[0] if wrist else None), **plan}
+
+
+def wrist_weight(note: str | None) -> float:
+    """The share of the wrist term a run put into its σ, read from its note (``systematics.cable_spring.note``,
+    ``wrist_terms``): 0 without the note (the run's test statistic below its null mean), 1 where a cable was found
+    or declared, else the weight it states (the free offsets' shrink)."""
+    import re
+
+    if not note:
+        return 0.0
+    share = re.search(r"([0-9.]+) × (?:of it|as measured)", note)
+    return float(share.group(1)) if share else 1.0
 
 
 def noise_model(config):
@@ -256,6 +275,12 @@ def main(argv: list[str] | None = None) -> int:
               f"reported {rep_m.mean():.2f} g (ratio {np.mean(pm[:, 0] / rep_m):.2f}); predicted σ CoM (largest "
               f"axis) {pm[:, 1].mean():.2f} mm, reported {rep_c.mean():.2f} mm (ratio {np.mean(pm[:, 1] / rep_c):.2f})")
         grams, mm = (float(v) for v in args.target_std.split(","))
+        clean = np.array([r.get("wrist_weight", 0.0) == 0.0 for r in runs])
+        if "pred_wrist_share" in runs[0]:  # the median is the run without the wrist term; the term's frequency apart
+            ratio_c = pm[:, 1] / rep_c
+            print(f"the run's wrist term in σ in {int(np.sum(~clean))} of {len(runs)} runs (the plan's chance "
+                  f"{100 * np.mean([r['pred_wrist_share'] for r in runs]):.0f} %); pred/rep c in the runs without it "
+                  f"{_list(ratio_c[clean])}, with it {_list(ratio_c[~clean])}")
         within = lambda pred, rep: int(np.sum(np.abs(pred / rep - 1.0) <= 0.3))  # noqa: E731
         print(f"predicted = median of the run's σ: ratio pred/rep per seed m {_list(pm[:, 0] / rep_m)}, c "
               f"{_list(pm[:, 1] / rep_c)}; within ±30 % m {within(pm[:, 0], rep_m)}, c {within(pm[:, 1], rep_c)} of "
