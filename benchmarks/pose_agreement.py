@@ -136,12 +136,10 @@ def quantity_of(check: dict) -> str:
     return next(n for n in QUANTITIES if check["check"].startswith(n))
 
 
-def main(argv: list[str] | None = None) -> int:
-    from payload_agent.evaluation import quality
-
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_run_arguments(ap: argparse.ArgumentParser, seeds: int) -> None:
+    """The options of the seeded runs ``record`` makes: robot, seeds, the procedure's overrides, the calibration."""
     ap.add_argument("--robot", default="sim-ec66")
-    ap.add_argument("--seeds", type=int, default=60)
+    ap.add_argument("--seeds", type=int, default=seeds)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--procedure", help="procedure name (default: the YAML's)")
     ap.add_argument("--speed", type=float, help="sweep speed percent (default: the YAML's)")
@@ -150,14 +148,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sweep-deg", metavar="FROM:TO", help="sweep range (default: the YAML's)")
     ap.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
     ap.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+
+
+def seeded(args: argparse.Namespace, one_run):
+    """(the candidate, the calibration's reference, an iterator of (seed, ``one_run``'s record)) for the options
+    ``add_run_arguments`` defines."""
+    config, cal_config, run_config, cand = configs(args.robot, args)
+    reference = parse_reference(args.calibrate_with)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    return cand, reference, ((s, one_run(config, cal_config, run_config, s, reference)) for s in seeds)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from payload_agent.evaluation import quality
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_run_arguments(ap, seeds=60)
     ap.add_argument("--limits-of-pairs", type=int, default=1,
                     help="also count refusals at the limits for this many pairs (1: the two-pose limits)")
     args = ap.parse_args(argv)
-    config, cal_config, run_config, cand = configs(args.robot, args)
-    reference = parse_reference(args.calibrate_with)
+    cand, reference, seeds = seeded(args, one)
     runs = []
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        r = one(config, cal_config, run_config, seed, reference)
+    for seed, r in seeds:
         runs.append(r)
         worst = max(r["pose_checks"], key=lambda c: c["value"] / c["limit"])
         print(f"seed {seed:3d}: largest {worst['check']} |z| {worst['value']:.2f} (limit {worst['limit']:.2f})"

@@ -28,8 +28,7 @@ import numpy as np
 
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.pose_agreement import configs, record  # noqa: E402
-from benchmarks.seeded_runs import parse_reference  # noqa: E402
+from benchmarks.pose_agreement import add_run_arguments, record, seeded  # noqa: E402
 
 Z95 = 1.959964
 QUANTITIES = ("m", "x", "y", "z")
@@ -127,23 +126,12 @@ def summary(runs: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--robot", default="sim-ec66")
-    ap.add_argument("--seeds", type=int, default=40)
-    ap.add_argument("--first-seed", type=int, default=1)
-    ap.add_argument("--procedure", help="procedure name (default: the YAML's)")
-    ap.add_argument("--speed", type=float, help="sweep speed percent (default: the YAML's)")
-    ap.add_argument("--travel", type=float, help="travel speed percent (default: the YAML's)")
-    ap.add_argument("--accel", type=float, help="acceleration percent (default: the YAML's)")
-    ap.add_argument("--sweep-deg", metavar="FROM:TO", help="sweep range (default: the YAML's)")
-    ap.add_argument("--calibrate-with", metavar="KG:X,Y,Z", help="the calibration's reference (default 3:0,0,80)")
-    ap.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
+    add_run_arguments(ap, seeds=40)
     ap.add_argument("--json", metavar="OUT", help="write the per-seed rows and the summary here")
     args = ap.parse_args(argv)
-    config, cal_config, run_config, cand = configs(args.robot, args)
-    reference = parse_reference(args.calibrate_with)
+    cand, reference, seeds = seeded(args, one)
     runs = []
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        r = one(config, cal_config, run_config, seed, reference)
+    for seed, r in seeds:
         runs.append(r)
         s = r["std"]
         print(f"seed {seed:3d}: err " + " ".join(f"{v:+.2f}" for v in r["error"]) + " | σ reported "
