@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import struct
@@ -12,8 +13,10 @@ import numpy as np
 import pytest
 
 rtde_receive = pytest.importorskip("rtde_receive", reason="ur-rtde wheel not installed (CPython 3.11/3.12)")
-rtde_control = pytest.importorskip("rtde_control")
+pytest.importorskip("rtde_control")
 
+from payload_agent.drivers.ur_rtde.control import ControlChannel  # noqa: E402
+from payload_agent.errors import RobotNotReadyError  # noqa: E402
 from payload_agent.fakes import ur_rtde_protocol as rp  # noqa: E402
 from payload_agent.fakes.physics import PayloadTruth  # noqa: E402
 from payload_agent.fakes.ur import DEFAULT_GAINS_NM_PER_A, FakeURController  # noqa: E402
@@ -224,50 +227,73 @@ def test_dashboard(ur):
         assert ask("bogus") == "could not understand: 'bogus'"
 
 
+@contextlib.contextmanager
+def control_interface(host: str, upper_range_registers: bool = False):
+    """ur-rtde's real RTDEControlInterface, held in the driver's worker process (``ControlChannel``), never in
+    the test process: ur-rtde 1.6.5's receive thread can dereference a reset socket when its connection ends
+    (``RTDE::isDataAvailable``, SIGSEGV; docs/sources.md), and in a pytest-xdist worker that crash killed the
+    worker and hung the suite. Requests are the worker's: ("moveJ", …), ("progress",), ("stopJ", …), …"""
+    channel = ControlChannel(host, 500.0, upper_range_registers)
+    try:
+        channel.get(lambda: "")
+        yield channel
+    finally:
+        channel.discard()
+
+
+def call(channel: ControlChannel, op: str, *args, timeout_s: float = 10.0):
+    """One ur-rtde call in the worker; its reply also refreshes channel.connected / channel.program_running."""
+    return channel.request(op, *args, timeout_s=timeout_s)
+
+
+def async_running(channel: ControlChannel) -> bool:
+    return call(channel, "progress")[1]
+
+
 def test_control_interface_move_stop_and_payload(clean):
     ur = clean
     r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_q", "payload", "payload_cog",
                                                             "runtime_state"])
-    c = rtde_control.RTDEControlInterface(ur.host)
     try:
-        assert c.isConnected() and c.isProgramRunning()
-        assert "rtde_control" in ur.programs_run
-        target = [0.1, -1.45, 1.45, -1.65, -1.5, 0.05]
-        assert c.moveJ(target, 1.0, 3.0)  # synchronous: returns when the move is done
-        deadline = time.monotonic() + 2.0  # the receive interface's packages may trail the control interface's
-        while not np.allclose(r.getActualQ(), target, atol=1e-9) and time.monotonic() < deadline:
-            time.sleep(0.002)
-        assert np.allclose(r.getActualQ(), target, atol=1e-9)
-        assert c.setPayload(1.25, [0.01, -0.02, 0.07])
-        eventually(lambda: r.getPayload() == pytest.approx(1.25))
-        assert r.getPayload() == pytest.approx(1.25)
-        assert r.getPayloadCog() == pytest.approx([0.01, -0.02, 0.07])
-        assert ur.controller_payload[0] == pytest.approx(1.25)
-        # async move, then stopJ halts it short of the target
-        assert c.moveJ(HOME, 0.3, 1.0, True)
-        time.sleep(0.3)
-        assert c.getAsyncOperationProgressEx().isAsyncOperationRunning()
-        c.stopJ(2.0)
-        time.sleep(0.05)
-        q = np.asarray(r.getActualQ())
-        assert not np.allclose(q, HOME, atol=1e-3)
-        assert not c.getAsyncOperationProgressEx().isAsyncOperationRunning()
-        c.stopScript()
-        assert not c.isProgramRunning()
-        deadline = time.monotonic() + 2.0
-        while r.getRuntimeState() != 1 and time.monotonic() < deadline:
-            time.sleep(0.002)
-        assert r.getRuntimeState() == 1
+        with control_interface(ur.host) as c:
+            assert c.connected and c.program_running
+            assert "rtde_control" in ur.programs_run
+            target = [0.1, -1.45, 1.45, -1.65, -1.5, 0.05]
+            assert call(c, "moveJ", target, 1.0, 3.0)  # synchronous: returns when the move is done
+            deadline = time.monotonic() + 2.0  # the receive interface's packages may trail the control interface's
+            while not np.allclose(r.getActualQ(), target, atol=1e-9) and time.monotonic() < deadline:
+                time.sleep(0.002)
+            assert np.allclose(r.getActualQ(), target, atol=1e-9)
+            assert call(c, "setPayload", 1.25, [0.01, -0.02, 0.07])
+            eventually(lambda: r.getPayload() == pytest.approx(1.25))
+            assert r.getPayload() == pytest.approx(1.25)
+            assert r.getPayloadCog() == pytest.approx([0.01, -0.02, 0.07])
+            assert ur.controller_payload[0] == pytest.approx(1.25)
+            # async move, then stopJ halts it short of the target
+            assert call(c, "moveJ", HOME, 0.3, 1.0, True)
+            time.sleep(0.3)
+            assert async_running(c)
+            call(c, "stopJ", 2.0)
+            time.sleep(0.05)
+            q = np.asarray(r.getActualQ())
+            assert not np.allclose(q, HOME, atol=1e-3)
+            assert not async_running(c)
+            call(c, "stopScript")
+            assert not c.program_running
+            deadline = time.monotonic() + 2.0
+            while r.getRuntimeState() != 1 and time.monotonic() < deadline:
+                time.sleep(0.002)
+            assert r.getRuntimeState() == 1
     finally:
-        c.disconnect()
         r.disconnect()
     assert ur.script_errors == []
 
 
 def test_control_interface_needs_remote_control(clean):
     clean.set_remote_control(False)
-    with pytest.raises(RuntimeError, match="remote control"):
-        rtde_control.RTDEControlInterface(clean.host)
+    with pytest.raises(RobotNotReadyError, match="Remote Control.*Please enable remote control"):
+        with control_interface(clean.host):
+            pass
 
 
 def test_plain_script_on_port_30002(clean):
@@ -295,9 +321,10 @@ def test_protective_stop_and_estop_are_visible(clean):
     ur = clean
     r = rtde_receive.RTDEReceiveInterface(ur.host, 500.0, ["timestamp", "actual_qd", "robot_mode", "safety_mode",
                                                             "safety_status_bits", "runtime_state"])
-    c = rtde_control.RTDEControlInterface(ur.host)
+    stack = contextlib.ExitStack()
     try:
-        assert c.moveJ([0.6, -1.2, 1.2, -1.4, -1.2, 0.4], 0.5, 2.0, True)
+        c = stack.enter_context(control_interface(ur.host))
+        assert call(c, "moveJ", [0.6, -1.2, 1.2, -1.4, -1.2, 0.4], 0.5, 2.0, True)
         eventually(lambda: np.max(np.abs(r.getActualQd())) > 0.1)
         ur.trigger_protective_stop()
         eventually(lambda: r.getSafetyStatusBits() & (1 << 2) and r.getRuntimeState() == 1
@@ -305,7 +332,7 @@ def test_protective_stop_and_estop_are_visible(clean):
         bits = r.getSafetyStatusBits()
         assert bits & (1 << 2) and bits & (1 << 10) and not bits & 1
         assert r.getSafetyMode() == 3
-        assert not c.moveJ(HOME, 0.5, 2.0)  # ur_rtde refuses: script not running
+        assert not call(c, "moveJ", HOME, 0.5, 2.0)  # ur_rtde refuses: script not running
         with socket.create_connection((ur.host, 29999), timeout=3) as s:
             f = s.makefile("rwb")
             f.readline()
@@ -320,7 +347,7 @@ def test_protective_stop_and_estop_are_visible(clean):
         assert bits & (1 << 6) and bits & (1 << 7)
         assert r.getSafetyMode() == 7 and r.getRobotMode() == 3
     finally:
-        c.disconnect()
+        stack.close()
         r.disconnect()
 
 
@@ -371,18 +398,13 @@ def test_tool_change_shows_in_actual_current(clean):
 
 def test_upper_range_registers(clean):
     ur = clean
-    flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT | \
-        rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
-    c = rtde_control.RTDEControlInterface(ur.host, 500.0, flags)
-    try:
-        assert c.isProgramRunning()
+    with control_interface(ur.host, upper_range_registers=True) as c:
+        assert c.program_running
         target = [0.02, -1.55, 1.55, -1.55, -1.55, 0.01]
-        assert c.moveJ(target, 1.0, 3.0)
+        assert call(c, "moveJ", target, 1.0, 3.0)
         assert np.allclose(ur.robot.snapshot().q, target, atol=1e-9)
         assert ur.out_int[24] in (1, 2)  # ready / done, in the upper range (offset 24)
-    finally:
-        c.stopScript()
-        c.disconnect()
+        call(c, "stopScript")
 
 
 # -- the shared loopback TCP server (fakes/tcp_server.py: UR and Elite fakes) -------------------------

@@ -130,16 +130,13 @@ def test_a_version_without_inertia_writes_mass_and_cog_and_says_so(version):
 def test_set_target_payload_on_a_controller_before_5_10_does_nothing():
     """ur-rtde strips its script's set_target_payload lines (tagged 5.10) on an older controller, so the
     call succeeds and changes nothing: the reason the driver decides by version and reads back."""
-    import rtde_control
+    from test_ur_fake import call, control_interface
 
     with FakeURController(time_scale=1.0, controller_version=(5, 9, 4, 0)) as fake:
-        ctl = rtde_control.RTDEControlInterface(fake.host)
-        try:
-            assert ctl.setTargetPayload(1.2, [0.0, 0.0, 0.05], [0.01, 0.01, 0.01, 0.0, 0.0, 0.0])
+        with control_interface(fake.host) as ctl:
+            assert call(ctl, "setTargetPayload", 1.2, [0.0, 0.0, 0.05], [0.01, 0.01, 0.01, 0.0, 0.0, 0.0])
             assert fake.controller_payload[0] == 0.0
-        finally:
-            ctl.stopScript()
-            ctl.disconnect()
+            call(ctl, "stopScript")
 
 
 def test_a_driver_without_inertia_says_so_in_one_line():
