@@ -79,6 +79,40 @@ def test_sigterm_while_waiting_returns_cleanly_and_restores_handlers(base_cfg, t
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+SIGNAL_INSIDE_WAIT = """
+import signal, sys, threading
+from dataclasses import replace
+import yaml
+from payload_agent.configuration.config import parse_config
+from payload_agent.configuration.watch import WatchConfig
+from payload_agent.session.watch import watch
+
+class SignalInsideWait(threading.Event):
+    # SIGTERM arrives while wait() holds the event's own lock: the handler runs in this thread right there
+    def wait(self, timeout=None):
+        with self._cond:
+            signal.raise_signal(signal.SIGTERM)
+        return super().wait(timeout)
+
+cfg = parse_config(yaml.safe_load(open(sys.argv[1]).read()))
+cfg = replace(cfg, watch=WatchConfig("file", sys.argv[2], None, 0.01))
+sys.exit(watch(cfg, lambda: 1 / 0, stop_event=SignalInsideWait()))
+"""
+
+
+def test_sigterm_while_the_wait_holds_its_lock_still_ends_the_watch(tmp_path):
+    """The handler must take no lock: Event.set() there waits for the event's lock, which the main thread holds
+    inside Event.wait() at that moment, for ever (a watch once ignored SIGTERM for 30 s in CI this way). In a
+    child process, so that a regression fails by the timeout instead of hanging the suite."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", SIGNAL_INSIDE_WAIT, str(ROOT / "configs" / "sim-ec66.yaml"),
+                           str(tmp_path / "never")], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "stopped (signal SIGTERM) after 0 run(s)" in done.stdout
+
+
 def test_sigterm_during_a_run_takes_the_abort_path(base_cfg, tmp_path):
     """The signal becomes KeyboardInterrupt inside the run (the runner stops the robot there); a second
     signal while the run is stopping does not raise again; the loop ends with the run's exit code."""

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -53,12 +54,34 @@ EXIT_MEANING = {0: "success", 1: "unexpected error", 2: "configuration/plan/safe
 MAX_RECONNECT_WAIT_S = 10.0
 
 
+# how often a wait between polls looks for a signal (the handler takes no lock, so it cannot wake the wait)
+SIGNAL_CHECK_S = 0.1
+
+
 @dataclass
 class _State:
+    """``stop``: the caller's stop request (another thread sets it). ``signalled``: set by the signal handler,
+    which must take no lock: ``Event.set()`` there waits for the event's own lock, which the main thread may hold
+    inside ``stop.wait()`` when the signal arrives, and then waits for ever (a watch under test once ignored
+    SIGTERM for 30 s this way; CPython gh-126434 is the same deadlock with multiprocessing.Event)."""
+
     stop: threading.Event
     in_run: bool = False
     interrupted_by: int | None = None  # signal number that interrupted a run
     signals: list[int] = field(default_factory=list)
+    signalled: bool = False
+
+    def stopped(self) -> bool:
+        return self.signalled or self.stop.is_set()
+
+    def wait(self, seconds: float) -> None:
+        """Up to ``seconds``, ending early once stopped."""
+        deadline = time.monotonic() + seconds
+        while not self.stopped():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.stop.wait(min(left, SIGNAL_CHECK_S))
 
 
 def _stamp() -> str:
@@ -112,14 +135,14 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
     try:
         out(f"{_stamp()} watch: waiting for {trigger.describe()} (poll every {wc.poll_interval_s:g} s)"
             + (f", at most {max_runs} run(s)" if max_runs is not None else ""))
-        while not state.stop.is_set():
+        while not state.stopped():
             if max_runs is not None and runs >= max_runs:
                 break
             fired = trigger.poll()
             if not fired:
-                state.stop.wait(trigger.wait_s(wc.poll_interval_s))
+                state.wait(trigger.wait_s(wc.poll_interval_s))
                 continue
-            if state.stop.is_set():
+            if state.stopped():
                 break
             trigger.before_run()
             runs += 1
@@ -140,7 +163,7 @@ def watch(config: Config, run_once: Callable[[], int], *, driver_factory: Callab
             if state.interrupted_by is not None:
                 break
             trigger.after_run()
-        if state.stop.is_set():
+        if state.stopped():
             reason = (f"signal {signal.Signals(state.signals[0]).name}" if state.signals else "stop requested")
             out(f"{_stamp()} watch: stopped ({reason}) after {runs} run(s)")
             return last_code if state.interrupted_by is not None else 0
@@ -158,8 +181,8 @@ def _install_signal_handlers(state: _State, out: Callable[[str], None]) -> Calla
 
     def handler(signum, frame):
         state.signals.append(signum)
-        first = not state.stop.is_set()
-        state.stop.set()
+        first = not state.stopped()
+        state.signalled = True  # no state.stop.set() here: see _State
         if state.in_run and first:
             state.interrupted_by = signum
             # the runner's Ctrl-C path: stop the robot, keep the data
