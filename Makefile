@@ -23,8 +23,13 @@ sim: $(VENV)/.installed
 # order (its module-scoped simulators and CLI runs are built once, as in a serial run). Files go out slowest
 # first (tests/conftest.py SLOWEST_FIRST): --no-loadscope-reorder keeps xdist from sorting them by test count
 TEST_WORKERS ?= 2
+# A worker that dies in native code can leave xdist's controller waiting for ever (seen once, session 17): the
+# suite is ended after 30 min (about 6x its time on a loaded 2-core machine) so that it fails, saying so, not hangs
 test: $(VENV)/.installed browser
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	@timeout --kill-after=30 1800 $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder; \
+	  rc=$$?; if [ $$rc -eq 124 ] || [ $$rc -eq 137 ]; then \
+	  echo "make test: the test suite did not finish within 30 min and was stopped (a hung or crashed worker?)" >&2; fi; \
+	  exit $$rc
 
 # The report's screenshot tests render in headless Chromium (Debian package `chromium`): installed
 # here when missing and we are root with apt-get; otherwise those tests skip (CI makes them fail).
