@@ -172,3 +172,39 @@ def test_gains_json_round_trip_old_files_and_a_malformed_field(quarter_then_bd, 
             load_calibration(state, config)
     with pytest.raises(ValueError, match="reference_shares must be an object"):
         ReferenceShares.from_json([1, 2])
+
+
+EPS = 0.004  # a gear-ripple-like gain error of joint 3 standing at 0° (the EC66's mesh ripple is up to ±0.7 %)
+
+
+def _rippled(phase: dict) -> dict:
+    """Joint 3's effort ×(1 + EPS) in every sweep where it stands at 0°, as a ripple at that angle does in both
+    the empty and the loaded run (it scales the gear torque, so the loaded-minus-empty difference too)."""
+    out = {}
+    for k, s in phase.items():
+        effort = np.array(s.effort_nm, float)
+        if abs(np.median(s.q[:, 2])) < gain_scatter.SAME_ANGLE_RAD and np.ptp(s.q[:, 2]) < gain_scatter.SAME_ANGLE_RAD:
+            effort[:, 2] *= 1.0 + EPS
+        out[k] = replace(s, effort_nm=effort)
+    return out
+
+
+def test_a_cluster_the_calibration_took_whole_is_measured_where_the_tool_run_moves_its_joint():
+    """j2_quarter keeps joint 3 at 0° throughout, so its scale took the whole error there (w = 1); a paper_bd run
+    moves joint 3, whose calibrated rows then carry −ε while the rows at 0° carry none. The three-step's scatter
+    measurement (``measure(absorb_joints=...)``) must give that cluster its absorbed column; it used to leave every
+    w = 1 cluster out (right only when the joint never moves in the tool run either)."""
+    b = length_errors.bench(calibrate_with=REF, candidate="paper_bd:10:0:55", calibrate_procedure="j2_quarter")
+    spec, decl, kin = SPECS["ur5e"](), b.config.robot.joints, b.config.robot.kinematics
+    loaded, empty = (_rippled(p) for p in length_errors._record(b, spec, b.cal_plan, b.reference))
+    cal = fit_from_sweeps(loaded, empty, b.config, b.reference[0], np.asarray(b.reference[1]) / 1000.0, joints=decl)
+    loaded, empty = (_rippled(p) for p in length_errors._record(b, spec, b.run_plan, b.truth))
+    scaled = [{k: replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in p.items()} for p in (loaded, empty)]
+    if cal.zeros is not None:
+        scaled = [zero_offsets.corrected(p, cal.zeros) for p in scaled]
+    deltas = systematics.prepare(*scaled, decl, None).deltas
+    gs = gain_scatter.measure(dict(deltas), kin, gain_reference=cal.reference, absorb_joints=(1, 2))
+    label = next(c for c in gs.labels if c.startswith("j3@0.00"))
+    assert cal.reference_shares.share(2, 0.0, gain_scatter.SAME_ANGLE_RAD) == pytest.approx(1.0, abs=0.01)
+    assert gs.tau > 0
+    assert gs.eps[gs.labels.index(label)] == pytest.approx(EPS, rel=0.1)

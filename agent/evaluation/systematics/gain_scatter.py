@@ -270,7 +270,10 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     joint j, the moving ones included, carries −w_jk·ε_k and the cluster's column gets −w_jk·Y_gθ̂ there (as the
     wrist term's nuisance columns, ``wrist.columns``): ε̂_k is then the cluster's error itself, where the plain
     column measures it partly against the calibrated moving rows (0.69·ε_k for joint 3 standing at 0° in the
-    benchmark's ripple rows). Only clusters with w < 1 (at w = 1 the column vanishes: the joint never moves).
+    benchmark's ripple rows). Not for a cluster whose column would vanish: w = 1 and no other row of its joint in
+    this run (the joint stood only there, in the calibration as here). After a calibration on another procedure
+    w = 1 with other rows is common (j2_quarter never moves joint 3 off 0°; a paper_bd run does): every other row of
+    the joint then carries −ε_k, and the column measures it there.
     Default: none, the plain columns.
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
@@ -289,7 +292,7 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     absorb = set(int(j) for j in absorb_joints)
     shares = {} if gain_reference is None or not absorb else {
         c: (j, w) for c, (j, w) in absorbed_shares(sweeps, groups, labels, gain_reference, tol_rad).items()
-        if j in absorb and w < 1.0}
+        if j in absorb and (w < 1.0 or any(g.joint == j and name != c for g, name in zip(groups, names)))}
     aug = []
     for g, name in zip(groups, names):
         extra = np.zeros((len(g.y), len(labels)))
