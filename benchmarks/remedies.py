@@ -45,22 +45,25 @@ def scaled(sweeps: dict, scale: np.ndarray) -> dict:
 
 
 def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict,
-                  solver: str = "general", mount_rad=None):
+                  solver: str = "general", mount_rad=None, cal=None):
     """(Estimate, gate columns) of general-bi-cal-comp (``solver`` "three-step": three-step-bi-cal-comp) on one
     case's recorded sweeps: the agent's own ``analyse`` (that solver only, as the other methods are compared
     separately) after the calibration; ``mount_rad``: the angles the loaded run started from (the tool cable's
-    rest), as the agent records them."""
+    rest), as the agent records them. ``cal``: a calibration made elsewhere (``benchmarks.cross_calibration``: on
+    another procedure against its own empty run, so no shared baseline; ``ref`` is then unused); None: this
+    case's, on ``ref`` against ``empty``."""
     from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
 
     decl = declaration(declared)
-    cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores: gains, zeros, reference friction
+    shared = cal is None  # the calibration's reference run and the tool run share this case's empty run, as
+    # ``calibrate`` and ``run`` share the stored baseline
+    if cal is None:
+        cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores: gains, zeros, reference friction
     scale = np.asarray(cal.scale, float)
     options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
-    # the calibration's reference run and the tool run share this case's empty run, as ``calibrate`` and ``run``
-    # share the stored baseline
     gains = Gains(tuple(cal.gains_nm_per_unit), "calibrated on the benchmark's reference run", None,
                   tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros,
-                  shared_baseline=True)
+                  shared_baseline=shared)
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=(), mount_rad=mount_rad)
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 

@@ -197,8 +197,8 @@ def test_gains_json_keeps_the_measurement_and_an_old_file_still_loads(runs, tmp_
     assert reference_friction.of_reference(again.reference) == cal.reference_friction
     assert "reference_friction" in data and data["reference_friction"]["change_prior_percent"] == pytest.approx(3.0)
 
-    # a gains.json written before this (so before its length_response too)
-    old = {k: v for k, v in data.items() if k not in ("reference_friction", "length_response")}
+    # a gains.json written before this (so before its length_response and reference_shares too)
+    old = {k: v for k, v in data.items() if k not in ("reference_friction", "length_response", "reference_shares")}
     loaded_old = GainCalibration.from_json(old)
     assert loaded_old.reference_friction is None and len(loaded_old.reference) == 3
     rms, note = reference_friction.change_rms_nm(loaded_old.reference, [1, 2], 0.08, {1: 2.0, 2: 1.0})

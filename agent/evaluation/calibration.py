@@ -41,8 +41,9 @@ import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.analysis.run_deltas import phases_for
-from payload_agent.evaluation import calibration_lengths, systematics, zero_offsets
+from payload_agent.evaluation import calibration_lengths, calibration_shares, systematics, zero_offsets
 from payload_agent.evaluation.baseline_identity import empty_run_source
+from payload_agent.evaluation.reference_shares import KEY as REFERENCE_SHARES, ReferenceShares
 from payload_agent.evaluation.systematics import gain_scatter, reference_friction
 from payload_agent.errors import DataError
 from payload_agent.recording.rundata import SweepData
@@ -116,17 +117,23 @@ class GainCalibration:
     # None in files written before it was measured: a run's length term then keeps the older rule
     length_response: LengthResponse | None = None
     procedure: SweptProcedure | None = None  # what it swept; None in files written before it was recorded
+    # what its gain fit took of a constant torque on each swept joint's rows and of each still cluster's gain error,
+    # measured on its own sweeps (``calibration_shares``); None in files written before: a run's friction and
+    # torque-gain scatter terms then let the tool run's sweeps stand in, and say so
+    reference_shares: ReferenceShares | None = None
 
     @property
     def reference(self) -> tuple:
-        """(θ_ref = [m, m·c], fitted joints[, standing angles[, reference friction]]): what the analysis subtracts the
-        absorption with, and what the reference run's friction changed by (written only with the standing angles,
-        which every calibration since both were recorded has)."""
+        """(θ_ref = [m, m·c], fitted joints[, standing angles[, reference friction[, length response[, reference
+        shares]]]]): what the analysis subtracts the absorption with, and what the reference run's friction changed
+        by (written only with the standing angles, which every calibration since both were recorded has)."""
         theta = [self.reference_mass_kg, *(self.reference_mass_kg * np.asarray(self.reference_cog_m))]
         base = (theta, self.fitted_joints)
         if self.standing_angles is None:
             return base
         stood = (*base, self.standing_angles)
+        if self.reference_shares is not None:  # 6th entry (``reference_shares.of_reference``)
+            return (*stood, self.reference_friction, self.length_response, self.reference_shares)
         if self.length_response is not None:  # 5th entry (``length_response.of_reference``)
             return (*stood, self.reference_friction, self.length_response)
         return stood if self.reference_friction is None else (*stood, self.reference_friction)
@@ -155,7 +162,8 @@ class GainCalibration:
                    {"reference_friction": self.reference_friction.to_json()}),
                 **({} if self.baseline_source is None else {"baseline_source_run": self.baseline_source}),
                 **({} if self.length_response is None else {"length_response": self.length_response.to_json()}),
-                **({} if self.procedure is None else {"procedure": self.procedure.to_json()})}
+                **({} if self.procedure is None else {"procedure": self.procedure.to_json()}),
+                **({} if self.reference_shares is None else {REFERENCE_SHARES: self.reference_shares.to_json()})}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "GainCalibration":
@@ -180,10 +188,11 @@ class GainCalibration:
             raise ValueError(f"baseline_source_run must be a folder name, got {source!r}")
         lengths = None if d.get("length_response") is None else LengthResponse.from_json(d["length_response"])
         swept = None if d.get("procedure") is None else SweptProcedure.from_json(d["procedure"])
+        shares = None if d.get(REFERENCE_SHARES) is None else ReferenceShares.from_json(d[REFERENCE_SHARES])
         return cls(gains, tuple(int(j) - 1 for j in d["fitted_joints"]), scale, scale_std,
                    float(d["reference_mass_kg"]), cog, str(d["robot"]), str(d["effort_unit"]),
                    str(d["nominal_fingerprint"]), str(d["run_dir"]), str(d["created_utc"]), angles, zeros, fric, source,
-                   lengths, swept)
+                   lengths, swept, shares)
 
 
 def calibration_fingerprint(config: Config) -> str:
@@ -217,7 +226,9 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
        (``zero_offsets``);
     3. the reference run's constant-friction change against the baseline per joint, measured with the prior of
        the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains;
-    4. the fit's own response to each DH length's error (``calibration_lengths``: steps 2 on shifted torques).
+    4. the fit's own response to each DH length's error (``calibration_lengths``: steps 2 on shifted torques);
+    5. what the gain fit took of a constant torque on each swept joint's rows and of each still cluster's gain
+       error (``calibration_shares``), which a tool run's friction and torque-gain scatter terms read.
 
     ``joints``: the declared systematics (default the config's ``robot.joints``); ``commands``: the plan's sweep
     commands (constant-speed windows); ``run_dir``: recorded as given."""
@@ -249,7 +260,8 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
         nominal_fingerprint=calibration_fingerprint(config), run_dir=run_dir,
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
         standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric,
-        length_response=lengths, procedure=SweptProcedure.of(config))
+        length_response=lengths, procedure=SweptProcedure.of(config),
+        reference_shares=calibration_shares.measure(deltas, kin, theta_ref, fitted))
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

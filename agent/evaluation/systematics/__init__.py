@@ -65,6 +65,7 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
+from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
                                                   reference_friction, three_step_response,
                                                   three_step_scatter, wrist)
@@ -257,22 +258,35 @@ def friction_terms(ctx: Context) -> list[Term]:
         change[j] = friction.coulomb_change([loaded[pj] for pj in mine], [empty[pj] for pj in mine], rel * level, rel)
         constant[j] = friction.constant_level([empty[pj] for pj in mine])  # what the asymmetry multiplies
 
+    tool_joints = set(joints)
+
     def per_joint(g: wls.Group, d: DeltaSweep) -> str | None:
-        ok = g.joint == d.moving and d.key.direction == "both" and g.joint in change
+        ok = g.joint == d.moving and d.key.direction == "both" and g.joint in tool_joints
         return str(g.joint) if ok else None
 
-    labels = [str(j) for j in joints]
     std = np.array([asym * change[j].rms_nm for j in joints])
-    sens = ctx.offset_sens(per_joint, labels)
-    ref = ""
+    ref, all_joints = "", list(joints)
     if ctx.gain_reference is not None:  # the same asymmetry in the calibration's reference run, read through the
-        # gains: its change as the calibration measured it, else the declared change of the baseline's constant part
+        # gains: its change as the calibration measured it, else the declared change of the baseline's constant part;
+        # a joint only the calibration swept both ways gets its reference column too (no tool-run leftover there)
+        stored = reference_shares.of_reference(ctx.gain_reference)
+        measured_ref = reference_friction.of_reference(ctx.gain_reference)
+        extra = [] if stored is None or measured_ref is None else [
+            k for k in stored.friction_joints() if k not in tool_joints and measured_ref.of_joint(k) is not None]
+        all_joints = sorted([*joints, *extra])
+        for k in extra:
+            change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
+    labels = [str(j) for j in all_joints]
+    sens = ctx.offset_sens(per_joint, labels)
+    if ctx.gain_reference is not None:
         calib = reference_friction.reference_columns(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
-                                                     ctx.three_step, sens)
-        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in joints], calib,
-                                                              ctx.gain_reference, joints, rel, constant)
-        ref = f"; also in the drive-gain calibration's reference run, {ref}"
+                                                     ctx.three_step, sens, all_joints)
+        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in all_joints], calib,
+                                                              ctx.gain_reference, all_joints, rel, constant)
+        how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
+                   else reference_shares.STAND_IN_NOTE)
+        ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]

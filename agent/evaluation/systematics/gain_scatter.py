@@ -51,8 +51,8 @@ After a drive-gain calibration the scatter's effect is another one. The referenc
 same angles and carries the same ε_k (it scales the gear torque, and the reference payload's torque has
 the sign of the tool's), so the calibration's scale of joint j absorbed the share w_jk of ε_k that cluster
 k has in its fit (``absorbed_shares``: ⟨Y_jθ_ref on the cluster's rows⟩ over joint j's, the same form as the
-DH lengths' absorption in ``solvers.general``, with the tool run's sweeps standing in for the reference's; only
-for clusters where the calibration stood, ``GainCalibration.standing_angles``). The calibrated data then carry ε_k on the cluster's rows and −w_jk·ε_k on every row of
+DH lengths' absorption in ``solvers.general``, on the calibration's own sweeps as it stored them,
+``reference_shares``; older calibrations: the tool run's sweeps stand in, for clusters where it stood). The calibrated data then carry ε_k on the cluster's rows and −w_jk·ε_k on every row of
 joint j, the moving ones included, and θ moves by s_k − w_jk·g_j (g_j: the fit's response to a gain error
 of all of joint j's rows). Measured in the benchmark's ripple ablation (default procedure, 6 payloads): the
 plain s_k put 3–6 g into the mass σ against ripple errors of 0.4–1.4 g; the absorbed form 0.5–1.7 g; on
@@ -75,6 +75,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.evaluation import reference_shares
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.solvers import general
 from payload_agent.solvers.fitted import ALL, FittedModel
@@ -220,6 +221,10 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
     ``reference[2]``, when given: the (joint, angle) pairs the calibration stood at (``standing_angles``); a cluster
     the calibration did not stand at gets no share (its error was not in the reference run). Without it the
     calibration is taken to have run the tool run's procedure, as the DH lengths' absorption assumes.
+
+    A calibration that stored its own shares (``reference_shares``, measured on its own sweeps by this function)
+    gives each cluster the share of the cluster it stood at, at the same joint and angle; the ``sweeps`` and
+    ``groups`` given then only name the clusters. Without them these sweeps stand in for the calibration's.
     """
     if reference is None:
         return {}
@@ -232,6 +237,12 @@ def absorbed_shares(sweeps: list[DeltaSweep], groups: list[Group], labels: Seque
     for g, name in zip(groups, names):
         if name is not None:
             angle_of.setdefault(name, []).append(float(np.median(by_name[g.sweep].q[:, g.joint])))
+    stored = reference_shares.of_reference(reference)
+    if stored is not None:
+        found = {label: (joint_of.get(label), stored.share(joint_of.get(label, -1),
+                                                           float(np.mean(angle_of.get(label, [np.inf]))), tol_rad))
+                 for label in labels}
+        return {label: (int(j), float(w)) for label, (j, w) in found.items() if j in fitted and w is not None}
     indicator = np.repeat(np.array(names, dtype=object), [len(g.y) for g in groups])
     Y = np.vstack([g.Y[:, :4] for g in groups])
     dY = [Y * (indicator == label)[:, None] for label in labels]
@@ -259,7 +270,10 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     joint j, the moving ones included, carries −w_jk·ε_k and the cluster's column gets −w_jk·Y_gθ̂ there (as the
     wrist term's nuisance columns, ``wrist.columns``): ε̂_k is then the cluster's error itself, where the plain
     column measures it partly against the calibrated moving rows (0.69·ε_k for joint 3 standing at 0° in the
-    benchmark's ripple rows). Only clusters with w < 1 (at w = 1 the column vanishes: the joint never moves).
+    benchmark's ripple rows). Not for a cluster whose column would vanish: w = 1 and no other row of its joint in
+    this run (the joint stood only there, in the calibration as here). After a calibration on another procedure
+    w = 1 with other rows is common (j2_quarter never moves joint 3 off 0°; a paper_bd run does): every other row of
+    the joint then carries −ε_k, and the column measures it there.
     Default: none, the plain columns.
     """
     gain = None if gain_rel_std is None else list(gain_rel_std)
@@ -278,7 +292,7 @@ def measure(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     absorb = set(int(j) for j in absorb_joints)
     shares = {} if gain_reference is None or not absorb else {
         c: (j, w) for c, (j, w) in absorbed_shares(sweeps, groups, labels, gain_reference, tol_rad).items()
-        if j in absorb and w < 1.0}
+        if j in absorb and (w < 1.0 or any(g.joint == j and name != c for g, name in zip(groups, names)))}
     aug = []
     for g, name in zip(groups, names):
         extra = np.zeros((len(g.y), len(labels)))
@@ -357,7 +371,9 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     shares = absorbed_shares(sweeps, list(fits[combined][0]), labels, gain_reference)
     sens = {which: sensitivities(sweeps, groups, res, theta, labels, absorbed=shares)
             for which, (groups, res) in fits.items()}
-    text = note(gs) + (" (less what the drive-gain calibration absorbed)" if shares else "")
+    how = ("" if reference_shares.of_reference(gain_reference) is not None
+           else f"; {reference_shares.STAND_IN_NOTE}")
+    text = note(gs) + (f" (less what the drive-gain calibration absorbed{how})" if shares else "")
     return ScatterTerm(gs, labels, shares, sens, text, combined)
 
 

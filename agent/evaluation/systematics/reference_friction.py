@@ -143,10 +143,12 @@ def change_rms_nm(reference: Sequence | None, joints: Sequence[int], declared_re
 
 def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequence[DeltaSweep], groups: Sequence,
                       selector, labels: Sequence[str], reference: tuple, general_fit, three_step_theta,
-                      sens: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+                      sens: Mapping[str, np.ndarray], joints: Sequence[int] | None = None) -> dict[str, np.ndarray]:
     """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
     the calibration's reference run, which every solver reads through the calibrated gains (the tool data off by
-    −ε_jk·b_k relatively, ``three_step_response.reference_offset_shares``). The general fit's (``ALL``):
+    −ε_jk·b_k relatively, ``three_step_response.reference_offset_shares``: the calibration's own response where
+    gains.json stores it and ``joints`` names each label's joint, else the tool run's rows standing in). The general
+    fit's (``ALL``):
     −Σ_j G_j·ε_jᵀ, G_j its response to a relative gain error of joint j (as ``wls.gain_covariance``); the
     three-step's by finite differences (``three_step_response.reference_offset_response``); a pose's own fit gets
     zeros (the gains are common to the poses, which the pose comparison differences)."""
@@ -154,7 +156,7 @@ def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequen
     from payload_agent.solvers.fitted import ALL
 
     out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference)
+    eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
     if ALL in sens and eps:
         inv, w, theta = general_fit.normal_inverse, general_fit.weights, general_fit.theta
         joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
@@ -167,7 +169,7 @@ def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequen
     if three_step_response.THREE_STEP in sens and three_step_theta is not None:
         try:
             A = three_step_response.reference_offset_response(deltas, kin, sweeps, groups, selector, labels,
-                                                              reference, three_step_theta)
+                                                              reference, three_step_theta, joints)
             out[three_step_response.THREE_STEP] = np.hstack([sens[three_step_response.THREE_STEP], A])
         except DataError:
             pass  # no three-step response to the reference run: its tool-run columns alone, as before

@@ -31,6 +31,7 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
+from payload_agent.evaluation import reference_shares
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.solvers import general, three_step
 from payload_agent.solvers.wls import Group
@@ -98,11 +99,18 @@ def gain_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, joint:
 
 def reference_offset_shares(sweeps: Sequence[DeltaSweep], groups: Sequence[Group],
                             selector: Callable[[Group, DeltaSweep], "str | None"], labels: Sequence[str],
-                            reference: tuple) -> dict[int, np.ndarray]:
+                            reference: tuple, joints: Sequence[int] | None = None) -> dict[int, np.ndarray]:
     """Per calibrated joint j: (P,) ε_jk, the relative gain change the calibration's fit of joint j made per N·m of
-    a constant torque on the rows ``selector`` names ``labels[k]`` in its reference run (the tool run's rows stand
-    in for the calibration's, same procedure; ``general.absorbed_length_error`` with the "length derivative"
-    1_k·θ_refᵀ/|θ_ref|²). Any solver reads it through the gains: the tool data are off by −ε_jk·b_k relatively."""
+    a constant torque on the rows ``selector`` names ``labels[k]`` in its reference run
+    (``general.absorbed_length_error`` with the "length derivative" 1_k·θ_refᵀ/|θ_ref|²). Any solver reads it
+    through the gains: the tool data are off by −ε_jk·b_k relatively.
+
+    ``joints``: the joint whose two-direction moving rows each label names (the residual-friction term's). With
+    them, and a calibration that stored its own response (``reference_shares``), that response is read; else the
+    ``sweeps`` and ``groups`` given stand in for the calibration's (right only for the same procedure)."""
+    stored = reference_shares.of_reference(reference)
+    if stored is not None and joints is not None:
+        return stored.friction(sorted(int(j) for j in reference[1]), joints)
     theta_ref = np.asarray(list(reference[0]), float)
     by_name = {d.key.name: d for d in sweeps}
     names = np.repeat(np.array([selector(g, by_name[g.sweep]) for g in groups], dtype=object),
@@ -115,17 +123,18 @@ def reference_offset_shares(sweeps: Sequence[DeltaSweep], groups: Sequence[Group
 
 def reference_offset_response(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, sweeps: Sequence[DeltaSweep],
                               groups: Sequence[Group], selector: Callable[[Group, DeltaSweep], "str | None"],
-                              labels: Sequence[str], reference: tuple, theta0: np.ndarray) -> np.ndarray:
+                              labels: Sequence[str], reference: tuple, theta0: np.ndarray,
+                              joints: Sequence[int] | None = None) -> np.ndarray:
     """(4, P): ∂θ/∂b_k of the three-step solver for a constant torque b_k on the rows ``selector`` names
     ``labels[k]`` in the drive-gain calibration's REFERENCE run (``reference`` = (θ_ref, fitted joints, ...) as in
-    ``general.absorbed_length_error``; the tool run's sweeps stand in for the calibration's, same procedure).
+    ``general.absorbed_length_error``; ``joints`` as in ``reference_offset_shares``).
 
     The calibration's fit of joint j's scale took the share ε_jk = ⟨Y_jθ_ref, 1_k⟩/⟨Y_jθ_ref, Y_jθ_ref⟩ of b_k
     (the DH lengths' absorption with the "length derivative" 1_k·θ_refᵀ/|θ_ref|², whose product with θ_ref is
     the constant on the named rows): the tool data, scaled by the calibrated gain, are off by −ε_jk·b_k
     relatively. Joints the calibration did not fit, or whose rows the three steps do not read, give zero."""
     out = np.zeros((4, len(labels)))
-    eps = reference_offset_shares(sweeps, groups, selector, labels, reference)
+    eps = reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
     fitted = {int(j) for j in reference[1]}
     response = {j: gain_response(deltas, kin, j, theta0) for j in sorted(fitted & set(READS_JOINTS) & set(eps))}
     for j, resp in response.items():
