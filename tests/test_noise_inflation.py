@@ -81,6 +81,36 @@ def test_the_white_noise_ratio_the_plan_takes_as_its_own_is_what_the_fit_shows_o
     assert mean == pytest.approx(noise_inflation.WHITE_RATIO, rel=0.08)
 
 
+def _shifted(sweeps, share: float):
+    """The noise-free sweeps sampled ``share`` of a period later (angle and effort interpolated in time)."""
+    out = {}
+    for key, s in sweeps.items():
+        dt = float(np.median(np.diff(s.t)))
+        t = s.t[:-1] + share * dt
+        q = np.column_stack([np.interp(t, s.t, s.q[:, j]) for j in range(6)])
+        e = np.column_stack([np.interp(t, s.t, s.effort_nm[:, j]) for j in range(6)])
+        out[key] = dataclasses.replace(s, t=t, q=q, effort_nm=e)
+    return out
+
+
+def test_the_plans_ratio_does_not_follow_where_the_empty_runs_samples_fell(clean):
+    """Session 18: the loaded run's samples meet the empty run's at a phase that is chance, and the angle matching
+    interpolates the empty run there, so the fit's white σ (independent rows) and with it its robust-to-white ratio
+    move with that phase while its robust σ, which the noise map makes whole, does not. The same white noise with
+    the empty run sampled on the loaded run's grid and half a period off: the raw ratio differs by several %, the
+    plan's (over the white ratio of the same rows) by less than 2 % and stays within 3 % of 1. Over the fixed
+    ``WHITE_RATIO`` the plan's noise term followed that chance (sim-ec66's calibration, 12 seeds: 1.23 ± 0.05)."""
+    config, empty, loaded = clean
+    raw, plan = [], []
+    for share, seeds in ((0.0, (21, 22)), (0.5, (21, 22)), (0.0, (23, 24)), (0.5, (23, 24))):
+        m = noise_inflation.measure(config, _noisy(loaded, 0.0, seeds[0]), _noisy(_shifted(empty, share), 0.0, seeds[1]))
+        raw.append(max(m.mass_ratio, m.cog_ratio))
+        plan.append(m.excess)
+    assert abs(raw[1] / raw[0] - 1.0) > 0.04 and abs(raw[3] / raw[2] - 1.0) > 0.04, raw
+    assert abs(plan[1] / plan[0] - 1.0) < 0.02 and abs(plan[3] / plan[2] - 1.0) < 0.02, plan
+    assert all(1.0 <= p < 1.03 for p in plan), plan
+
+
 def test_ratios_propagate_to_the_centre_of_mass():
     theta = np.array([2.0, 0.08, -0.05, 0.16])
     cov_iid = np.diag([1e-6, 4e-8, 4e-8, 9e-8])
@@ -109,7 +139,11 @@ def test_the_plan_widens_its_noise_term_by_the_stored_calibration_runs_ratio(cle
     assert white.inflation == 1.0 and "noise taken as white" in source
     run_dir = _write_run(tmp_path / "calibration-run", config, _noisy(empty, RHO, 3), _noisy(loaded, RHO, 4))
     own = noise_inflation.of_run(config, run_dir)
-    assert own.ratio == pytest.approx(max(own.mass_ratio, own.cog_ratio) / noise_inflation.WHITE_RATIO)
+    # over what white noise shows on the same rows (the run's own noise map), no longer over the fixed WHITE_RATIO:
+    # that part of the ratio is the chance of where the two runs' samples fell (``test_..._sample_grid`` below)
+    wm, wc = own.white_ratios
+    assert own.ratio == pytest.approx(max(1.0, own.mass_ratio / wm, own.cog_ratio / wc))
+    assert 1.0 < wm < 1.4 and 1.0 < wc < 1.4
     assert own.ratio > 1.5
     gains = tuple(config.effort.gains_nm_per_unit)
     cal = GainCalibration(gains, (1, 2, 3, 4), (1.0,) * 6, (0.0, 5e-4, 5e-4, 3e-3, 5e-3, 0.0), 3.0, (0.04, -0.025, 0.08),

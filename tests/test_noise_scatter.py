@@ -124,3 +124,30 @@ def test_the_scatter_shrinks_with_repetitions_and_leaves_the_noise_free_rest(pai
     noise_cov = np.zeros((4, 4))
     m, _ = planned_terms.reported_sigma_draws(base, model, theta, noise_cov, dataclasses.replace(one))
     assert np.ptp(m) == 0.0  # no noise term: nothing to scatter
+
+
+def test_the_plans_own_inflation_estimate_widens_p_over_and_does_not_shrink_with_repetitions(pair):
+    """The plan's inflation is one stored run's estimate (``noise_inflation``: its kernel excess, known to about 1 %
+    on sim-ec66's calibration). The draws carry that error: the mass σ's draws widen by it in quadrature (the noise
+    term being nearly all of the mass σ here), P over a target one planned spread above the median rises, and
+    averaging repetitions leaves that part whole (the same calibration is behind every repetition) while the run's
+    own scatter shrinks. Without ``with_estimate`` the draws were the run's scatter alone (session 18)."""
+    config, _ = pair
+    sim = config.simulation
+    noise = design.NoiseModel(tuple(sim.noise_nm), 0.002, effort_rest_std_nm=tuple(sim.noise_rest_nm))
+    theta = design.nominal_theta(*PAYLOAD)
+    cand = design.Candidate(5.0, 25.0, 0.0, 20.0, 1, 100.0, "j2_quarter")
+    alone = design.predict(config, cand, noise, theta, check_safety=False)
+    known = design.predict(config, cand, dataclasses.replace(noise, inflation_rel_std=0.03), theta, check_safety=False)
+    s_alone = np.std(alone.draws[:, 0]) / alone.mass_std_g
+    s_known = np.std(known.draws[:, 0]) / known.mass_std_g
+    share = 0.6  # the noise term's share of the mass variance is above this here
+    assert np.hypot(s_alone, share * 0.03) < s_known < np.hypot(s_alone, 0.03) * 1.05, (s_alone, s_known)
+    loose_mm = 100.0 * alone.cog_std_mm
+    target = alone.mass_std_g * (1.0 + s_alone)
+    assert known.p_over(target, loose_mm) > alone.p_over(target, loose_mm) + 0.05
+    four = dataclasses.replace(cand, repetitions=4)
+    s4_alone = np.std(design.predict(config, four, noise, theta, check_safety=False).draws[:, 0])
+    p4 = design.predict(config, four, dataclasses.replace(noise, inflation_rel_std=0.03), theta, check_safety=False)
+    s4_known = np.std(p4.draws[:, 0]) / p4.mass_std_g
+    assert s4_known > 0.6 * 0.03 > s4_alone / p4.mass_std_g, (s4_known, s4_alone / p4.mass_std_g)

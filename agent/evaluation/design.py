@@ -21,7 +21,8 @@ stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ra
 calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
 term (the run's own rule) and of the run's own estimate of its noise term (``noise_scatter``: a few % between
-runs): a typical run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on the chance the run's
+runs; and the plan's own inflation, one stored run's estimate of it: ``NoiseScatter.with_estimate``): a typical
+run's (median) is the prediction, and ``TARGET_RISK`` the choice's bound on the chance the run's
 σ exceeds the target.
 
 ``choose`` evaluates a grid of candidates, keeps those the safety gate accepts (the whole plan,
@@ -99,6 +100,7 @@ class NoiseModel:
     effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m (the joint sweeping)
     sample_period_s: float
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
+    inflation_rel_std: float = 0.0  # relative standard deviation of that one run's ratio (``noise_inflation``)
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
     # the gains are the controller's own current-to-torque constants (a UR without a calibration,
     # ``controller_gains``): a run fits them, and carries their uncertainty, for the joints that sweep in it only
@@ -211,7 +213,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0]: the CoM's largest axis of the noise term
     J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
     axis = int(np.argmax(np.diag(J @ inv @ J.T)))
-    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS)
+    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS).with_estimate(
+        noise.inflation_rel_std)  # and the plan's inflation, itself one run's estimate
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
     rel = noise.gain_rel_std

@@ -44,6 +44,8 @@ WHITE_TAU = 1.2
 # the draws (``planned_terms.DRAWS`` of them) come from their own seeded stream, column by column, so that every
 # candidate's first sources get the same normals whatever its number of groups
 SCATTER_SEED = 15
+# the plan's own inflation estimate's draws (``NoiseScatter.with_estimate``): a stream apart from the run's sources
+ESTIMATE_SEED = 18
 
 
 def kernel_factor(bandwidth: int) -> float:
@@ -62,19 +64,34 @@ def window(samples: int, inflation: float) -> int:
 @dataclass(frozen=True)
 class NoiseScatter:
     """The relative deviation of the run's noise variance from the plan's, per draw: (draws, 2) for the mass and
-    the centre of mass (largest axis). ``relative_std``: their standard deviations (of the variance)."""
+    the centre of mass (largest axis). ``relative_std``: their standard deviations (of the variance).
+
+    ``estimate``: the factor, per draw, by which the plan's own noise term is off because its inflation is itself
+    measured (the stored calibration run's robust-to-white ratio, one run's estimate: ``with_estimate``); shared by
+    the mass and the CoM and by every repetition of the procedure, so ``over`` leaves it as it is. 1: none."""
 
     deviation: np.ndarray = dataclasses.field(compare=False, repr=False)
     relative_std: tuple[float, float] = (0.0, 0.0)
+    estimate: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)  # (draws,)
 
     def factors(self) -> np.ndarray:
         """The run's noise variance over the plan's, per draw (never below 0)."""
-        return np.maximum(1.0 + self.deviation, 0.0)
+        own = np.maximum(1.0 + self.deviation, 0.0)
+        return own if self.estimate is None else own * self.estimate[:, None]
 
     def over(self, runs: int) -> "NoiseScatter":
-        """The same for ``runs`` repetitions averaged (each run's estimate is independent)."""
+        """The same for ``runs`` repetitions averaged (each run's estimate is independent; the plan's is not)."""
         s = 1.0 / math.sqrt(runs)
-        return NoiseScatter(self.deviation * s, (self.relative_std[0] * s, self.relative_std[1] * s))
+        return NoiseScatter(self.deviation * s, (self.relative_std[0] * s, self.relative_std[1] * s), self.estimate)
+
+    def with_estimate(self, ratio_rel_std: float) -> "NoiseScatter":
+        """The same, with the plan's inflation known only to ``ratio_rel_std`` (relative standard deviation of the
+        σ ratio): per draw the true ratio is the plan's × (1 + ratio_rel_std·z), z standard normal from a stream
+        of its own (``ESTIMATE_SEED``: the same for every candidate), so the noise variance × its square."""
+        if ratio_rel_std <= 0.0:
+            return dataclasses.replace(self, estimate=None)
+        z = np.random.default_rng(ESTIMATE_SEED).standard_normal(len(self.deviation))
+        return dataclasses.replace(self, estimate=np.maximum(1.0 + ratio_rel_std * z, 0.0) ** 2)
 
 
 def none(draws: int) -> NoiseScatter:
@@ -111,9 +128,13 @@ def kernel_ratio(info: np.ndarray, inv: np.ndarray, bandwidth: int) -> tuple[flo
 
 
 def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directions: np.ndarray, inflation: float,
-            draws: int) -> NoiseScatter:
+            draws: int, *, kernel_only: bool = False) -> NoiseScatter:
     """The scatter of the run's noise variance of the quantities a·θ (``directions``: (2, p) rows a for the mass
-    and the CoM's largest axis) for the planned rows ``groups`` with white weights ``w`` and (YᵀWY)⁻¹ ``inv``."""
+    and the CoM's largest axis) for the planned rows ``groups`` with white weights ``w`` and (YᵀWY)⁻¹ ``inv``.
+
+    ``kernel_only``: the sweeps' kernel ratios alone, without the groups' residual variances, i.e. the scatter of
+    the fit's robust-to-white σ ratio (both σ scale with the same residual variances): how far one run's measured
+    ratio (``noise_inflation``) is from the arm's."""
     groups = list(groups)
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
     p = inv.shape[0]
@@ -128,7 +149,7 @@ def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directi
         ww = w[starts[i]:starts[i + 1]]
         contrib[i] = (g.Y @ inv @ unit.T) ** 2 * ww[:, None]
         share = contrib[i][:, p:].sum(axis=0) / np.maximum(totals[p:], 1e-300)
-        loads[i] = share * math.sqrt(2.0 / max(len(g.y), 1))
+        loads[i] = 0.0 if kernel_only else share * math.sqrt(2.0 / max(len(g.y), 1))
     ratios = []  # per sweep: (expected kernel ratio, its standard deviation)
     for s, name in enumerate(sweeps):
         members = [i for i, g in enumerate(groups) if g.sweep == name]
@@ -146,4 +167,4 @@ def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directi
     return NoiseScatter(deviation, tuple(float(v) for v in np.std(deviation, axis=0)))
 
 
-__all__ = ["WHITE_TAU", "kernel_factor", "window", "NoiseScatter", "none", "kernel_ratio", "scatter"]
+__all__ = ["WHITE_TAU", "ESTIMATE_SEED", "kernel_factor", "window", "NoiseScatter", "none", "kernel_ratio", "scatter"]

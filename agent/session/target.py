@@ -98,7 +98,8 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     from payload_agent.evaluation import noise_inflation
 
     inflation = noise_inflation.stored(config)  # the stored calibration run's robust-to-white σ ratio
-    noise, source = dataclasses.replace(noise, inflation=inflation.ratio), source + "; " + inflation.describe()
+    noise, source = (dataclasses.replace(noise, inflation=inflation.ratio, inflation_rel_std=inflation.rel_std),
+                     source + "; " + inflation.describe())
     known = earlier_friction_change(config) if noise.friction_level_nm is not None else None
     if known is not None:
         noise, source = dataclasses.replace(noise, friction_known=known), source + "; " + known.source
