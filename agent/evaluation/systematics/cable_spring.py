@@ -7,7 +7,9 @@ real one: docs/sources.md "Tool cable or hose"). The agent knows rest: the loade
 went on (``Prepared.mount_rad``, the angles the loaded phase started from). During every arm sweep the
 wrist stands still, so a joint's torque is one constant per pose, κ_j times a known lever q̄_j − rest_j:
 three parameters for all poses together instead of the free offsets' one per (pose, wrist joint)
-(``offsets.wrist_joint``), so the same torques are better determined.
+(``offsets.wrist_joint``), so the same torques are better determined. The spring is fitted beside θ and one
+nuisance offset per moving arm joint (``moving_arm_joint``: the friction the two-direction average leaves there,
+which otherwise reaches κ̂ through θ).
 
 Presence: the likelihood-ratio statistic of κ = 0 against κ ≥ 0, T = κ*ᵀC⁻¹κ* with κ* the projection of
 the fitted κ̂ (covariance C) onto κ ≥ 0 in C's metric. Under κ = 0 T is chi-bar-squared, a mixture of χ²_i
@@ -177,13 +179,26 @@ def posterior(kappa: np.ndarray, cov: np.ndarray, draws: int = POSTERIOR_DRAWS) 
     return mean, (d * w[:, None]).T @ d
 
 
+def moving_arm_joint(group: Group, sweep: DeltaSweep) -> str | None:
+    """One nuisance offset per moving arm joint (1–3) over all its sweeps, fitted beside the spring: what the
+    two-direction average leaves of that joint's friction, a direction asymmetry times the Coulomb level's change
+    between the runs (``friction``), the same constant in every sweep of the joint. Without it that residual moved
+    θ in the spring's fit, the wrist rows then disagreed with θ, and κ̂ took up the disagreement: 4–6 σ_κ low on
+    the hard arm at 1 % sweeps (docs/benchmarks.md, session 17; session 18 for the fix)."""
+    if group.joint == sweep.moving and group.joint not in offsets.WRIST_JOINTS:
+        return f"moving/j{group.joint + 1}"
+    return None
+
+
 def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[float],
-               alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False
-               ) -> CableSpring | None:
+               alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False,
+               arm_offsets: offsets.Selector | None = moving_arm_joint) -> CableSpring | None:
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
     torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
     absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever.
-    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``)."""
+    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``).
+    ``arm_offsets``: the nuisance offsets of the moving arm joints' rows fitted with it (``moving_arm_joint``; None:
+    none, the fit before session 18)."""
     sweeps, groups = list(model.sweeps), list(model.groups)
     nuisance = gain_scatter.of_model(model).tau > 0
     aug, names = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance, gain_reference)
@@ -194,9 +209,11 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
         return None
     k = len(names)
     spring = [replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M_all, g.Y[:, 4 + k:]])) for g in aug]
+    if arm_offsets is not None:
+        spring, _ = offsets.augment(sweeps, spring, arm_offsets)
     gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
     res = model.cached(("cable spring", tuple(np.round(np.asarray(mount_rad, float), 9)), nuisance,
-                        gain_reference is not None and nuisance),
+                        gain_reference is not None and nuisance, getattr(arm_offsets, "__name__", None)),
                        lambda: fit(spring, gain))
     p = len(joints)
     kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
@@ -258,5 +275,5 @@ def note(spring: CableSpring) -> str:
             "the data show beyond noise), in σ")
 
 
-__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "posterior",
+__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution", "posterior",
            "fit_spring", "effect"]
