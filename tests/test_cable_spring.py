@@ -226,12 +226,15 @@ def test_gear_ripple_the_calibration_absorbed_is_not_read_as_a_cable():
     model = general.fit_model(prep.deltas, config.robot.kinematics, list(cal.gain_rel_std(0.0)))
     labels = sorted({offsets.wrist_joint(g, d) for g in model.groups for d in model.sweeps if d.key.name == g.sweep}
                     - {None})
-    relative = cable_spring.fit_spring(model, labels, mount)
-    absolute = cable_spring.fit_spring(model, labels, mount, gain_reference=cal.reference)
+    # without the moving arm joints' nuisance offsets (``moving_arm_joint``, session 18), which take up part of the
+    # moving rows' gain error as well, so that this seed still shows the effect
+    relative = cable_spring.fit_spring(model, labels, mount, arm_offsets=None)
     assert relative.present  # the effect this test is about: a cable found on an arm without one
-    assert not absolute.present
-    z = absolute.estimate / np.sqrt(np.diag(absolute.cov))
-    assert np.all(np.abs(z) < 2.0), z
+    for arm_offsets in (None, cable_spring.moving_arm_joint):
+        absolute = cable_spring.fit_spring(model, labels, mount, gain_reference=cal.reference, arm_offsets=arm_offsets)
+        assert not absolute.present
+        z = absolute.estimate / np.sqrt(np.diag(absolute.cov))
+        assert np.all(np.abs(z) < 2.0), z
 
 
 # -- a cable the robot YAML declares (robot.tool_cable_fitted): κ's posterior on κ ≥ 0 -------------------------
@@ -249,7 +252,8 @@ def test_the_posterior_is_the_truncated_normal():
 
 def test_a_declared_cable_is_covered_at_every_strength_where_the_test_weight_is_not():
     """κ̂ ~ N(κ, C) for cables of 0.5 and 1 σ per joint (the benchmark's weak cable): the effect a·κ lies within
-    1.96 of the declared term's σ in ≥ 95 % of 150 draws, where the presence test's weight leaves it out in ≥ 10 %."""
+    1.96 of the declared term's σ in ≥ 95 % of 150 draws, where the presence test's weight leaves it out in ≥ 10 %.
+    Each term as the run sizes it (``cable_spring.shares``: the measured effect's outer product, no D or Σ)."""
     C = np.array([[1.0, 0.6, -0.3], [0.6, 2.0, 0.4], [-0.3, 0.4, 0.5]])
     a, L = np.array([1.0, 0.7, 1.2]), np.linalg.cholesky(C)
     crit, null_mean = cable_spring.null_distribution(C)
@@ -260,11 +264,11 @@ def test_a_declared_cable_is_covered_at_every_strength_where_the_test_weight_is_
         for e in rng.standard_normal((150, 3)):
             estimate = kappa + L @ e
             mean, cov = cable_spring.posterior(estimate, C)
-            declared.append(abs(a @ kappa) <= 1.96 * np.sqrt(a @ (cov + np.outer(mean, mean)) @ a))
+            declared.append(abs(a @ kappa) <= 1.96 * abs(a @ mean))
             star = cable_spring.project(estimate, C)
             s = cable_spring.CableSpring((3, 4, 5), np.eye(3), star, C, cable_spring.statistic(estimate, C), crit,
                                          null_mean, estimate)
-            tested.append(abs(a @ kappa) <= 1.96 * np.sqrt(s.weight * a @ (np.outer(star, star) + C) @ a))
+            tested.append(abs(a @ kappa) <= 1.96 * np.sqrt(s.weight) * abs(a @ star))
         assert np.mean(declared) >= 0.95 and np.mean(tested) <= 0.9, (strength, np.mean(declared), np.mean(tested))
 
 
@@ -287,3 +291,50 @@ def test_a_declared_cable_is_the_tested_term_where_found_and_prices_the_clean_ar
     assert "declared fitted" in syst.terms[0].note
     assert 0.8 < found / mass_std(runs["cable"], systematics.RIGID)[0] < 1.25
     assert mass_std(runs["clean"], declared)[0] > 1.5 * mass_std(runs["clean"], systematics.RIGID)[0]
+
+
+# -- the arm joints' friction residual beside the spring (``cable_spring.moving_arm_joint``) -----------------------
+
+def test_the_arm_joints_friction_residual_does_not_pull_the_stiffness_low():
+    """A Coulomb direction asymmetry on joints 1–3 and a friction level 20 % higher in the loaded run than in the
+    empty one leave a constant on every moving arm joint's rows that the two-direction average does not cancel
+    (larger than the benchmark's ±15 % and ±10 %, so that it shows at this procedure's speed as they do at 1 %
+    sweeps: docs/benchmarks.md, session 17). Fitted beside one nuisance offset per moving arm joint, κ̂ agrees with
+    the cable (χ² against the truth in C's metric below its 99 % quantile) and with κ̂ on the same arm without the
+    asymmetry; without those offsets it lies far below."""
+    from scipy.stats import chi2
+
+    from benchmarks.cases import COULOMB_NM, VISCOUS_NM_S_RAD
+    from payload_agent.fakes.physics import FrictionParams
+
+    cable = (0.02, 0.015, 0.02)  # the benchmark's weak cable's range is 0.005–0.02
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+    plan = make_plan(config)
+
+    def spring(asymmetry: float, scale: float, **fit_options):
+        effects = PhysicsEffects(tool_cable=ToolCable(cable), coulomb_asymmetry=(asymmetry, -asymmetry, asymmetry,
+                                                                                 0.0, 0.0, 0.0))
+        friction = FrictionParams(np.array(COULOMB_NM), np.array(VISCOUS_NM_S_RAD), np.zeros(6))
+        robot = SimRobot(ec66_spec(), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=0.008, seed=4,
+                         noise_nm=0.3, effects=effects, friction=friction)
+        empty, _ = record_plan(robot, plan)
+        robot.set_payload(TRUTH)
+        mount = np.asarray(robot.snapshot().q, float)
+        robot.set_friction_scale(scale)
+        loaded, _ = record_plan(robot, plan)
+        prep = systematics.prepare(loaded, empty, systematics.RIGID, mount_rad=mount)
+        model = general.fit_model(prep.deltas, config.robot.kinematics)
+        labels = sorted({offsets.wrist_joint(g, d) for g in model.groups for d in model.sweeps
+                         if d.key.name == g.sweep} - {None})
+        return cable_spring.fit_spring(model, labels, mount, **fit_options)  # as the run fits it, unless told
+
+    def chi_square(s):
+        d = s.estimate - np.asarray(cable)[[j - 3 for j in s.joints]]
+        return float(d @ np.linalg.solve(s.cov, d))
+
+    limit = chi2.ppf(0.99, 3)
+    fixed = spring(0.3, 1.2)
+    symmetric = spring(0.0, 1.0)
+    assert fixed.joints == (3, 4, 5) and chi_square(fixed) < limit, chi_square(fixed)
+    assert np.all(np.abs(fixed.estimate - symmetric.estimate) < 0.5 * np.sqrt(np.diag(fixed.cov)))
+    assert chi_square(spring(0.3, 1.2, arm_offsets=None)) > 3 * limit  # the fit before: κ̂ pulled low

@@ -7,22 +7,26 @@ real one: docs/sources.md "Tool cable or hose"). The agent knows rest: the loade
 went on (``Prepared.mount_rad``, the angles the loaded phase started from). During every arm sweep the
 wrist stands still, so a joint's torque is one constant per pose, κ_j times a known lever q̄_j − rest_j:
 three parameters for all poses together instead of the free offsets' one per (pose, wrist joint)
-(``offsets.wrist_joint``), so the same torques are better determined.
+(``offsets.wrist_joint``), so the same torques are better determined. The spring is fitted beside θ and one
+nuisance offset per moving arm joint (``moving_arm_joint``: the friction the two-direction average leaves there,
+which otherwise reaches κ̂ through θ).
 
 Presence: the likelihood-ratio statistic of κ = 0 against κ ≥ 0, T = κ*ᵀC⁻¹κ* with κ* the projection of
 the fitted κ̂ (covariance C) onto κ ≥ 0 in C's metric. Under κ = 0 T is chi-bar-squared, a mixture of χ²_i
 (i = 0..p) with weights set by C (docs/sources.md); its 1 − ``ALPHA`` quantile and its mean E₀[T] are
-computed for this C by a fixed-seed draw. The term is built from the cable's effect on θ as measured,
-β̂ = A·M·κ*, and that effect's uncertainty D = A·M·C·Mᵀ·Aᵀ (M: the levers): all of β̂β̂ᵀ + D where T exceeds the
-quantile (the cable is found), else w·β̂β̂ᵀ with w = (T − E₀[T])⁺/T, the share the data show beyond noise
+computed for this C by a fixed-seed draw. The term is the cable's effect on θ as measured, β̂ = A·M·κ* (M: the
+levers): all of β̂β̂ᵀ where T exceeds the quantile (the cable is found), else w·β̂β̂ᵀ with w = (T − E₀[T])⁺/T, the
+share the data show beyond noise (``shares``). The effect's own noise D = A·M·C·Mᵀ·Aᵀ is in no branch: the
+reported θ̂ is the plain fit's, whose error is independent of κ̂, and E[β̂β̂ᵀ] = ββᵀ + D already holds one D
 (``shares``). The weak cable of the benchmark (10–20 mN·m/rad) was found in 3 of 6 runs; the other 3 still erred
 by 2–4 σ of mass the same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md,
 session 12).
 
 Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide:
-κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ and a
-covariance Σ that are not zero when κ̂ ≤ 0, and the term is A·M·μ and A·M·Σ^½, honest for any cable strength
-(E[ββᵀ | κ̂] = A·M·(μμᵀ + Σ)·MᵀAᵀ). Not the default: on an arm without a cable the same term costs the clean
+κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ that is
+not zero when κ̂ ≤ 0, and the term is A·M·μ (its outer product in σ), honest for any cable strength. The
+posterior's covariance Σ is not added: where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found
+branch's β̂β̂ᵀ + D again (``shares``). Not the default: on an arm without a cable the same term costs the clean
 arm's σ what a cable of about σ_κ would do (docs/benchmarks.md, session 15).
 """
 
@@ -75,7 +79,7 @@ class CableSpring:
     def weight(self) -> float:
         """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where a cable is declared or the test
         finds it, else the share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still
-        moves θ: 2–4 σ of mass in the weak-cable ablation's undetected cases). ``shares`` says what D gets."""
+        moves θ: 2–4 σ of mass in the weak-cable ablation's undetected cases). ``shares`` gives D no share."""
         if self.declared or self.present:
             return 1.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
@@ -175,13 +179,26 @@ def posterior(kappa: np.ndarray, cov: np.ndarray, draws: int = POSTERIOR_DRAWS) 
     return mean, (d * w[:, None]).T @ d
 
 
+def moving_arm_joint(group: Group, sweep: DeltaSweep) -> str | None:
+    """One nuisance offset per moving arm joint (1–3) over all its sweeps, fitted beside the spring: what the
+    two-direction average leaves of that joint's friction, a direction asymmetry times the Coulomb level's change
+    between the runs (``friction``), the same constant in every sweep of the joint. Without it that residual moved
+    θ in the spring's fit, the wrist rows then disagreed with θ, and κ̂ took up the disagreement: 4–6 σ_κ low on
+    the hard arm at 1 % sweeps (docs/benchmarks.md, session 17; session 18 for the fix)."""
+    if group.joint == sweep.moving and group.joint not in offsets.WRIST_JOINTS:
+        return f"moving/j{group.joint + 1}"
+    return None
+
+
 def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[float],
-               alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False
-               ) -> CableSpring | None:
+               alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False,
+               arm_offsets: offsets.Selector | None = moving_arm_joint) -> CableSpring | None:
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
     torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
     absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever.
-    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``)."""
+    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``).
+    ``arm_offsets``: the nuisance offsets of the moving arm joints' rows fitted with it (``moving_arm_joint``; None:
+    none, the fit before session 18)."""
     sweeps, groups = list(model.sweeps), list(model.groups)
     nuisance = gain_scatter.of_model(model).tau > 0
     aug, names = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], nuisance, gain_reference)
@@ -192,9 +209,11 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
         return None
     k = len(names)
     spring = [replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M_all, g.Y[:, 4 + k:]])) for g in aug]
+    if arm_offsets is not None:
+        spring, _ = offsets.augment(sweeps, spring, arm_offsets)
     gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
     res = model.cached(("cable spring", tuple(np.round(np.asarray(mount_rad, float), 9)), nuisance,
-                        gain_reference is not None and nuisance),
+                        gain_reference is not None and nuisance, getattr(arm_offsets, "__name__", None)),
                        lambda: fit(spring, gain))
     p = len(joints)
     kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
@@ -207,7 +226,8 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{fit: (4, 1 + p)}: the spring's measured effect A·M·κ* and its uncertainty A·M·chol(C) side by side
     (``sens``: {fit: (4, k)} of the offsets' labels): unit-σ columns whose sum of squares is β̂β̂ᵀ + D; where a
-    cable is declared, the posterior's A·M·μ and A·M·Σ^½ (sum of squares E[ββᵀ | κ̂])."""
+    cable is declared, the posterior's A·M·μ and A·M·Σ^½ (sum of squares E[ββᵀ | κ̂]). ``shares`` weights them:
+    the run's σ takes the first column (the uncertainty columns have share 0; they stay for what reads D)."""
     if spring.declared:
         vals, vecs = np.linalg.eigh(spring.posterior_cov)
         mean, L = spring.posterior_mean, vecs * np.sqrt(np.clip(vals, 0.0, None))
@@ -222,18 +242,20 @@ def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.nda
 
 def shares(weight, found):
     """(a, b): the shares of the measured effect β̂β̂ᵀ and of its uncertainty D that a run puts into σ, a·β̂β̂ᵀ + b·D
-    (numbers, or arrays of the plan's draws: ``planned_terms``).
+    (numbers, or arrays of the plan's draws: ``planned_terms``). a = 1 where the presence test finds a cable or the
+    YAML declares one (``weight`` is then 1; declared, β̂ is the posterior mean's effect A·M·μ), else
+    w = (T − E₀[T])⁺/T; b = 0 in every branch.
 
-    Where the presence test finds a cable (or the YAML declares one: ``weight`` is then 1), all of both. Below the
-    test the measured effect's share beyond noise only: a = w = (T − E₀[T])⁺/T, b = 0, as the free offsets' rule
-    (``wrist``: s²·β̂β̂ᵀ). The plain fit whose error σ describes does not contain κ̂'s noise: with the cable columns
-    Z beside Y, κ̂ = (ZᵀW·M_Y·Z)⁻¹ZᵀW·M_Y·y and M_Y·Y = 0, so with W the inverse noise covariance
-    Cov(θ̂_plain, κ̂) = (YᵀWY)⁻¹Yᵀ·M_YᵀWZ(…) = 0 (docs/sources.md, Hausman). θ̂_plain errs by e + β with e
-    independent of β̂, and D = Cov(β̂) is no part of it; w·β̂β̂ᵀ already sizes ββᵀ, and w·D on top counted β̂'s
-    noise twice (on 100 clean sim-ec66 runs, 38–42 % of the variance the term added below the test;
-    docs/benchmarks.md, session 17). The found branch keeps D: not yet measured without it."""
+    Why no D: the estimate σ describes is the plain fit's (``Systematics.apply`` adds covariance and leaves θ̂ as
+    fitted), and its error is e + β with e independent of β̂. With the cable columns Z beside Y,
+    κ̂ = (ZᵀW·M_Y·Z)⁻¹ZᵀW·M_Y·y and M_Y·Y = 0, so with W the inverse noise covariance
+    Cov(θ̂_plain, κ̂) = (YᵀWY)⁻¹Yᵀ·M_YᵀWZ(…) = 0 (docs/sources.md, Hausman). So D = Cov(β̂) is no part of the
+    error, and β̂β̂ᵀ, whose mean is ββᵀ + D, already holds D once. β̂β̂ᵀ + D (the found branch until session 18) held
+    it twice, and so did the declared μμᵀ + Σ wherever κ̂ lies well inside κ ≥ 0 (μ ≈ κ̂, Σ ≈ C there); w·D below
+    the test likewise (session 17). D would belong in σ only if θ̂ were the fit with the spring fitted, θ̂_plain −
+    β̂, whose error is e + β − β̂ (covariance P + D, no β̂β̂ᵀ); the run does not report that fit."""
     w = np.asarray(weight, float)
-    return w, np.where(np.asarray(found, bool), 1.0, 0.0)
+    return w, np.zeros_like(w)
 
 
 def note(spring: CableSpring) -> str:
@@ -243,15 +265,15 @@ def note(spring: CableSpring) -> str:
     if spring.declared:
         mean = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.posterior_mean))
         return (f"a tool cable on the wrist, declared fitted (robot.tool_cable_fitted; a spring relaxed where the "
-                f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result for the stiffness "
-                f"the data allow, κ ≥ 0 (mean {mean} mN·m/rad), in σ")
+                f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result at the stiffness "
+                f"the data give on κ ≥ 0 (posterior mean {mean} mN·m/rad), in σ")
     if spring.present:
         return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; found: "
-                f"{test}): its effect on the result as measured, and that effect's uncertainty, in σ")
+                f"{test}): its effect on the result as measured, in σ")
     return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; not "
             f"significant, {test}): its effect on the result as measured, {spring.weight:.2f} × of it (the share "
             "the data show beyond noise), in σ")
 
 
-__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "project", "statistics", "statistic", "null_distribution", "posterior",
+__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution", "posterior",
            "fit_spring", "effect"]
