@@ -106,9 +106,10 @@ class WristModel:
 
     Free offsets (``systematics.wrist``, ``spring`` False): β̂ ~ N(0, ratio·D), a·β̂β̂ᵀ in σ with the run's
     a = s² = (q − r)⁺/q. A tool cable's spring (``systematics.cable_spring``, ``spring`` True: the run knows
-    where the tool was mounted): κ̂ ~ N(0, ratio·C), β̂ = AM·κ*, κ* its projection onto κ ≥ 0, and β̂β̂ᵀ + D in σ
+    where the tool was mounted): κ̂ ~ N(0, ratio·C), β̂ = AM·κ*, κ* its projection onto κ ≥ 0, and β̂β̂ᵀ in σ
     where its presence test finds a cable, w·β̂β̂ᵀ below it, w = (T − E₀[T])⁺/T (``cable_spring.shares``). Per draw
-    the term is a·β̂β̂ᵀ + b·D (offsets: b = 0; spring: a = w, b = 1 where found, else 0)."""
+    the term is a·β̂β̂ᵀ + b·D (offsets: b = 0; spring: a = 1 where found, else w; b = 0 since session 18). C is the
+    κ block of the run's spring fit, beside θ and the moving arm joints' offsets (``cable_spring.fit_spring``)."""
 
     spread: np.ndarray  # D (4, 4): A·C·Aᵀ of the offsets, or AM·C·AMᵀ of the spring
     spring: bool
@@ -182,13 +183,14 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     M, joints = cable_spring.levers(sweeps, groups, names, mount_rad) if names else (None, ())
     if not joints:  # no wrist joint with a lever: the run has no wrist term
         return offset_model(np.zeros((4, 4)))
-    k = len(names)
+    k, p = len(names), len(joints)
     spring = [dataclasses.replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M])) for g in aug]
-    cov = _augmented_covariance(spring, w, theta, len(joints), inflation, gain_rel_std)
+    spring, arm = offsets.augment(sweeps, spring, cable_spring.moving_arm_joint)  # as the run fits it (``fit_spring``)
+    cov = _augmented_covariance(spring, w, theta, p + len(arm), inflation, gain_rel_std)
     Y = np.vstack([g.Y for g in groups])
     sens = offsets.offset_sensitivities(sweeps, groups, w, np.linalg.pinv((Y * w[:, None]).T @ Y), offsets.wrist_joint)
     AM = np.column_stack([sens.get(lab, np.zeros(4)) for lab in names]) @ M
-    return spring_model(AM, cov[4:, 4:])
+    return spring_model(AM, cov[4:4 + p, 4:4 + p])
 
 
 def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray, noise_cov: np.ndarray | None = None,
