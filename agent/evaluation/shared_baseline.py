@@ -22,6 +22,10 @@ same sample rate. Σ_b per group is σ_g²·N_b·N_bᵀ with σ_g² the fit's re
 (the map's mean gain divided out, as ``wls.modelled_noise``). Where the map's a_jᵀ·Σ_b·a_j would exceed the
 calibration's own s_j² (another estimator: a sandwich over its residuals), a_j is scaled down to it, so that the
 corrected covariance stays what the sum of its parts says (positive semidefinite).
+
+The three-step solver (``three_step_cross_covariance``) is another linear map of the same rows: its β = [m, x, y, z]
+moves by Σ_s J_s·ε_s over the three sweeps it reads and by g_j·δs_j with the gains, so c_j = Σ_s J_s·Σ_b·a_j on those
+sweeps' rows; ``baseline_shares`` (Σ_b·a_j per row group, scaled down as above) serves both.
 """
 
 from __future__ import annotations

@@ -23,7 +23,9 @@ as in ``solvers.wls``; where the deltas carry their noise maps, the map's at eve
 kernel shows more, ``wls.modelled_excess``) is the covariance of [m, x, y, z]; never below the independent-noise
 value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top, and the DH lengths'
 uncertainty by re-running the steps with each length moved, less what a drive-gain calibration absorbed of it
-(``length_covariance``, the general solver's DH-length term through the three steps).
+(``length_covariance``, the general solver's DH-length term through the three steps). Where a drive-gain calibration
+subtracted the same empty run, the analysis adds that run's noise correlation between the two (``scores``, the
+steps' first-order map, through ``evaluation.shared_baseline``).
 """
 
 from __future__ import annotations
