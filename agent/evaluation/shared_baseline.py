@@ -34,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from payload_agent.solvers import three_step
 from payload_agent.solvers.fitted import ALL, FittedModel
 
 
@@ -125,8 +126,6 @@ def three_step_cross_covariance(model: FittedModel, theta_ref: Sequence[float], 
     (same delta, same samples): c_j = Σ_s J_s·k_js (``baseline_shares``; rows of other joints or sweeps are
     independent of them and add nothing). The cross term −(c_j·g_jᵀ + g_j·c_jᵀ) is added in β and carried to θ
     with the solver's own ∂θ/∂β (``three_step.theta_jacobian``)."""
-    from payload_agent.solvers import three_step
-
     sc = three_step.scores(model.deltas, model.kin)
     groups = model.groups_of(ALL)
     c = {}
