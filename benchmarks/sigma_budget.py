@@ -6,7 +6,7 @@ the actual error of one quantity (the mass, or one CoM axis) and its σ from eac
 covariance: the autocorrelation-robust noise (and the independent-noise one beside it), each joint's
 drive-gain uncertainty after the calibration, the DH lengths (less what the calibration absorbed; the
 general solver only), the correlation of the shared empty baseline's noise between the calibration and the tool
-run (a negative part, −√ of the variance it removes; general only) and every systematic term of
+run (a negative part, −√ of the variance it removes; each solver through its own map) and every systematic term of
 ``evaluation.systematics.TERMS`` through the solver's own sensitivities. The benchmark knows each effect's truth (``benchmarks.hard``; the realistic arm's draws in
 ``benchmarks.cases``), so a term that claims more than the arm has shows as a large column against a small
 error, and an error no column covers points at an effect no term describes.
@@ -120,8 +120,10 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
     out = {"error": unit * float(est[i] - truth[i]), "noise (iid)": std(noise_iid), "noise": std(noise)}
     out.update({name: std(c) for name, c in parts.items() if std(c) > 0})
     total = noise + sum(parts.values(), np.zeros((4, 4)))
-    if solver == "general":  # the benchmark's calibration subtracts the case's own empty run: counted once
-        shared = shared_baseline.cross_covariance(model, cal.reference[0], cal.reference[1], gain_std)[:4, :4]
+    # the benchmark's calibration subtracts the case's own empty run: counted once (either solver's own map)
+    term = shared_baseline.cross_covariance if solver == "general" else shared_baseline.three_step_cross_covariance
+    shared = term(model, cal.reference[0], cal.reference[1], gain_std)[:4, :4]
+    if np.any(shared):
         # a negative part: printed as −√(what it takes away from the variance)
         out["shared baseline"] = -float(np.sqrt(max(std(total) ** 2 - std(total + shared) ** 2, 0.0)))
         total = total + shared

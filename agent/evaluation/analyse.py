@@ -30,7 +30,7 @@ from payload_agent.evaluation.systematics import compliance
 from payload_agent.evaluation.zero_offsets import ZeroOffsets
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.solvers import SOLVERS, general
+from payload_agent.solvers import SOLVERS, general, three_step
 from payload_agent.solvers.fitted import FittedModel
 from payload_agent.solvers.results import Estimate, RunResult
 from payload_agent.types import SweepKey
@@ -132,13 +132,15 @@ def solve_all(model: FittedModel, options: AnalysisOptions, gains: Gains, syst: 
 
 
 def _with_shared_baseline(est: Estimate, model: FittedModel, gains: Gains) -> Estimate:
-    """The general fit's estimate with the correlation of the baseline's noise between the calibration and this run
-    (``shared_baseline``) where both used the same empty run; any other estimate as it is."""
+    """The general fit's and the three-step solver's estimate with the correlation of the baseline's noise between
+    the calibration and this run (``shared_baseline``) where both used the same empty run; any other as it is."""
+    term = {general.NAME: shared_baseline.cross_covariance,
+            three_step.NAME: shared_baseline.three_step_cross_covariance}.get(est.solver)
     if (not gains.shared_baseline or gains.reference is None or gains.rel_std is None or est.covariance is None
-            or est.solver != general.NAME):
+            or term is None):
         return est
     try:
-        extra = shared_baseline.cross_covariance(model, gains.reference[0], gains.reference[1], gains.rel_std)
+        extra = term(model, gains.reference[0], gains.reference[1], gains.rel_std)
     except (DataError, np.linalg.LinAlgError):
         return est
     cov = np.asarray(est.covariance, float).copy()

@@ -22,6 +22,10 @@ same sample rate. Σ_b per group is σ_g²·N_b·N_bᵀ with σ_g² the fit's re
 (the map's mean gain divided out, as ``wls.modelled_noise``). Where the map's a_jᵀ·Σ_b·a_j would exceed the
 calibration's own s_j² (another estimator: a sandwich over its residuals), a_j is scaled down to it, so that the
 corrected covariance stays what the sum of its parts says (positive semidefinite).
+
+The three-step solver (``three_step_cross_covariance``) is another linear map of the same rows: its β = [m, x, y, z]
+moves by Σ_s J_s·ε_s over the three sweeps it reads and by g_j·δs_j with the gains, so c_j = Σ_s J_s·Σ_b·a_j on those
+sweeps' rows; ``baseline_shares`` (Σ_b·a_j per row group, scaled down as above) serves both.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from payload_agent.solvers import three_step
 from payload_agent.solvers.fitted import ALL, FittedModel
 
 
@@ -42,18 +47,18 @@ def _baseline_noise(noise_map) -> object | None:
     return Nb @ Nb.T, float(np.mean(N.multiply(N).sum(axis=1)))
 
 
-def cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_joints: Sequence[int],
-                     gain_rel_std: Sequence[float]) -> np.ndarray:
-    """The (p, p) covariance to add to the general fit's θ (noise + gain terms) when the calibration of
-    ``fitted_joints`` (reference θ_ref, relative σ ``gain_rel_std`` per joint) used this run's empty baseline:
-    Σ_j −(c_j·G_jᵀ + G_j·c_jᵀ), c_j = P·Σ_b·a_j (module docstring). Zero where no row has a noise map."""
+def baseline_shares(model: FittedModel, theta_ref: Sequence[float], fitted_joints: Sequence[int],
+                    gain_rel_std: Sequence[float]) -> dict[int, dict[int, np.ndarray]]:
+    """Per calibrated joint j, per row group i of the general fit (index into ``groups_of(ALL)``): k_ji =
+    f_j·Σ_b,i·a_ji, the covariance of the baseline's noise on those rows with the scale error −δs_j (module
+    docstring), f_j ≤ 1 the scale-down to the calibration's own s_j². Any linear estimator β̂ = Σ_i J_i·y_i that the
+    gain scales s_j move by g_j·δs_j then has the cross term −Σ_j (c_j·g_jᵀ + g_j·c_jᵀ), c_j = Σ_i J_i·k_ji
+    (``cross_term``). Joints without a map on any of their rows, or without a σ, are left out."""
     res = model.fit(ALL)
     groups = model.groups_of(ALL)
-    inv, w, theta = res.normal_inverse, res.weights, res.theta
     theta_ref = np.asarray(theta_ref, float)[:4]
-    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
     maps: dict[str, tuple] = {}
-    X = np.zeros((len(theta), len(theta)))
+    out: dict[int, dict[int, np.ndarray]] = {}
     for j in fitted_joints:
         s_j = float(gain_rel_std[j]) if j < len(gain_rel_std) else 0.0
         mine = [i for i, g in enumerate(groups) if g.joint == j]
@@ -63,25 +68,75 @@ def cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_join
         norm = float(sum(float(p @ p) for p in pred_ref.values()))
         if norm <= 0:
             continue
-        h, v, G = np.zeros(len(theta)), 0.0, np.zeros(len(theta))
+        k, v = {}, 0.0
         for i in mine:
-            g, sl = groups[i], slice(starts[i], starts[i + 1])
-            G += inv @ (g.Y.T @ (w[sl] * (g.Y @ theta)))  # ∂θ/∂ε_j, as wls.gain_covariance
+            g = groups[i]
             if g.noise_map is None or g.noise_map.shape[0] != len(g.y):
                 continue
             if g.sweep not in maps:
                 maps[g.sweep] = _baseline_noise(g.noise_map)
             S_b, mean_gain = maps[g.sweep]
             a = pred_ref[i] / norm
-            Sa = (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * (S_b @ a)
-            h += g.Y.T @ (w[sl] * Sa)
-            v += float(a @ Sa)
+            k[i] = (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
+            v += float(a @ k[i])
         if v <= 0:
             continue
         f = min(1.0, s_j / np.sqrt(v))  # the map's baseline share of the gain's variance at most the whole of it
-        c = f * (inv @ h)
-        X -= np.outer(c, G)
+        out[j] = {i: f * ki for i, ki in k.items()}
+    return out
+
+
+def cross_term(c: dict[int, np.ndarray], g: dict[int, np.ndarray]) -> np.ndarray:
+    """−Σ_j (c_j·g_jᵀ + g_j·c_jᵀ) over the joints both have: c_j = Cov(β̂'s baseline noise, −δs_j), g_j = ∂β̂/∂s_j."""
+    n = len(next(iter(g.values()))) if g else 0
+    X = np.zeros((n, n))
+    for j in sorted(set(c) & set(g)):
+        X -= np.outer(c[j], g[j])
     return X + X.T
+
+
+def cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_joints: Sequence[int],
+                     gain_rel_std: Sequence[float]) -> np.ndarray:
+    """The (p, p) covariance to add to the general fit's θ (noise + gain terms) when the calibration of
+    ``fitted_joints`` (reference θ_ref, relative σ ``gain_rel_std`` per joint) used this run's empty baseline:
+    Σ_j −(c_j·G_jᵀ + G_j·c_jᵀ), c_j = P·Σ_b·a_j (module docstring). Zero where no row has a noise map."""
+    res = model.fit(ALL)
+    groups = model.groups_of(ALL)
+    inv, w, theta = res.normal_inverse, res.weights, res.theta
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    shares = baseline_shares(model, theta_ref, fitted_joints, gain_rel_std)
+    c, G = {}, {}
+    for j, k in shares.items():
+        G[j] = sum((inv @ (g.Y.T @ (w[starts[i]:starts[i + 1]] * (g.Y @ theta)))  # ∂θ/∂ε_j, as wls.gain_covariance
+                    for i, g in enumerate(groups) if g.joint == j), np.zeros(len(theta)))
+        c[j] = inv @ sum((groups[i].Y.T @ (w[starts[i]:starts[i + 1]] * ki) for i, ki in k.items()),
+                         np.zeros(len(theta)))
+    return cross_term(c, G) if G else np.zeros((len(theta), len(theta)))
+
+
+def three_step_cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_joints: Sequence[int],
+                                gain_rel_std: Sequence[float]) -> np.ndarray:
+    """The (4, 4) covariance to add to the three-step solver's θ = [m, m·c] (noise + gain terms) on ``model``'s
+    deltas, where the calibration used this run's empty baseline: the same cross term through the three steps.
+
+    The three steps are, to first order, β̂ − β = Σ_s J_s·ε_s over the three sweeps they read (joint 2's rows of
+    the joint-2 sweep in pose b, joint 3's of the joint-3 sweeps in poses b and d; ``three_step.Scores``), and a
+    gain scale error δs_j moves β̂ by g_j·δs_j (g_j = Σ J_s·pred_s over joint j's sweeps, the three-step's own gain
+    term). The baseline's noise on J_s's samples is the noise on the general fit's rows of the same sweep and joint
+    (same delta, same samples): c_j = Σ_s J_s·k_js (``baseline_shares``; rows of other joints or sweeps are
+    independent of them and add nothing). The cross term −(c_j·g_jᵀ + g_j·c_jᵀ) is added in β and carried to θ
+    with the solver's own ∂θ/∂β (``three_step.theta_jacobian``)."""
+    sc = three_step.scores(model.deltas, model.kin)
+    groups = model.groups_of(ALL)
+    c = {}
+    for j, k in baseline_shares(model, theta_ref, fitted_joints, gain_rel_std).items():
+        c[j] = np.zeros(4)
+        for i, ki in k.items():
+            J = sc.rows.get((groups[i].sweep, groups[i].joint))
+            if J is not None and J.shape[1] == len(ki):
+                c[j] += J @ ki
+    Jt = three_step.theta_jacobian(sc.beta)
+    return Jt @ cross_term(c, sc.gain_response) @ Jt.T if c else np.zeros((4, 4))
 
 
 def note(mass_std_before_kg: float, mass_std_after_kg: float) -> str:
@@ -91,4 +146,4 @@ def note(mass_std_before_kg: float, mass_std_after_kg: float) -> str:
             f"{1000 * mass_std_after_kg:.2f} g)")
 
 
-__all__ = ["cross_covariance", "note"]
+__all__ = ["baseline_shares", "cross_covariance", "cross_term", "note", "three_step_cross_covariance"]

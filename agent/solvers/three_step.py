@@ -23,11 +23,14 @@ as in ``solvers.wls``; where the deltas carry their noise maps, the map's at eve
 kernel shows more, ``wls.modelled_excess``) is the covariance of [m, x, y, z]; never below the independent-noise
 value. An optional relative drive-gain uncertainty of joints 2 and 3 is propagated on top, and the DH lengths'
 uncertainty by re-running the steps with each length moved, less what a drive-gain calibration absorbed of it
-(``length_covariance``, the general solver's DH-length term through the three steps).
+(``length_covariance``, the general solver's DH-length term through the three steps). Where a drive-gain calibration
+subtracted the same empty run, the analysis adds that run's noise correlation between the two (``scores``, the
+steps' first-order map, through ``evaluation.shared_baseline``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
@@ -92,19 +95,32 @@ def _interp_transpose(x_new: np.ndarray, xs: np.ndarray, weights: np.ndarray) ->
     return out
 
 
-def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d",
-          directions: tuple[str, ...] = PREFERENCE, gain_rel_std: Iterable[float] | None = None,
-          length_std_m: float | None = None, gain_reference: object = None, model: object = None) -> Estimate:
-    """Mass and centre of mass by the paper's three steps, with the covariance of the result.
+@dataclass(frozen=True)
+class Scores:
+    """The three steps' first-order map from the Δτ samples they read to β = [m, x, y, z]: what a term that acts on
+    those samples through a linear estimator needs (``evaluation.shared_baseline``: the empty run's noise, shared
+    with a drive-gain calibration)."""
 
-    ``directions``: which recorded direction to use per sweep, in order of preference (default:
-    the combined "both", else "up"; ``("up",)`` is the paper's single-direction procedure).
-    ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), added
-    to the covariance for joints 2 and 3. ``length_std_m``: standard uncertainty of every non-zero DH length,
-    added through the three steps (``length_covariance``; ``gain_reference``, (θ_ref, fitted joints) of the
-    drive-gain calibration the data were scaled with, absorbed part of it; ``model``: the analysis' fitted model,
-    whose rows name where).
-    """
+    beta: np.ndarray  # (4,) β = [m, x, y, z]
+    rows: dict[tuple[str, int], np.ndarray]  # (sweep name, 0-based joint) -> ∂β/∂(those Δτ samples), (4, n)
+    gain_response: dict[int, np.ndarray]  # 0-based joint -> ∂β/∂(a relative gain error of that joint), (4,)
+
+
+@dataclass(frozen=True)
+class _Steps:
+    """One solution of the three steps and what its covariance is made from."""
+
+    sweeps: dict[str, DeltaSweep]  # "b2", "b3", "d3"
+    beta: np.ndarray
+    J: dict[str, np.ndarray]  # sweep -> ∂β/∂Δτ samples (``_jacobians``)
+    data: dict[str, tuple[np.ndarray, np.ndarray, int]]  # sweep -> (measured Δτ, prediction, joint index)
+    residual_rms_nm: dict[str, float]
+    samples: dict[str, int]
+
+
+def _steps(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, pose_xy: str, pose_z: str,
+           directions: tuple[str, ...]) -> _Steps:
+    """The paper's three steps (module docstring) and their first-order sensitivities."""
     b2, b3, d3 = (_find(deltas, pose_xy, 2, directions), _find(deltas, pose_xy, 3, directions),
                   _find(deltas, pose_z, 3, directions))
     geo = ArmGeometry(kin, float(np.median(b2.q[:, 0])))
@@ -147,32 +163,68 @@ def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str =
         "d3": (d3.dtau[:, 2], mass * (Ad + Bd @ c), 2),
     }
     J = _jacobians(beta, phi, inside, dm_dv, B3, Bd, data["b3"][0], d3.dtau[:, 2])
-    maps = {"b2": b2.noise_map, "b3": b3.noise_map, "d3": d3.noise_map}
-    cov_beta = _covariance(J, data, gain_rel_std, maps)
-    if length_std_m is not None and length_std_m > 0:
-        cov_beta = cov_beta + length_covariance(deltas, kin, beta, float(length_std_m), gain_reference, model,
-                                                dict(pose_xy=pose_xy, pose_z=pose_z, directions=directions))
-    # θ = [m, m·c]: the covariance the other solvers report
-    Jt = np.zeros((4, 4))
-    Jt[0, 0] = 1.0
-    Jt[1:, 0] = c
-    Jt[1:, 1:] = mass * np.eye(3)
-    cov_theta = Jt @ cov_beta @ Jt.T
-    std = np.sqrt(np.maximum(np.diag(cov_beta), 0.0))
 
     def rms(r):
         return float(np.sqrt(np.mean(r ** 2)))
 
+    return _Steps({"b2": b2, "b3": b3, "d3": d3}, beta, J, data,
+                  {f"{pose_xy}-j2/j3 (mass)": rms(res1), f"{b3.key.name} (x, y)": rms(res2),
+                   f"{d3.key.name} (z)": rms(res3)},
+                  {b2.key.name: int(inside.sum()), b3.key.name: len(b3.q), d3.key.name: len(d3.q)})
+
+
+def scores(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d",
+           directions: tuple[str, ...] = PREFERENCE) -> Scores:
+    """The three steps' ``Scores`` on these deltas (the same steps ``solve`` takes with the same options)."""
+    s = _steps(deltas, kin, pose_xy, pose_z, directions)
+    rows = {(s.sweeps[k].key.name, s.data[k][2]): s.J[k] for k in s.J}
+    return Scores(s.beta, rows, _gain_responses(s.J, s.data))
+
+
+def theta_jacobian(beta: np.ndarray) -> np.ndarray:
+    """∂θ/∂β for θ = [m, m·c] and β = [m, c]: the covariance of β to the θ the other solvers report."""
+    mass, c = float(beta[0]), np.asarray(beta[1:], float)
+    Jt = np.zeros((4, 4))
+    Jt[0, 0] = 1.0
+    Jt[1:, 0] = c
+    Jt[1:, 1:] = mass * np.eye(3)
+    return Jt
+
+
+def solve(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, *, pose_xy: str = "b", pose_z: str = "d",
+          directions: tuple[str, ...] = PREFERENCE, gain_rel_std: Iterable[float] | None = None,
+          length_std_m: float | None = None, gain_reference: object = None, model: object = None) -> Estimate:
+    """Mass and centre of mass by the paper's three steps, with the covariance of the result.
+
+    ``directions``: which recorded direction to use per sweep, in order of preference (default:
+    the combined "both", else "up"; ``("up",)`` is the paper's single-direction procedure).
+    ``gain_rel_std``: relative standard uncertainty of each joint's drive gain (0-based), added
+    to the covariance for joints 2 and 3. ``length_std_m``: standard uncertainty of every non-zero DH length,
+    added through the three steps (``length_covariance``; ``gain_reference``, (θ_ref, fitted joints) of the
+    drive-gain calibration the data were scaled with, absorbed part of it; ``model``: the analysis' fitted model,
+    whose rows name where).
+    """
+    s = _steps(deltas, kin, pose_xy, pose_z, directions)
+    beta = s.beta
+    maps = {name: d.noise_map for name, d in s.sweeps.items()}
+    cov_beta = _covariance(s.J, s.data, gain_rel_std, maps)
+    if length_std_m is not None and length_std_m > 0:
+        cov_beta = cov_beta + length_covariance(deltas, kin, beta, float(length_std_m), gain_reference, model,
+                                                dict(pose_xy=pose_xy, pose_z=pose_z, directions=directions))
+    Jt = theta_jacobian(beta)  # θ = [m, m·c]: the covariance the other solvers report
+    cov_theta = Jt @ cov_beta @ Jt.T
+    std = np.sqrt(np.maximum(np.diag(cov_beta), 0.0))
+
+    b2, b3, d3 = s.sweeps["b2"], s.sweeps["b3"], s.sweeps["d3"]
     used = sorted({d.key.direction for d in (b2, b3, d3)})
     notes = [f"three-step on {', '.join(d.key.name for d in (b2, b3, d3))}"
              + (" (bidirectional, friction-cancelling)" if used == ["both"] else "")]
     return Estimate(
         solver=NAME,
-        mass_kg=mass,
-        cog_m=(float(xy[0]), float(xy[1]), z),
-        residual_rms_nm={f"{pose_xy}-j2/j3 (mass)": rms(res1), f"{b3.key.name} (x, y)": rms(res2),
-                         f"{d3.key.name} (z)": rms(res3)},
-        samples={b2.key.name: int(inside.sum()), b3.key.name: len(b3.q), d3.key.name: len(d3.q)},
+        mass_kg=float(beta[0]),
+        cog_m=(float(beta[1]), float(beta[2]), float(beta[3])),
+        residual_rms_nm=s.residual_rms_nm,
+        samples=s.samples,
         mass_std_kg=float(std[0]),
         cog_std_m=(float(std[1]), float(std[2]), float(std[3])),
         covariance=cov_theta,
@@ -306,8 +358,17 @@ def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.n
         cov = cov * np.outer(f, f)
     if gain_rel_std is not None:
         std = np.asarray(list(gain_rel_std), float)
-        for j in sorted({jj for _, _, jj in data.values()}):
+        for j, g in _gain_responses(J, data).items():
             if j < len(std) and std[j] > 0:
-                g = sum(J[name] @ data[name][1] for name in J if data[name][2] == j)
                 cov += std[j] ** 2 * np.outer(g, g)
     return cov
+
+
+def _gain_responses(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.ndarray, int]]
+                    ) -> dict[int, np.ndarray]:
+    """∂β/∂(a relative gain error of joint j) per joint read, to first order: Σ over its sweeps of J·prediction."""
+    out: dict[int, np.ndarray] = {}
+    for name, Js in J.items():
+        j = data[name][2]
+        out[j] = out.get(j, np.zeros(4)) + Js @ data[name][1]
+    return out
