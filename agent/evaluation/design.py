@@ -100,7 +100,6 @@ class NoiseModel:
     effort_std_nm: tuple[float, ...]  # white effort noise per joint, N·m (the joint sweeping)
     sample_period_s: float
     inflation: float = 1.0  # reported (autocorrelation-robust) σ / white-noise σ of a previous run
-    inflation_rel_std: float = 0.0  # relative standard deviation of that one run's ratio (``noise_inflation``)
     gain_rel_std: tuple[float, ...] | None = None  # drive-gain uncertainty (after a calibration)
     # the gains are the controller's own current-to-torque constants (a UR without a calibration,
     # ``controller_gains``): a run fits them, and carries their uncertainty, for the joints that sweep in it only
@@ -119,6 +118,9 @@ class NoiseModel:
     # the noise of a joint standing while another one sweeps (a UR's is 2-5x lower: docs/sources.md); its rows
     # carry the payload's torque too. None: as while it moves
     effort_rest_std_nm: tuple[float, ...] | None = None
+    # the relative standard deviation of ``inflation``, itself one run's ratio (``noise_inflation``); last, so that
+    # the fields before it keep their positions
+    inflation_rel_std: float = 0.0
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
