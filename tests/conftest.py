@@ -28,6 +28,16 @@ from benchmarks.sim_start import start_at_first_move  # noqa: E402 (tests import
 
 
 @pytest.fixture
+def stall_probe():
+    """Measures how long the host stalls this process (host_stall.py): the safety tests' stop deadlines excuse it."""
+    from host_stall import StallProbe
+
+    probe = StallProbe().start()
+    yield probe
+    probe.close()
+
+
+@pytest.fixture
 def sim_ec66_data():
     """The simulated EC66 config as a dict, to be tweaked per test; without the inertia part (its wrist moves
     double a session's moves: tests/test_wrist_*.py turn it on)."""

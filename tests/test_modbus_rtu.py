@@ -56,12 +56,15 @@ def test_rtu_move_stream_and_stop_on_a_cut_line(line):
     # a device on a busy host answers late (the pty's device more so: over 0.6 s beside two busy loops): waited
     # for up to 1 s, and the watchdog's gap limit above that; the cut below is longer than both, so it still
     # trips the watchdog, and ends before the move would (the stop then goes out once the line is back). The stop
-    # is retried for stop_ack_timeout_s after the trip: the line is back 0.7 s after it, and the first attempt on it
-    # may wait the whole 1 s read timeout on a busy host, so 3 s (the YAML allows up to 10) rather than the default
-    # 2 s, which a loaded CI run missed twice (attempts=2, not acknowledged); what is checked is unchanged
+    # is retried until acknowledged or stop_ack_timeout_s after the trip: the line is back 0.7 s after it, and each
+    # attempt that the device (a process of its own, standing for separate hardware) answers late waits the whole
+    # 1 s read timeout. With both cores busy the device process was starved past that twice running and the 2 s
+    # default, then 3 s, ran out (sessions 17-18). What this test checks is that the stop is retried until the
+    # device hears it once the line is back, not how fast a starved simulated device answers, so the YAML's
+    # maximum, 10 s; the product's default stays 2 s
     options = dataclasses.replace(options, timeout_s=1.0)
     drv = ModbusDriver(options, MotionLimits(math.pi, math.pi),
-                       Supervision(max_stream_gap_s=1.3, stop_ack_timeout_s=3.0))
+                       Supervision(max_stream_gap_s=1.3, stop_ack_timeout_s=10.0))
     try:
         drv.connect()
         s = drv.wait_sample(2.0)
@@ -80,7 +83,7 @@ def test_rtu_move_stream_and_stop_on_a_cut_line(line):
         with pytest.raises(SupervisionTrip) as info:
             drv.move_joints(Q0, 0.12, 2.0, 10.0)  # 3 s: the cut comes mid-move
         report = info.value.stop_report
-        assert report.acknowledged
+        assert report.acknowledged, report
         stop = fake.first_event_after("stop", t0)
         assert stop is not None
     finally:
