@@ -121,6 +121,20 @@ class NoiseModel:
     # the relative standard deviation of ``inflation``, itself one run's ratio (``noise_inflation``); last, so that
     # the fields before it keep their positions
     inflation_rel_std: float = 0.0
+    # the stored baseline, where the stored calibration subtracted it too: a run of its plan reuses it and shares its
+    # noise with the calibration (``SharedBaseline``); None: every run's empty run independent of the calibration's
+    shared_baseline: "SharedBaseline | None" = None
+
+
+@dataclass(frozen=True)
+class SharedBaseline:
+    """The stored empty-flange baseline the stored calibration subtracted (``Gains.shared_baseline``): a run whose plan
+    has its fingerprint subtracts it too (``session.baseline.require_valid``), so its σ carries the correlation of the
+    two runs' errors (``shared_baseline.cross_covariance``); any other plan records its own empty run."""
+
+    plan_fingerprint: str
+    procedure: str  # its procedure's name and sweep speed: a cheap screen before a candidate's plan is made
+    speed_percent: float
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -159,6 +173,23 @@ def plan_for(config: Config, c: Candidate) -> Plan:
     return dataclasses.replace(base, moves=tuple(moves))
 
 
+def shares_baseline(config: Config, c: Candidate, noise: NoiseModel) -> bool:
+    """Whether a run of the candidate subtracts the stored baseline the stored calibration subtracted
+    (``NoiseModel.shared_baseline``): the plan the run makes (the written robot YAML keeps ``procedure.inertia``,
+    ``session.target_file``) has the baseline's fingerprint. Its age and the joints' temperatures, which the run
+    also checks, are taken to pass."""
+    shared = noise.shared_baseline
+    if shared is None or (c.procedure or config.procedure.name) != shared.procedure \
+            or float(c.speed_percent) != float(shared.speed_percent):
+        return False
+    cfg = with_candidate(config, c)
+    cfg = dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=config.procedure.inertia))
+    try:
+        return make_plan(cfg).fingerprint() == shared.plan_fingerprint
+    except ValueError:
+        return False
+
+
 def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
     """Robot time of one run; the approach move (at its own speed) only when ``start_q``, where the robot
     stands, is known."""
@@ -172,25 +203,28 @@ def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
 
 
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
+# ("baseline": the empty run the calibration shared, the same one in every repetition)
 NOISE_TERMS = ("noise", "wrist")
-SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros")
+SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros", "baseline")
 
 
-def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
                      ) -> tuple[dict[str, np.ndarray], int]:
     """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``; the
     wrist term as its expectation), and the constant-speed samples of one run: kept apart so that a benchmark can
-    show what binds a candidate (docs/benchmarks.md, issue 22)."""
-    terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta)
+    show what binds a candidate (docs/benchmarks.md, issue 22). ``shared``: the run subtracts the empty run the
+    calibration subtracted (``shares_baseline``)."""
+    terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta, shared=shared)
     return terms, n
 
 
-def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
                           ) -> tuple[dict[str, np.ndarray], int, WristModel, NoiseScatter]:
     """``covariance_terms``, the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
     relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
     the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
-    reports."""
+    reports. ``shared``: the run subtracts the calibration's empty run, and its σ carries the correlation of the two
+    (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
     from payload_agent.solvers import general, length_response, wls
 
     kin = config.robot.kinematics
@@ -226,6 +260,12 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel, plan.moves[-1].target_rad)
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
+    terms["baseline"] = np.zeros((4, 4))
+    if shared and noise.gain_reference is not None and rel is not None:
+        from payload_agent.evaluation.shared_baseline import planned_cross_covariance
+
+        terms["baseline"] = planned_cross_covariance(groups, w, theta, noise.gain_reference[0],
+                                                     noise.gain_reference[1], rel)
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
         terms["friction"] = friction_covariance(sweeps, groups, w, theta, float(decl.friction_asymmetry_std),
@@ -321,7 +361,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
-        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta)
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta,
+                                                        shared=shares_baseline(config, c, noise))
         out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
                       spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
