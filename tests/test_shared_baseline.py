@@ -220,6 +220,7 @@ def test_the_plan_takes_the_term_for_the_candidates_that_reuse_the_calibrations_
     empty run is that baseline when it recorded it. So the candidate whose plan is the calibration's gets the term
     (its predicted mass σ drops), another speed of the same procedure records its own empty run and does not."""
     from payload_agent.evaluation import design
+    from payload_agent.evaluation.planned_baseline import SharedBaseline
 
     config, empty, _, ref = clean_runs
     rng = np.random.default_rng(5)
@@ -228,13 +229,12 @@ def test_the_plan_takes_the_term_for_the_candidates_that_reuse_the_calibrations_
     same = design.Candidate(pc.speed_percent, pc.travel_speed_percent, pc.sweep_from_deg, pc.sweep_to_deg,
                             accel_percent=pc.accel_percent)
     other = dataclasses.replace(same, speed_percent=15.0)
-    shared = design.SharedBaseline(make_plan(config).fingerprint(), pc.name, pc.speed_percent)
+    shared = SharedBaseline(make_plan(config).fingerprint(), pc.name, pc.speed_percent)
     noise = design.NoiseModel((NOISE_NM,) * 6, 0.008, gain_rel_std=tuple(cal.gain_rel_std(0.0)),
                               gain_reference=cal.reference)
     with_shared = dataclasses.replace(noise, shared_baseline=shared)
-    assert design.shares_baseline(config, same, with_shared)
-    assert not design.shares_baseline(config, other, with_shared)
-    assert not design.shares_baseline(config, same, noise)
+    assert shared.reused_by(design.run_config(config, same))
+    assert not shared.reused_by(design.run_config(config, other))
     theta = np.array([TOOL.mass_kg, *(TOOL.mass_kg * np.asarray(TOOL.cog_m))])
     predict = lambda c, n: design.predict(config, c, n, theta, check_safety=False)  # noqa: E731
     assert predict(same, with_shared).mass_std_g < 0.9 * predict(same, noise).mass_std_g

@@ -49,6 +49,7 @@ from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F
 from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
                                                  SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
 from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
+from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model)
@@ -123,18 +124,8 @@ class NoiseModel:
     inflation_rel_std: float = 0.0
     # the stored baseline, where the stored calibration subtracted it too: a run of its plan reuses it and shares its
     # noise with the calibration (``SharedBaseline``); None: every run's empty run independent of the calibration's
-    shared_baseline: "SharedBaseline | None" = None
+    shared_baseline: SharedBaseline | None = None
 
-
-@dataclass(frozen=True)
-class SharedBaseline:
-    """The stored empty-flange baseline the stored calibration subtracted (``Gains.shared_baseline``): a run whose plan
-    has its fingerprint subtracts it too (``session.baseline.require_valid``), so its σ carries the correlation of the
-    two runs' errors (``shared_baseline.cross_covariance``); any other plan records its own empty run."""
-
-    plan_fingerprint: str
-    procedure: str  # its procedure's name and sweep speed: a cheap screen before a candidate's plan is made
-    speed_percent: float
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -173,21 +164,10 @@ def plan_for(config: Config, c: Candidate) -> Plan:
     return dataclasses.replace(base, moves=tuple(moves))
 
 
-def shares_baseline(config: Config, c: Candidate, noise: NoiseModel) -> bool:
-    """Whether a run of the candidate subtracts the stored baseline the stored calibration subtracted
-    (``NoiseModel.shared_baseline``): the plan the run makes (the written robot YAML keeps ``procedure.inertia``,
-    ``session.target_file``) has the baseline's fingerprint. Its age and the joints' temperatures, which the run
-    also checks, are taken to pass."""
-    shared = noise.shared_baseline
-    if shared is None or (c.procedure or config.procedure.name) != shared.procedure \
-            or float(c.speed_percent) != float(shared.speed_percent):
-        return False
+def run_config(config: Config, c: Candidate) -> Config:
+    """The config a run of the candidate uses: the written robot YAML keeps ``procedure.inertia`` (``target_file``)."""
     cfg = with_candidate(config, c)
-    cfg = dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=config.procedure.inertia))
-    try:
-        return make_plan(cfg).fingerprint() == shared.plan_fingerprint
-    except ValueError:
-        return False
+    return dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=config.procedure.inertia))
 
 
 def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
@@ -212,8 +192,7 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
                      ) -> tuple[dict[str, np.ndarray], int]:
     """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``; the
     wrist term as its expectation), and the constant-speed samples of one run: kept apart so that a benchmark can
-    show what binds a candidate (docs/benchmarks.md, issue 22). ``shared``: the run subtracts the empty run the
-    calibration subtracted (``shares_baseline``)."""
+    show what binds a candidate (docs/benchmarks.md, issue 22); ``shared`` as for ``terms_and_wrist_model``."""
     terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta, shared=shared)
     return terms, n
 
@@ -223,8 +202,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     """``covariance_terms``, the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
     relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
     the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
-    reports. ``shared``: the run subtracts the calibration's empty run, and its σ carries the correlation of the two
-    (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
+    reports. ``shared``: the run subtracts the calibration's empty run (``planned_baseline``), and its σ carries the
+    correlation of the two (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
     from payload_agent.solvers import general, length_response, wls
 
     kin = config.robot.kinematics
@@ -361,8 +340,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
-        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta,
-                                                        shared=shares_baseline(config, c, noise))
+        shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(run_config(config, c))
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared)
         out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
                       spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
-from payload_agent.evaluation.design import Choice, NoiseModel, SharedBaseline, choose
+from payload_agent.evaluation.design import Choice, NoiseModel, choose
+from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.effort_noise import moving_and_standing_std
 from payload_agent.recording.state import RobotState
 from payload_agent.session import stream_density
