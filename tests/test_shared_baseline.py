@@ -239,3 +239,33 @@ def test_the_plan_takes_the_term_for_the_candidates_that_reuse_the_calibrations_
     predict = lambda c, n: design.predict(config, c, n, theta, check_safety=False)  # noqa: E731
     assert predict(same, with_shared).mass_std_g < 0.9 * predict(same, noise).mass_std_g
     assert predict(other, with_shared).mass_std_g == predict(other, noise).mass_std_g
+
+
+def test_the_plan_knows_the_stored_baseline_is_the_calibrations(monkeypatch, tmp_path):
+    """``plan --target-std`` reads from the robot's state whether the stored calibration subtracted the stored baseline
+    (as ``run_gains`` reads it from the run folders later): a calibration whose empty run became the baseline gives
+    the plan the baseline's fingerprint, one that recorded another empty run (a later ``baseline``) none."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation.calibration import GainCalibration, calibration_fingerprint, save_calibration
+    from payload_agent.recording.state import RobotState, write_json_atomic
+    from payload_agent.session import baseline as baselines, target
+    from payload_agent.types import ControllerInfo
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    state = RobotState.for_config(config).ensure()
+    cal_run = tmp_path / "runs" / "calibration-run"
+    cal = GainCalibration(tuple(config.effort.gains_nm_per_unit), (1, 2), (1.0,) * 6, (0.0, 5e-4, 5e-4, 0, 0, 0), 3.0,
+                          (0.0, 0.0, 0.08), "sim-ec66", config.effort.unit, calibration_fingerprint(config),
+                          str(cal_run), "2026-01-01", baseline_source=str(cal_run.resolve()))
+    save_calibration(state, cal)
+    plan = make_plan(config)
+    info = ControllerInfo("sim", "ec66", "1", "0")
+    for source, shared in ((cal_run, True), (tmp_path / "runs" / "later-baseline", False)):
+        state.baseline_dir.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(state.baseline_info_path, baselines.describe_for(config, plan, info, source).to_json())
+        noise, _ = target.noise_for(config)
+        assert (noise.shared_baseline is not None) == shared
+        if shared:
+            assert noise.shared_baseline.plan_fingerprint == plan.fingerprint()
+            assert noise.shared_baseline.reused_by(config)  # the YAML's own procedure is the baseline's
