@@ -117,6 +117,7 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                          dh_error_mm, calibrate_procedure)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
+    calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
     if calibrate_on_chosen:  # the run below is the candidate's config, the inertia part off: so is the plan's view of it
         config = dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, inertia=None))
     if target:
@@ -130,7 +131,7 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
             first = choice.best.candidate
             calibrate_on(design.with_candidate(config, first), reference, retry_sweeps)
             choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
-            plan["calibrated_on"] = first.describe()
+            calibrated_on = first.describe()
         if choice.best is None:
             fastest = min((p for p in choice.table if p.usable), key=lambda p: p.mass_std_g, default=None)
             raise DataError(f"plan --target-std {target}: no procedure meets it" + (
@@ -148,7 +149,7 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target)),
                 "pred_wrist_share": float(np.mean(wrist.a > 0)),  # the plan's chance the run's wrist term is in σ
-                "pred_shared_baseline": bool(shared), "pred_baseline_cut": list(term_sigmas(-terms["baseline"], sim))}
+                "pred_shared_baseline": bool(shared), "calibrated_on": calibrated_on, "pred_baseline_cut": list(term_sigmas(-terms["baseline"], sim))}
     planned_share, planned = stream_share(config), noise_inflation.stored(config)
     outcome = run_identification(config, RunOptions(fresh_baseline=not calibrate_on_chosen, **quiet), ui)
     try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
