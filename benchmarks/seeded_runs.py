@@ -23,10 +23,10 @@ reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
 ``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
 its procedure (the YAML's otherwise). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
-plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off), plan again and
-run what that chooses with the stored baseline where it fits, as ``run`` does without ``--fresh-baseline``: a run
-of the calibration's plan then subtracts the calibration's empty run, and its σ and the plan's carry their
-correlation (``evaluation.shared_baseline``); the JSON says per seed whether both did. ``--dh-error-mm``: each
+plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
+--robot`` the written file), predict that procedure again with the calibration and run it with the stored baseline,
+as ``run`` does without ``--fresh-baseline``: the run subtracts the calibration's empty run, and its σ and the
+plan's carry their correlation (``evaluation.shared_baseline``); the JSON says per seed whether both did. ``--dh-error-mm``: each
 seed's simulated arm has its non-zero DH lengths off by up to that (uniform, drawn from the seed) while the agent
 keeps the YAML's; the JSON then holds the drawn errors and the plan's DH-length term (``pred_length_std``).
 """
@@ -127,11 +127,12 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         sim = config.simulation
         payload = targets.ExpectedPayload(sim.payload.mass_kg, tuple(sim.payload.cog_mm), "the simulation's")
         choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
-        if calibrate_on_chosen and choice.best is not None:
+        if calibrate_on_chosen and choice.best is not None:  # then its prediction after the calibration, and run it
             first = choice.best.candidate
             calibrate_on(design.with_candidate(config, first), reference, retry_sweeps)
-            choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
-            calibrated_on = first.describe()
+            again = design.predict(config, first, noise_model(config), design.nominal_theta(
+                sim.payload.mass_kg, sim.payload.cog_mm), start_q=np.radians(sim.start_deg))
+            choice, calibrated_on = design.Choice(again, [again]), first.describe()
         if choice.best is None:
             fastest = min((p for p in choice.table if p.usable), key=lambda p: p.mass_std_g, default=None)
             raise DataError(f"plan --target-std {target}: no procedure meets it" + (
@@ -244,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-procedure", metavar="NAME|FILE",
                    help="the calibration's procedure (as `calibrate --procedure`; default the YAML's)")
     p.add_argument("--calibrate-on-chosen", action="store_true",
-                   help="with --target-std: calibrate on the chosen procedure, plan again, run with the stored baseline")
+                   help="with --target-std: calibrate on the chosen procedure, predict it again, run it with the stored "
+                        "baseline")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
