@@ -16,7 +16,8 @@ the same terms ``general.solve`` reports, plus those of ``evaluation.systematics
 predicted before the run (``systematics.planned_covariance``: joint zeros) and the expectation of the
 run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
 the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
-stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ratio of the reported
+stiffness and the gain-scatter terms are not predicted), and the calibration's shared empty run where the candidate's
+run will subtract it (``planned_baseline``). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
 calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
