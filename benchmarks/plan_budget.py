@@ -7,7 +7,8 @@ and for the grid's candidates nearest the target within ``--max-s`` of procedure
 it depends on where the robot stands) and the one ``plan`` chooses, it prints the procedure's robot time, its
 constant-speed seconds (loaded run, both legs), and σ of the mass and of the centre of mass (largest axis) as
 the terms of ``design.covariance_terms`` are added one by one: the noise alone, + the wrist torques, + the
-drive gains, + the DH lengths, + the joint zeros, + the residual friction (= the root of the run's expected
+drive gains, + the DH lengths, + the joint zeros, + the residual friction, + the shared baseline's correlation
+(negative; 0 unless the candidate's run subtracts the calibration's empty run) (= the root of the run's expected
 variance; the plan's σ is the median over the draws of the wrist term and of the run's own noise estimate: the
 last columns, with their spread and P over). The last
 columns are the information per second, σ m (noise alone) · √(constant-speed s), and the constant-speed
@@ -37,7 +38,7 @@ from payload_agent.session import target as targets  # noqa: E402
 from payload_agent.solvers.wls import cog_with_covariance  # noqa: E402
 
 # the order the terms are added in (each column: this one and all before it)
-ORDER = ("noise", "wrist", "gains", "lengths", "zeros", "friction")
+ORDER = ("noise", "wrist", "gains", "lengths", "zeros", "friction", "baseline")
 
 
 def sigmas(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
@@ -49,7 +50,8 @@ def sigmas(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
 def budget(config, c: design.Candidate, noise: design.NoiseModel, theta: np.ndarray, target_g: float) -> dict:
     """One candidate's procedure s, constant-speed s (both legs), cumulative σ per ``ORDER`` and the bound columns."""
     plan = design.plan_for(config, c)
-    terms, n = design.covariance_terms(design.with_candidate(config, c), plan, noise, theta)
+    shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(design.run_config(config, c))
+    terms, n = design.covariance_terms(design.with_candidate(config, c), plan, noise, theta, shared=shared)
     cumulative, total = [], np.zeros((4, 4))
     for name in ORDER:
         total = total + terms[name]
@@ -111,9 +113,10 @@ def main(argv: list[str] | None = None) -> int:
             f"joint {j + 1} ±{100 * cal.scale_std[j]:.3f} %" for j in cal.fitted_joints) + " fitted, others nominal")
     print(f"target {grams:g} g / {mm:g} mm for the simulation's payload; chosen: "
           + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.1f} s)" if choice.best else "none"))
-    head = " | ".join(("noise", "+ wrist", "+ gains", "+ DH lengths", "+ zeros", "+ friction (plan)"))
+    head = " | ".join(("noise", "+ wrist", "+ gains", "+ DH lengths", "+ zeros", "+ friction (plan)",
+                       "+ shared baseline"))
     print(f"\n| candidate | procedure s | constant-speed s | {head} | σ m·√s (noise) | constant-speed s for "
-          f"{grams:g} g | a typical run (median) | run-to-run spread m / c | P over |\n|" + "---|" * 14)
+          f"{grams:g} g | a typical run (median) | run-to-run spread m / c | P over |\n|" + "---|" * 15)
     for q, b in rows:
         mark = " (chosen)" if choice.best is not None and q is choice.best else ""
         cells = " | ".join(f"{m:.2f} / {c:.2f}" for m, c in b["cumulative"])

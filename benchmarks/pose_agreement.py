@@ -60,10 +60,12 @@ def configs(robot: str, args) -> tuple:
     return config, cal, design.with_candidate(config, cand), cand
 
 
-def record(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
+def record(config, cal_config, run_config, seed: int, reference: tuple, shared_baseline: bool = False) -> dict:
     """One seed recorded offline as ``seeded_runs --calibrate`` runs it: the drive-gain calibration, then an empty and a
     loaded run of ``run_config``'s procedure. {"loaded", "empty" (at the calibrated gains), "gains", "commands",
-    "mount_rad", "config"}: what ``evaluation.analyse`` takes (also ``benchmarks.wrist_null``'s)."""
+    "mount_rad", "config"}: what ``evaluation.analyse`` takes (also ``benchmarks.wrist_null``'s). ``shared_baseline``:
+    the run records no empty run of its own and subtracts the calibration's, as ``run`` does after ``calibrate`` on
+    the same plan (the stored baseline; ``Gains.shared_baseline``): ``cal_config`` and ``run_config`` plan alike."""
     from payload_agent.analysis.segmenter import sweep_commands
     from payload_agent.evaluation.analyse import Gains
     from payload_agent.evaluation.calibration import fit_from_sweeps
@@ -90,7 +92,12 @@ def record(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     cal = fit_from_sweeps(cal_loaded, cal_empty, config, kg, np.asarray(cog_mm) / 1000.0,
                           commands=sweep_commands(cal_plan.moves))
     mount(None, False)
-    empty, _ = record_plan(robot, plan)
+    if shared_baseline:
+        if cal_plan.fingerprint() != plan.fingerprint():
+            raise ValueError("a shared baseline needs the calibration's plan and the run's to be the same")
+        empty = cal_empty
+    else:
+        empty, _ = record_plan(robot, plan)
     p = sim.payload
     mount(PayloadTruth.from_tensor(p.mass_kg, [c / 1000.0 for c in p.cog_mm], p.inertia_com_kgm2)
           if p.inertia_com_kgm2 is not None else PayloadTruth.point(p.mass_kg, p.cog_mm), True)
@@ -98,7 +105,7 @@ def record(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     loaded, _ = record_plan(robot, plan)
     scale = np.asarray(cal.scale, float)  # the efforts at the calibrated gains, as the agent loads them
     gains = Gains(cal.gains_nm_per_unit, "calibration", rel_std=cal.gain_rel_std(), reference=cal.reference,
-                  zeros=cal.zeros)
+                  zeros=cal.zeros, shared_baseline=shared_baseline)
     return {"loaded": scaled(loaded, scale), "empty": scaled(empty, scale), "gains": gains,
             "commands": sweep_commands(plan.moves), "mount_rad": mount_rad, "config": run_config}
 

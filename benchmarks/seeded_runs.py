@@ -22,7 +22,11 @@ the effort noise and the stream's samples per second in it; the run still record
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
 ``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
-its procedure (the YAML's otherwise). ``--dh-error-mm``: each
+its procedure (the YAML's otherwise). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
+plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
+--robot`` the written file), predict that procedure again with the calibration and run it with the stored baseline,
+as ``run`` does without ``--fresh-baseline``: the run subtracts the calibration's empty run, and its σ and the
+plan's carry their correlation (``evaluation.shared_baseline``); the JSON says per seed whether both did. ``--dh-error-mm``: each
 seed's simulated arm has its non-zero DH lengths off by up to that (uniform, drawn from the seed) while the agent
 keeps the YAML's; the JSON then holds the drawn errors and the plan's DH-length term (``pred_length_std``).
 """
@@ -80,14 +84,19 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
         run_identification(config, RunOptions(mode="baseline", **_quiet(retry_sweeps)), _silent())
     if calibrate:
         from payload_agent.calibrate_args import with_procedure, with_speed
-        from payload_agent.types import PayloadSetting
 
-        kg, cog_mm = reference
-        cal_config = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
-        run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
-            kg, tuple(c / 1000.0 for c in cog_mm)), **_quiet(retry_sweeps)), _silent(),
-            SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
+        calibrate_on(with_procedure(with_speed(config, calibrate_speed), calibrate_procedure), reference, retry_sweeps)
     return config
+
+
+def calibrate_on(cal_config, reference: tuple, retry_sweeps: int) -> None:
+    """``payload-agent calibrate`` with ``cal_config``'s procedure and the reference (kg, (x, y, z) mm)."""
+    from payload_agent.types import PayloadSetting
+
+    kg, cog_mm = reference
+    run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
+        kg, tuple(c / 1000.0 for c in cog_mm)), **_quiet(retry_sweeps)), _silent(),
+        SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
 
 
 def _quiet(retry_sweeps: int) -> dict:
@@ -100,11 +109,17 @@ def _silent() -> OperatorUI:
 
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
-            baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None) -> dict:
+            baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None,
+            calibrate_on_chosen: bool = False) -> dict:
+    import dataclasses
+
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
                          dh_error_mm, calibrate_procedure)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
+    calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
+    if calibrate_on_chosen:  # the run below is the candidate's config, the inertia part off: so is the plan's view of it
+        config = dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, inertia=None))
     if target:
         from payload_agent.evaluation import design
         from payload_agent.session import target as targets
@@ -112,23 +127,32 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         sim = config.simulation
         payload = targets.ExpectedPayload(sim.payload.mass_kg, tuple(sim.payload.cog_mm), "the simulation's")
         choice, _ = targets.plan_for_target(config, target, payload, np.radians(sim.start_deg))
+        if calibrate_on_chosen and choice.best is not None:  # then its prediction after the calibration, and run it
+            first = choice.best.candidate
+            calibrate_on(design.with_candidate(config, first), reference, retry_sweeps)
+            again = design.predict(config, first, noise_model(config), design.nominal_theta(
+                sim.payload.mass_kg, sim.payload.cog_mm), start_q=np.radians(sim.start_deg))
+            choice, calibrated_on = design.Choice(again, [again]), first.describe()
         if choice.best is None:
             fastest = min((p for p in choice.table if p.usable), key=lambda p: p.mass_std_g, default=None)
             raise DataError(f"plan --target-std {target}: no procedure meets it" + (
                 "" if fastest is None else f" (least mass σ {fastest.mass_std_g:.2f} g: {fastest.candidate.describe()})"))
         best = choice.best
         config = design.with_candidate(config, best.candidate)
-        terms, _, wrist, _ = design.terms_and_wrist_model(config, design.plan_for(config, best.candidate),
-                                                          noise_model(config),
-                                                          design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm))
+        noise = noise_model(config)
+        shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(config)
+        terms, _, wrist, _ = design.terms_and_wrist_model(config, design.plan_for(config, best.candidate), noise,
+                                                          design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm),
+                                                          shared=shared)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "pred_length_std": list(term_sigmas(terms["lengths"], sim)),
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target)),
-                "pred_wrist_share": float(np.mean(wrist.a > 0))}  # the plan's chance the run's wrist term is in σ
+                "pred_wrist_share": float(np.mean(wrist.a > 0)),  # the plan's chance the run's wrist term is in σ
+                "pred_shared_baseline": bool(shared), "calibrated_on": calibrated_on, "pred_baseline_cut": list(term_sigmas(-terms["baseline"], sim))}
     planned_share, planned = stream_share(config), noise_inflation.stored(config)
-    outcome = run_identification(config, RunOptions(fresh_baseline=True, **quiet), ui)
+    outcome = run_identification(config, RunOptions(fresh_baseline=not calibrate_on_chosen, **quiet), ui)
     try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
         own = noise_inflation.of_run(config, outcome.run_dir)
         ratio = [own.mass_ratio, own.cog_ratio]
@@ -149,7 +173,8 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
     wrist = [n for n in est.notes if n.startswith(("a tool cable", "constant wrist torques"))]
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
             "passed": bool(outcome.result.quality.get("passed")), "wrist_note": wrist[0] if wrist else None,
-            "wrist_weight": wrist_weight(wrist[0] if wrist else None), **plan}
+            "wrist_weight": wrist_weight(wrist[0] if wrist else None),
+            "shared_baseline": any("empty baseline" in n for n in est.notes), **plan}
 
 
 def wrist_weight(note: str | None) -> float:
@@ -219,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-speed", type=float, metavar="PERCENT", help="the calibration's sweep speed")
     p.add_argument("--calibrate-procedure", metavar="NAME|FILE",
                    help="the calibration's procedure (as `calibrate --procedure`; default the YAML's)")
+    p.add_argument("--calibrate-on-chosen", action="store_true",
+                   help="with --target-std: calibrate on the chosen procedure, predict it again, run it with the stored "
+                        "baseline")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
@@ -238,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
                             args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
-                            args.calibrate_procedure)
+                            args.calibrate_procedure, args.calibrate_on_chosen)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
@@ -281,6 +309,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"the run's wrist term in σ in {int(np.sum(~clean))} of {len(runs)} runs (the plan's chance "
                   f"{100 * np.mean([r['pred_wrist_share'] for r in runs]):.0f} %); pred/rep c in the runs without it "
                   f"{_list(ratio_c[clean])}, with it {_list(ratio_c[~clean])}")
+        if "pred_shared_baseline" in runs[0]:  # the calibration's empty run subtracted: by the plan, by the run
+            print(f"the calibration's empty run subtracted: planned for {sum(r['pred_shared_baseline'] for r in runs)},"
+                  f" by the run in {sum(r['shared_baseline'] for r in runs)} of {len(runs)} runs")
         within = lambda pred, rep: int(np.sum(np.abs(pred / rep - 1.0) <= 0.3))  # noqa: E731
         print(f"predicted = median of the run's σ: ratio pred/rep per seed m {_list(pm[:, 0] / rep_m)}, c "
               f"{_list(pm[:, 1] / rep_c)}; within ±30 % m {within(pm[:, 0], rep_m)}, c {within(pm[:, 1], rep_c)} of "

@@ -183,3 +183,89 @@ def test_a_run_against_the_calibrations_baseline_is_analysed_with_the_correlatio
     old = {k: v for k, v in cal.to_json().items() if k != "baseline_source_run"}  # a gains.json from before
     (same / RUN_CALIBRATION).write_text(json.dumps(old))
     assert not run_gains(config, same).shared_baseline
+
+
+# -- the plan's prediction of the term (``shared_baseline.planned_cross_covariance``, ``design``) ----------------------
+
+def test_the_plans_term_is_the_runs_on_the_same_rows(clean_runs):
+    """``plan --target-std`` predicts the σ a run will report; where the run subtracts the calibration's empty run, that
+    σ carries the cross term. The plan's, from its planned rows of the same procedure and white noise of the same
+    level, against the run's on a noisy draw of the simulated runs: within the ±20 % a draw's residual σ and the
+    run's interpolation of the empty run leave (measured on three draws: 0.83–1.19 per diagonal element). Without the
+    plan's term (before session 19) there is no "baseline" part and the prediction lacks the reduction."""
+    from payload_agent.evaluation import design, shared_baseline
+    from payload_agent.solvers import general
+
+    config, empty, loaded, ref = clean_runs
+    rng = np.random.default_rng(5)
+    e, lo, r = _noisy(empty, rng), _noisy(loaded, rng), _noisy(ref, rng)
+    cal = _calibrate(config, r, e)
+    scale, rel = np.asarray(cal.scale), tuple(cal.gain_rel_std(0.0))
+    model = general.fit_model(systematics.prepare(scaled(lo, scale), scaled(e, scale), systematics.RIGID).deltas,
+                              config.robot.kinematics)
+    run = shared_baseline.cross_covariance(model, cal.reference[0], cal.reference[1], rel)[:4, :4]
+    noise = design.NoiseModel((NOISE_NM,) * 6, 0.008, gain_rel_std=rel, gain_reference=cal.reference)
+    theta = np.array([TOOL.mass_kg, *(TOOL.mass_kg * np.asarray(TOOL.cog_m))])  # the plan's expected payload
+    terms, _ = design.covariance_terms(config, make_plan(config), noise, theta, shared=True)
+    planned = terms["baseline"]
+    for i, what in ((0, "mass"), (3, "m·z")):
+        assert planned[i, i] < 0 and run[i, i] < 0, (what, planned[i, i], run[i, i])
+        assert 0.8 < planned[i, i] / run[i, i] < 1.25, (what, planned[i, i], run[i, i])
+    # a run that records its own empty run shares nothing with the calibration: no term
+    assert not np.any(design.covariance_terms(config, make_plan(config), noise, theta)[0]["baseline"])
+
+
+def test_the_plan_takes_the_term_for_the_candidates_that_reuse_the_calibrations_baseline(clean_runs):
+    """A run reuses the stored baseline only when its plan has the baseline's fingerprint; the stored calibration's
+    empty run is that baseline when it recorded it. So the candidate whose plan is the calibration's gets the term
+    (its predicted mass σ drops), another speed of the same procedure records its own empty run and does not."""
+    from payload_agent.evaluation import design
+    from payload_agent.evaluation.planned_baseline import SharedBaseline
+
+    config, empty, _, ref = clean_runs
+    rng = np.random.default_rng(5)
+    cal = _calibrate(config, _noisy(ref, rng), _noisy(empty, rng))
+    pc = config.procedure
+    same = design.Candidate(pc.speed_percent, pc.travel_speed_percent, pc.sweep_from_deg, pc.sweep_to_deg,
+                            accel_percent=pc.accel_percent)
+    other = dataclasses.replace(same, speed_percent=15.0)
+    shared = SharedBaseline(make_plan(config).fingerprint(), pc.name, pc.speed_percent)
+    noise = design.NoiseModel((NOISE_NM,) * 6, 0.008, gain_rel_std=tuple(cal.gain_rel_std(0.0)),
+                              gain_reference=cal.reference)
+    with_shared = dataclasses.replace(noise, shared_baseline=shared)
+    assert shared.reused_by(design.run_config(config, same))
+    assert not shared.reused_by(design.run_config(config, other))
+    theta = np.array([TOOL.mass_kg, *(TOOL.mass_kg * np.asarray(TOOL.cog_m))])
+    predict = lambda c, n: design.predict(config, c, n, theta, check_safety=False)  # noqa: E731
+    assert predict(same, with_shared).mass_std_g < 0.9 * predict(same, noise).mass_std_g
+    assert predict(other, with_shared).mass_std_g == predict(other, noise).mass_std_g
+
+
+def test_the_plan_knows_the_stored_baseline_is_the_calibrations(monkeypatch, tmp_path):
+    """``plan --target-std`` reads from the robot's state whether the stored calibration subtracted the stored baseline
+    (as ``run_gains`` reads it from the run folders later): a calibration whose empty run became the baseline gives
+    the plan the baseline's fingerprint, one that recorded another empty run (a later ``baseline``) none."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation.calibration import GainCalibration, calibration_fingerprint, save_calibration
+    from payload_agent.recording.state import RobotState, write_json_atomic
+    from payload_agent.session import baseline as baselines, target
+    from payload_agent.types import ControllerInfo
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    state = RobotState.for_config(config).ensure()
+    cal_run = tmp_path / "runs" / "calibration-run"
+    cal = GainCalibration(tuple(config.effort.gains_nm_per_unit), (1, 2), (1.0,) * 6, (0.0, 5e-4, 5e-4, 0, 0, 0), 3.0,
+                          (0.0, 0.0, 0.08), "sim-ec66", config.effort.unit, calibration_fingerprint(config),
+                          str(cal_run), "2026-01-01", baseline_source=str(cal_run.resolve()))
+    save_calibration(state, cal)
+    plan = make_plan(config)
+    info = ControllerInfo("sim", "ec66", "1", "0")
+    for source, shared in ((cal_run, True), (tmp_path / "runs" / "later-baseline", False)):
+        state.baseline_dir.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(state.baseline_info_path, baselines.describe_for(config, plan, info, source).to_json())
+        noise, _ = target.noise_for(config)
+        assert (noise.shared_baseline is not None) == shared
+        if shared:
+            assert noise.shared_baseline.plan_fingerprint == plan.fingerprint()
+            assert noise.shared_baseline.reused_by(config)  # the YAML's own procedure is the baseline's

@@ -16,7 +16,8 @@ the same terms ``general.solve`` reports, plus those of ``evaluation.systematics
 predicted before the run (``systematics.planned_covariance``: joint zeros) and the expectation of the
 run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
 the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
-stiffness and the gain-scatter terms are not predicted). ``inflation`` is the ratio of the reported
+stiffness and the gain-scatter terms are not predicted), and the calibration's shared empty run where the candidate's
+run will subtract it (``planned_baseline``). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
 calibration run's own fit; 1 without one).
 σ of the mass and of the centre of mass (largest axis) follow by the delta method, per seeded draw of the wrist
@@ -49,6 +50,7 @@ from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F
 from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
                                                  SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
 from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
+from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model)
@@ -121,6 +123,10 @@ class NoiseModel:
     # the relative standard deviation of ``inflation``, itself one run's ratio (``noise_inflation``); last, so that
     # the fields before it keep their positions
     inflation_rel_std: float = 0.0
+    # the stored baseline, where the stored calibration subtracted it too: a run of its plan reuses it and shares its
+    # noise with the calibration (``SharedBaseline``); None: every run's empty run independent of the calibration's
+    shared_baseline: SharedBaseline | None = None
+
 
 
 def with_candidate(config: Config, c: Candidate) -> Config:
@@ -159,6 +165,12 @@ def plan_for(config: Config, c: Candidate) -> Plan:
     return dataclasses.replace(base, moves=tuple(moves))
 
 
+def run_config(config: Config, c: Candidate) -> Config:
+    """The config a run of the candidate uses: the written robot YAML keeps ``procedure.inertia`` (``target_file``)."""
+    cfg = with_candidate(config, c)
+    return dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=config.procedure.inertia))
+
+
 def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
     """Robot time of one run; the approach move (at its own speed) only when ``start_q``, where the robot
     stands, is known."""
@@ -172,25 +184,27 @@ def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
 
 
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
+# ("baseline": the empty run the calibration shared, the same one in every repetition)
 NOISE_TERMS = ("noise", "wrist")
-SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros")
+SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros", "baseline")
 
 
-def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
                      ) -> tuple[dict[str, np.ndarray], int]:
     """Each part of the predicted covariance of θ for one run, by name (``NOISE_TERMS``, ``SYSTEMATIC_TERMS``; the
     wrist term as its expectation), and the constant-speed samples of one run: kept apart so that a benchmark can
-    show what binds a candidate (docs/benchmarks.md, issue 22)."""
-    terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta)
+    show what binds a candidate (docs/benchmarks.md, issue 22); ``shared`` as for ``terms_and_wrist_model``."""
+    terms, n, _, _ = terms_and_wrist_model(config, plan, noise, theta, shared=shared)
     return terms, n
 
 
-def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray
+def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
                           ) -> tuple[dict[str, np.ndarray], int, WristModel, NoiseScatter]:
     """``covariance_terms``, the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
     relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
     the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
-    reports."""
+    reports. ``shared``: the run subtracts the calibration's empty run (``planned_baseline``), and its σ carries the
+    correlation of the two (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
     from payload_agent.solvers import general, length_response, wls
 
     kin = config.robot.kinematics
@@ -226,6 +240,12 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel, plan.moves[-1].target_rad)
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
+    terms["baseline"] = np.zeros((4, 4))
+    if shared and noise.gain_reference is not None and rel is not None:
+        from payload_agent.evaluation.shared_baseline import planned_cross_covariance
+
+        terms["baseline"] = planned_cross_covariance(groups, w, theta, noise.gain_reference[0],
+                                                     noise.gain_reference[1], rel)
     decl, level = noise.joints, noise.friction_level_nm
     if decl is not None and level is not None:
         terms["friction"] = friction_covariance(sweeps, groups, w, theta, float(decl.friction_asymmetry_std),
@@ -321,7 +341,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
-        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta)
+        shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(run_config(config, c))
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared)
         out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
                       spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:

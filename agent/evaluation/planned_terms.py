@@ -176,13 +176,26 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     relaxed at ``mount_rad`` (where the loaded run starts, as the run records it), else the free offsets."""
     if mount_rad is None:
         return offset_model(wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std))
+    spring = spring_covariance(sweeps, groups, w, inflation, theta, gain_rel_std, mount_rad)
+    if spring is None:  # no wrist joint with a lever: the run has no wrist term
+        return offset_model(np.zeros((4, 4)))
+    return spring_model(*spring)
+
+
+def spring_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
+                      theta: np.ndarray, gain_rel_std: Sequence[float] | None, mount_rad: Sequence[float]
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(AM, C) of the cable spring a run of these rows fits (``cable_spring.fit_spring``, no gain scatter found): C
+    the κ block of the fit beside θ and one nuisance offset per moving arm joint (``cable_spring.moving_arm_joint``),
+    its noise the rows' white noise × ``inflation`` plus the drive gains' part, and AM the map of κ onto θ through
+    the plain fit's wrist-offset sensitivities; None when no wrist joint has a lever."""
     from payload_agent.evaluation.systematics import cable_spring, offsets, wrist
 
     sweeps, groups = list(sweeps), list(groups)
     aug, names = wrist.columns(sweeps, groups, theta, nuisance_gains=False)  # the run's, no scatter found
     M, joints = cable_spring.levers(sweeps, groups, names, mount_rad) if names else (None, ())
-    if not joints:  # no wrist joint with a lever: the run has no wrist term
-        return offset_model(np.zeros((4, 4)))
+    if not joints:
+        return None
     k, p = len(names), len(joints)
     spring = [dataclasses.replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M])) for g in aug]
     spring, arm = offsets.augment(sweeps, spring, cable_spring.moving_arm_joint)  # as the run fits it (``fit_spring``)
@@ -190,7 +203,7 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     Y = np.vstack([g.Y for g in groups])
     sens = offsets.offset_sensitivities(sweeps, groups, w, np.linalg.pinv((Y * w[:, None]).T @ Y), offsets.wrist_joint)
     AM = np.column_stack([sens.get(lab, np.zeros(4)) for lab in names]) @ M
-    return spring_model(AM, cov[4:4 + p, 4:4 + p])
+    return AM, cov[4:4 + p, 4:4 + p]
 
 
 def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray, noise_cov: np.ndarray | None = None,
@@ -332,5 +345,5 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
 
 
 __all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model",
-           "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
+           "spring_covariance", "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]

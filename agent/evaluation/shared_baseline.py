@@ -56,8 +56,27 @@ def baseline_shares(model: FittedModel, theta_ref: Sequence[float], fitted_joint
     (``cross_term``). Joints without a map on any of their rows, or without a σ, are left out."""
     res = model.fit(ALL)
     groups = model.groups_of(ALL)
-    theta_ref = np.asarray(theta_ref, float)[:4]
     maps: dict[str, tuple] = {}
+
+    def times(i: int, a: np.ndarray) -> np.ndarray | None:
+        g = groups[i]
+        if g.noise_map is None or g.noise_map.shape[0] != len(g.y):
+            return None
+        if g.sweep not in maps:
+            maps[g.sweep] = _baseline_noise(g.noise_map)
+        S_b, mean_gain = maps[g.sweep]
+        return (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
+
+    return shares_on_rows(groups, theta_ref, fitted_joints, gain_rel_std, times)
+
+
+def shares_on_rows(groups, theta_ref: Sequence[float], fitted_joints: Sequence[int], gain_rel_std: Sequence[float],
+                   baseline_times) -> dict[int, dict[int, np.ndarray]]:
+    """``baseline_shares`` on any rows: ``groups`` the general fit's row groups, ``baseline_times(i, a)`` Σ_b,i·a for
+    group i (None: group i has no known baseline part). The run gives Σ_b from the deltas' noise maps, the plan
+    (``planned_cross_covariance``) from its white noise model; the calibration's weights a_j and the scale-down are
+    the same for both."""
+    theta_ref = np.asarray(theta_ref, float)[:4]
     out: dict[int, dict[int, np.ndarray]] = {}
     for j in fitted_joints:
         s_j = float(gain_rel_std[j]) if j < len(gain_rel_std) else 0.0
@@ -70,14 +89,11 @@ def baseline_shares(model: FittedModel, theta_ref: Sequence[float], fitted_joint
             continue
         k, v = {}, 0.0
         for i in mine:
-            g = groups[i]
-            if g.noise_map is None or g.noise_map.shape[0] != len(g.y):
-                continue
-            if g.sweep not in maps:
-                maps[g.sweep] = _baseline_noise(g.noise_map)
-            S_b, mean_gain = maps[g.sweep]
             a = pred_ref[i] / norm
-            k[i] = (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
+            ki = baseline_times(i, a)
+            if ki is None:
+                continue
+            k[i] = np.asarray(ki, float)
             v += float(a @ k[i])
         if v <= 0:
             continue
@@ -101,10 +117,16 @@ def cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_join
     ``fitted_joints`` (reference θ_ref, relative σ ``gain_rel_std`` per joint) used this run's empty baseline:
     Σ_j −(c_j·G_jᵀ + G_j·c_jᵀ), c_j = P·Σ_b·a_j (module docstring). Zero where no row has a noise map."""
     res = model.fit(ALL)
-    groups = model.groups_of(ALL)
-    inv, w, theta = res.normal_inverse, res.weights, res.theta
+    return fit_cross_term(model.groups_of(ALL), res.weights, res.normal_inverse, res.theta,
+                          baseline_shares(model, theta_ref, fitted_joints, gain_rel_std))
+
+
+def fit_cross_term(groups, weights: np.ndarray, normal_inverse: np.ndarray, theta: np.ndarray,
+                   shares: dict[int, dict[int, np.ndarray]]) -> np.ndarray:
+    """The general fit's cross term from its rows (``groups``, row ``weights``, (YᵀWY)⁻¹, θ) and the baseline's shares
+    on them (``shares_on_rows``): c_j = P·k_j, G_j = ∂θ/∂(relative gain of j) as ``wls.gain_covariance``."""
+    inv, w = normal_inverse, np.asarray(weights, float)
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
-    shares = baseline_shares(model, theta_ref, fitted_joints, gain_rel_std)
     c, G = {}, {}
     for j, k in shares.items():
         G[j] = sum((inv @ (g.Y.T @ (w[starts[i]:starts[i + 1]] * (g.Y @ theta)))  # ∂θ/∂ε_j, as wls.gain_covariance
@@ -112,6 +134,23 @@ def cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_join
         c[j] = inv @ sum((groups[i].Y.T @ (w[starts[i]:starts[i + 1]] * ki) for i, ki in k.items()),
                          np.zeros(len(theta)))
     return cross_term(c, G) if G else np.zeros((len(theta), len(theta)))
+
+
+def planned_cross_covariance(groups, weights: np.ndarray, theta: np.ndarray, theta_ref: Sequence[float],
+                             fitted_joints: Sequence[int], gain_rel_std: Sequence[float]) -> np.ndarray:
+    """The cross term a run of planned rows will report (``evaluation.design``, issue 22): the general fit's on
+    ``groups`` with row ``weights`` 1/σ² of white delta noise, θ the nominal payload. The loaded and the empty run
+    carry equal noise (the plan's model: each delta row's variance is twice one run's, halved where two legs are
+    averaged), so the baseline's part of a row is half its variance, Σ_b,i = I/(2·w_i), and independent between
+    samples (the run's interpolation of the empty run spreads each of its samples over neighbouring rows with
+    weights summing to one, which leaves a smooth a_j's aᵀΣ_b·a as it is)."""
+    w = np.asarray(weights, float)
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    Y = np.vstack([g.Y for g in groups])
+    inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
+    shares = shares_on_rows(groups, theta_ref, fitted_joints, gain_rel_std,
+                            lambda i, a: a / (2.0 * w[starts[i]:starts[i + 1]]))
+    return fit_cross_term(groups, w, inv, np.asarray(theta, float), shares)
 
 
 def three_step_cross_covariance(model: FittedModel, theta_ref: Sequence[float], fitted_joints: Sequence[int],
@@ -146,4 +185,5 @@ def note(mass_std_before_kg: float, mass_std_after_kg: float) -> str:
             f"{1000 * mass_std_after_kg:.2f} g)")
 
 
-__all__ = ["baseline_shares", "cross_covariance", "cross_term", "note", "three_step_cross_covariance"]
+__all__ = ["baseline_shares", "cross_covariance", "cross_term", "fit_cross_term", "note", "planned_cross_covariance",
+           "shares_on_rows", "three_step_cross_covariance"]

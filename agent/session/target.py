@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from payload_agent.configuration.config import Config
 from payload_agent.errors import ConfigError, DataError
 from payload_agent.evaluation.design import Choice, NoiseModel, choose
+from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.effort_noise import moving_and_standing_std
 from payload_agent.recording.state import RobotState
 from payload_agent.session import stream_density
@@ -116,8 +117,35 @@ def noise_for(config: Config) -> tuple[NoiseModel, str]:
     zeros = "" if gains.zeros is None else " and the joint zeros it measured"
     swept = effective_calibration(config).procedure
     swept = "" if swept is None else f" (it swept {swept.describe()})"
-    return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference),
+    shared = shared_baseline(config)
+    if shared is not None:
+        swept += (f"; a run of its stored baseline's plan ({shared.procedure} {shared.speed_percent:g} %) subtracts the "
+                  f"empty run the calibration did")
+    return (dataclasses.replace(noise, gain_rel_std=gains.rel_std, gain_reference=gains.reference,
+                                shared_baseline=shared),
             source + "; the stored drive-gain calibration's uncertainty" + zeros + swept)
+
+
+def shared_baseline(config: Config) -> SharedBaseline | None:
+    """The stored baseline when the stored calibration subtracted it (its empty run became it, or it reused it): a
+    run of its plan subtracts it too, and ``Gains.shared_baseline`` holds for that run; None otherwise."""
+    from pathlib import Path
+
+    from payload_agent.errors import BaselineError
+    from payload_agent.evaluation.baseline_identity import same_baseline
+    from payload_agent.evaluation.calibration import effective_calibration
+    from payload_agent.session.baseline import load_baseline
+
+    cal = effective_calibration(config)
+    try:
+        stored = load_baseline(RobotState.for_config(config))
+    except BaselineError:
+        return None
+    if cal is None or stored is None or not stored.source_run:
+        return None
+    if not same_baseline(cal.baseline_source, str(Path(stored.source_run).resolve())):
+        return None
+    return SharedBaseline(stored.plan_fingerprint, stored.procedure, float(stored.speed_percent))
 
 
 def _effort_noise(config: Config) -> tuple[NoiseModel, str]:
