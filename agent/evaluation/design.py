@@ -215,7 +215,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0]: the CoM's largest axis of the noise term
     J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
     axis = int(np.argmax(np.diag(J @ inv @ J.T)))
-    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS).with_estimate(
+    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS,
+                     both={d.key.name: d.key.direction == "both" for d in sweeps}).with_estimate(
         noise.inflation_rel_std)  # and the plan's inflation, itself one run's estimate
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
