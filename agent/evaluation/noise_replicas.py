@@ -32,6 +32,7 @@ from payload_agent.solvers import wls
 
 REPLICAS = 64  # per sweep
 REPLICA_SEED = 19
+MIN_SAMPLES = 24  # the shortest sweep replayed (the analysis refuses fewer than 20 overlapping samples)
 # where the empty run's samples fall against the loaded run's, in sample spacings: both runs are the same commanded
 # profile sampled on the controller's cycle, so at the same angles (the simulated controllers: the interpolation's
 # larger weight 0.97-1.00 in every sweep of sim-ec66's seeded runs). A stream not synchronous with the motion would
@@ -75,8 +76,11 @@ def noise_map(lo: float, hi: float, n: int, both: bool, rng: np.random.Generator
 def replay(n: int, both: bool, joints: int, replicas: int = REPLICAS, seed: int = REPLICA_SEED) -> SweepReplicas:
     """The run's Sokal windows and the rows' effective-sample factor on ``replicas`` draws of white noise for a
     sweep of ``n`` planned samples with ``joints`` joints' rows (the normalised residuals summed per instant, as
-    ``wls.fit`` forms the series it takes τ from). Depends on (n, both, joints) alone: cached."""
-    key = (int(n), bool(both), int(joints), int(replicas), int(seed))
+    ``wls.fit`` forms the series it takes τ from). Depends on (n, both, joints) alone: cached, n taken to the
+    nearest step of 2^¼ (±9 %: the windows' spread moves as 1/√n, by ±4.5 % across a step), so that the plan's
+    candidates share replicas (about 0.5 s each)."""
+    n = max(MIN_SAMPLES, int(round(2.0 ** (round(4.0 * math.log2(max(n, 1))) / 4.0))))
+    key = (n, bool(both), int(joints), int(replicas), int(seed))
     if key not in _CACHE:
         rng = np.random.default_rng(seed)
         windows, dof = [], []
