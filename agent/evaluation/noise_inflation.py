@@ -163,7 +163,8 @@ def measure(config: Config, loaded, empty, commands=None) -> Measured:
     directions = np.vstack([np.eye(len(theta))[0], J[axis]])
     excess = max(MIN_RATIO, mass / map_mass, cog / map_cog)
     spread = noise_scatter.scatter(list(model.groups), fit.weights, fit.normal_inverse, directions, excess,
-                                   SCATTER_DRAWS, kernel_only=True)
+                                   SCATTER_DRAWS, kernel_only=True,
+                                   both={k.name: k.direction == "both" for k in model.deltas})
     var_rel = spread.relative_std[0] if mass / map_mass >= cog / map_cog else spread.relative_std[1]
     # a variance's relative scatter is twice its root's
     return Measured(mass, cog, map_mass, map_cog, 0.5 * var_rel)

@@ -73,6 +73,13 @@ def noise_map(lo: float, hi: float, n: int, both: bool, rng: np.random.Generator
     return combined_map(np.linspace(a, b, count), legs)
 
 
+def effective_factor(noise) -> float:
+    """f = m·Σ C²/(tr C)² of rows whose noise map is ``noise`` ((m, sources), C = N·Nᵀ): a mean square of those
+    rows scatters as 2f/m (1 for independent rows of equal noise)."""
+    S = (noise @ noise.T).tocoo()
+    return S.shape[0] * float(np.sum(S.data ** 2)) / float(np.sum(S.diagonal())) ** 2
+
+
 def replay(n: int, both: bool, joints: int, replicas: int = REPLICAS, seed: int = REPLICA_SEED) -> SweepReplicas:
     """The run's Sokal windows and the rows' effective-sample factor on ``replicas`` draws of white noise for a
     sweep of ``n`` planned samples with ``joints`` joints' rows (the normalised residuals summed per instant, as
@@ -87,8 +94,7 @@ def replay(n: int, both: bool, joints: int, replicas: int = REPLICAS, seed: int 
         for _ in range(replicas):
             N = noise_map(0.0, 1.0, n, both, rng)
             m = N.shape[0]
-            S = (N @ N.T).tocoo()
-            dof.append(m * float(np.sum(S.data ** 2)) / float(np.sum(S.diagonal())) ** 2)
+            dof.append(effective_factor(N))
             e = N @ rng.standard_normal((N.shape[1], joints))
             z = (e / np.sqrt(np.mean(e ** 2, axis=0))).sum(axis=1)
             windows.append(wls.autocorrelation_time(z, max_lag=max(1, int(wls.HAC_MAX_FRACTION * m)))[1])
@@ -99,4 +105,4 @@ def replay(n: int, both: bool, joints: int, replicas: int = REPLICAS, seed: int 
 _CACHE: dict[tuple, SweepReplicas] = {}
 
 
-__all__ = ["REPLICAS", "SweepReplicas", "noise_map", "replay"]
+__all__ = ["REPLICAS", "SweepReplicas", "noise_map", "effective_factor", "replay"]
