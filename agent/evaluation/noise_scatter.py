@@ -23,8 +23,11 @@ scatter, both sized here from the planned rows as the run's fit forms them:
 
 Each draw takes independent standard normals for these sources (seeded, the same for every candidate: common
 random numbers) and gives the factor by which the run's noise variance of the mass, and of the centre of mass's
-largest axis, differs from the plan's noise term. Centred on the mean: the plan's noise term is calibrated to the
-runs' mean (``noise_inflation.WHITE_RATIO`` holds the kernel ratio's average excess).
+largest axis, differs from the plan's noise term. Centred on the mean, which ``NoiseScatter.kept`` gives: the
+ratio kept only above 1 makes the run's noise variance E[max(ratio, 1)] × its map's on average, 1.06 on j2_triple 7 %,
+0–15° on sim-ec66 and 1.03 on the calibration's paper_bd 5 %, 0–55° (the plan's noise term carries the candidate's, and
+``noise_inflation`` takes the calibration run's out of what it measured; until session 19 that run's stood for every
+candidate's: the plan's median 1–3 % under the runs' on the short sweeps, docs/benchmarks.md "Session 18").
 
 Measured (white effort noise of the simulated UR5e at 500 Hz, 30 seeds, offline recordings; docs/benchmarks.md
 "Session 15"): the run's robust σ scattered 1.7 % (mass) and 2.8 % (CoM) on j2_quarter 5 %, 0–20°, and 3.1 % /
@@ -77,6 +80,9 @@ class NoiseScatter:
     deviation: np.ndarray = dataclasses.field(compare=False, repr=False)
     relative_std: tuple[float, float] = (0.0, 0.0)
     estimate: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)  # (draws,)
+    # the run's mean noise variance over its noise map's, mass and CoM: Σ_s share_s·E[max(ratio_s, 1)] over its
+    # sweeps (the kernel ratio kept only above 1 raises the mean; more on short sweeps, whose ratio scatters more)
+    kept: tuple[float, float] = (1.0, 1.0)
 
     def factors(self) -> np.ndarray:
         """The run's noise variance over the plan's, per draw (never below 0)."""
@@ -86,7 +92,8 @@ class NoiseScatter:
     def over(self, runs: int) -> "NoiseScatter":
         """The same for ``runs`` repetitions averaged (each run's estimate is independent; the plan's is not)."""
         s = 1.0 / math.sqrt(runs)
-        return NoiseScatter(self.deviation * s, (self.relative_std[0] * s, self.relative_std[1] * s), self.estimate)
+        return NoiseScatter(self.deviation * s, (self.relative_std[0] * s, self.relative_std[1] * s), self.estimate,
+                            self.kept)
 
     def with_estimate(self, ratio_rel_std: float) -> "NoiseScatter":
         """The same, with the plan's inflation known only to ``ratio_rel_std`` (relative standard deviation of the
@@ -181,11 +188,14 @@ def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directi
         loads[len(groups) + s] = share
         positive[len(groups) + s] = True
     z = _normals(draws, n_src)
+    means = np.ones(n_src)
     for col, (centre, std) in zip(np.flatnonzero(positive), ratios):  # the run keeps max(ratio, 1): centred draws
         kept = np.maximum(centre + std * z[:, col], 1.0)
-        z[:, col] = kept - np.mean(kept)
+        means[col] = np.mean(kept)
+        z[:, col] = kept - means[col]
     deviation = z @ loads
-    return NoiseScatter(deviation, tuple(float(v) for v in np.std(deviation, axis=0)))
+    kept = (means[positive] @ loads[positive]) / np.maximum(loads[positive].sum(axis=0), 1e-300)
+    return NoiseScatter(deviation, tuple(float(v) for v in np.std(deviation, axis=0)), kept=tuple(float(k) for k in kept))
 
 
 __all__ = ["ESTIMATE_SEED", "kernel_factor", "windows", "NoiseScatter", "none", "kernel_ratio", "scatter"]
