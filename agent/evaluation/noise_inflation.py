@@ -58,6 +58,7 @@ class NoiseInflation:
     rel_std: float = 0.0  # relative standard deviation of ``ratio`` as one run's estimate (0: none measured)
     # what white noise shows on the stored run's rows (its noise map alone), mass and CoM: ``ratio``'s reference
     white_ratios: tuple[float, float] = (WHITE_RATIO, WHITE_RATIO)
+    kept: float = 1.0  # ``Measured.kept``: what white noise's kept kernel ratios give the stored run beyond its map
 
     def describe(self) -> str:
         if self.mass_ratio is None:
@@ -100,8 +101,8 @@ class Measured:
     map_mass_ratio: float  # what white noise shows on these rows: the angle matching's correlation alone
     map_cog_ratio: float
     rel_std: float  # relative standard deviation of ``excess`` as one run's estimate (its kernel ratios' scatter)
-    # the σ ratio white noise gives this run beyond its map on average: its kernel ratios kept only above 1
-    # (√``NoiseScatter.kept``; 1 where the map is not the reference)
+    # the σ ratio the run's kernel ratios, kept only above 1, give it beyond its map on average (√``NoiseScatter.kept``;
+    # also over ``WHITE_RATIO``, an average with its own: the plan multiplies each candidate's own back in)
     kept: float = 1.0
 
     @property
@@ -171,7 +172,7 @@ def measure(config: Config, loaded, empty, commands=None) -> Measured:
                                    both={k.name: k.direction == "both" for k in model.deltas})
     var_rel = spread.relative_std[0] if mass / map_mass >= cog / map_cog else spread.relative_std[1]
     # a variance's relative scatter is twice its root's
-    kept = 1.0 if cov_map is None else math.sqrt(spread.kept[0] if mass / map_mass >= cog / map_cog else spread.kept[1])
+    kept = math.sqrt(spread.kept[0] if mass / map_mass >= cog / map_cog else spread.kept[1])
     return Measured(mass, cog, map_mass, map_cog, 0.5 * var_rel, kept)
 
 
@@ -182,7 +183,7 @@ def of_run(config: Config, run_dir: Path) -> NoiseInflation:
     loaded, empty, commands = phases_for(Path(run_dir), np.asarray(config.effort.gains_nm_per_unit, float))
     m = measure(config, loaded, empty, commands)
     return NoiseInflation(m.excess, m.mass_ratio, m.cog_ratio, Path(run_dir).name, rel_std=m.rel_std,
-                          white_ratios=(m.map_mass_ratio, m.map_cog_ratio))
+                          white_ratios=(m.map_mass_ratio, m.map_cog_ratio), kept=m.kept)
 
 
 def stored(config: Config) -> NoiseInflation:

@@ -189,8 +189,10 @@ def scatter(groups: Sequence[wls.Group], w: np.ndarray, inv: np.ndarray, directi
         positive[len(groups) + s] = True
     z = _normals(draws, n_src)
     means = np.ones(n_src)
-    for col, (centre, std) in zip(np.flatnonzero(positive), ratios):  # the run keeps max(ratio, 1): centred draws
-        kept = np.maximum(centre + std * z[:, col], 1.0)
+    # the run keeps max(ratio, 1) of a ratio centred at the inflation² (the draws are relative to it): centred draws
+    floor = 1.0 / max(float(inflation), 1.0) ** 2
+    for col, (centre, std) in zip(np.flatnonzero(positive), ratios):
+        kept = np.maximum(centre + std * z[:, col], floor)
         means[col] = np.mean(kept)
         z[:, col] = kept - means[col]
     deviation = z @ loads
