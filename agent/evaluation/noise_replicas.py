@@ -6,13 +6,14 @@ replicas of white effort noise passed through the angle matching the run will do
 
 - **the deltas' correlation**: each delta is a loaded sample minus the empty run interpolated at its angle, and a
   combined sample half of each leg interpolated at the grid (``analysis.delta``, ``analysis.combine``); where the
-  two runs' samples fall against each other is chance. Correlated rows carry fewer effective samples: a group's
+  legs' samples fall against the grid is chance (and the empty run's against the loaded run's: ``EMPTY_PHASE``). Correlated rows carry fewer effective samples: a group's
   residual variance scatters as 2·Σᵢⱼ Cᵢⱼ²/(tr C)² (C the rows' noise covariance), not 2/m (sim-ec66, j2_triple
   7 %: 1.15× the variance).
 - **the Sokal window** the run picks from its residuals (``wls.autocorrelation_time``): on sim-ec66's combined
   sweeps τ comes out 1.4–1.6 and the window 4–19 lags, against the fixed 6 taken before; and the window is chosen
   from the same residuals whose kernel ratio it then sets, so a long window comes with a high ratio. Over 60 seeded
-  recordings the ratio's standard deviation was 0.19–0.21 per sweep with the run's window, 0.16–0.18 at a fixed 6.
+  recordings the ratio's standard deviation was 0.19–0.21 per sweep with the run's window, 0.16–0.18 at a fixed 6,
+  and 0.19–0.21 again at a fixed 8 (the runs' mean): the windows' level matters, the choice from the data hardly.
 
 Each replica draws where each leg's samples fall against ``combine_pair``'s grid (one sample's spacing, uniform;
 the empty run's against the loaded run's: ``EMPTY_PHASE``), builds the rows' noise map with the analysis' own
