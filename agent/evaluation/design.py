@@ -225,12 +225,14 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     w = np.concatenate(w_rows)
     Y = np.vstack([g.Y for g in groups])
     inv = np.linalg.pinv((Y * w[:, None]).T @ Y)
-    terms = {"noise": inv * noise.inflation ** 2}
     J = np.zeros((3, 4))  # the delta method's Jacobian of c = θ[1:]/θ[0]: the CoM's largest axis of the noise term
     J[:, 0], J[:, 1:] = -theta[1:] / theta[0] ** 2, np.eye(3) / theta[0]
     axis = int(np.argmax(np.diag(J @ inv @ J.T)))
-    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS).with_estimate(
+    spread = scatter(groups, w, inv, np.vstack([np.eye(4)[0], J[axis]]), noise.inflation, DRAWS,
+                     both={d.key.name: d.key.direction == "both" for d in sweeps}).with_estimate(
         noise.inflation_rel_std)  # and the plan's inflation, itself one run's estimate
+    # the run's noise term on average: the kernel ratio it keeps only above 1 (``NoiseScatter.kept``, the mass's)
+    terms = {"noise": inv * noise.inflation ** 2 * spread.kept[0]}
     # the terms the run sizes from its data, as it will on average (``planned_terms``): they depend on the
     # noise and the samples, so per candidate
     rel = noise.gain_rel_std

@@ -58,6 +58,7 @@ class NoiseInflation:
     rel_std: float = 0.0  # relative standard deviation of ``ratio`` as one run's estimate (0: none measured)
     # what white noise shows on the stored run's rows (its noise map alone), mass and CoM: ``ratio``'s reference
     white_ratios: tuple[float, float] = (WHITE_RATIO, WHITE_RATIO)
+    kept: float = 1.0  # ``Measured.kept``: what white noise's kept kernel ratios give the stored run beyond its map
 
     def describe(self) -> str:
         if self.mass_ratio is None:
@@ -100,11 +101,15 @@ class Measured:
     map_mass_ratio: float  # what white noise shows on these rows: the angle matching's correlation alone
     map_cog_ratio: float
     rel_std: float  # relative standard deviation of ``excess`` as one run's estimate (its kernel ratios' scatter)
+    # the σ ratio the run's kernel ratios, kept only above 1, give it beyond its map on average (√``NoiseScatter.kept``;
+    # also over ``WHITE_RATIO``, an average with its own: the plan multiplies each candidate's own back in)
+    kept: float = 1.0
 
     @property
     def excess(self) -> float:
-        """How much wider than white noise the run's noise was: the reported ratio over the map's (never < 1)."""
-        return max(MIN_RATIO, self.mass_ratio / self.map_mass_ratio, self.cog_ratio / self.map_cog_ratio)
+        """How much wider than white noise the run's noise was: the reported ratio over the map's (never < 1), over
+        what white noise gives on these rows on average (``kept``): the plan adds each candidate's own."""
+        return max(MIN_RATIO, self.mass_ratio / self.map_mass_ratio, self.cog_ratio / self.map_cog_ratio) / self.kept
 
 
 def _map_covariance(model, fit) -> np.ndarray | None:
@@ -161,12 +166,14 @@ def measure(config: Config, loaded, empty, commands=None) -> Measured:
     J[:, 0], J[:, 1:4] = -theta[1:4] / theta[0] ** 2, np.eye(3) / theta[0]
     axis = int(np.argmax(np.diag(J @ fit.cov @ J.T)))
     directions = np.vstack([np.eye(len(theta))[0], J[axis]])
-    excess = max(MIN_RATIO, mass / map_mass, cog / map_cog)
+    excess = max(MIN_RATIO, mass / map_mass, cog / map_cog)  # the scatter's window scale (as before)
     spread = noise_scatter.scatter(list(model.groups), fit.weights, fit.normal_inverse, directions, excess,
-                                   SCATTER_DRAWS, kernel_only=True)
+                                   SCATTER_DRAWS, kernel_only=True,
+                                   both={k.name: k.direction == "both" for k in model.deltas})
     var_rel = spread.relative_std[0] if mass / map_mass >= cog / map_cog else spread.relative_std[1]
     # a variance's relative scatter is twice its root's
-    return Measured(mass, cog, map_mass, map_cog, 0.5 * var_rel)
+    kept = math.sqrt(spread.kept[0] if mass / map_mass >= cog / map_cog else spread.kept[1])
+    return Measured(mass, cog, map_mass, map_cog, 0.5 * var_rel, kept)
 
 
 def of_run(config: Config, run_dir: Path) -> NoiseInflation:
@@ -176,7 +183,7 @@ def of_run(config: Config, run_dir: Path) -> NoiseInflation:
     loaded, empty, commands = phases_for(Path(run_dir), np.asarray(config.effort.gains_nm_per_unit, float))
     m = measure(config, loaded, empty, commands)
     return NoiseInflation(m.excess, m.mass_ratio, m.cog_ratio, Path(run_dir).name, rel_std=m.rel_std,
-                          white_ratios=(m.map_mass_ratio, m.map_cog_ratio))
+                          white_ratios=(m.map_mass_ratio, m.map_cog_ratio), kept=m.kept)
 
 
 def stored(config: Config) -> NoiseInflation:
