@@ -128,7 +128,6 @@ class NoiseModel:
     shared_baseline: SharedBaseline | None = None
 
 
-
 def with_candidate(config: Config, c: Candidate) -> Config:
     pc = dataclasses.replace(config.procedure, speed_percent=c.speed_percent, travel_speed_percent=c.travel_percent,
                              sweep_from_deg=c.sweep_from_deg, sweep_to_deg=c.sweep_to_deg,
