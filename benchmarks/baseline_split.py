@@ -104,7 +104,7 @@ def report(rows: list[dict]) -> None:
     a, b, c = (np.array([r[k] for r in rows]) for k in ("err_a", "err_b", "err_c"))
     names = sorted({k for r in rows for k in r["parts"]})
     claimed = {k: np.mean([np.asarray(r["parts"].get(k, np.zeros((4, 4)))) for r in rows], axis=0) for k in names}
-    print(f"\n{len(rows)} seeds; variances in (g or g·m)² × 1e6, measured over the seeds against claimed (mean)")
+    print(f"\n{len(rows)} seeds; variances in g² (m) and (g·m)² (m·c), measured over the seeds against claimed (mean)")
     print("| θ | E[e_A²] | claimed, all parts | E[e_B²] (tool run) | noise | E[(e_A−e_B)²] (calibration) | gains + zeros"
           " | 2E[e_B(e_A−e_B)] | shared baseline | DH lengths | others |\n|---|---|---|---|---|---|---|---|---|---|---|")
     for i, n in enumerate(PARAMS):
