@@ -64,12 +64,15 @@ class SimRobot:
                  noise_nm: float | Sequence[float] = 0.0, seed: int | None = None,
                  payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0,
                  effects: PhysicsEffects | None = None, noise_rest_nm: float | Sequence[float] | None = None,
-                 ripple_seed: int | None = None):
+                 ripple_seed: int | None = None, session: int = 0):
         """``noise_nm``: each joint's effort noise (standard deviation) while it moves; ``noise_rest_nm``: while
         it stands (None: the same). A real drive's torque fluctuates more in motion (gear mesh, control activity)
         than at rest: measured 2-5x on a UR10e (docs/sources.md, "Effort noise of the simulated UR5e").
         ``ripple_seed``: fixes the gears' ripple phases (None: ``seed``), so two instances standing for the same
-        arm (an empty and a loaded run recorded apart) share its gears while their noise differs."""
+        arm (an empty and a loaded run recorded apart) share its gears while their noise differs.
+        ``session``: which power-on of this arm it is (``SimulatedCell`` counts them per robot state). A real
+        drive's noise does not repeat when the controller restarts; 0 draws what a seeded robot always drew, each
+        later session its own noise (effort, angles, timestamps) from the same seed, on the same arm and gears."""
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)
@@ -82,10 +85,11 @@ class SimRobot:
         self.noise_nm = np.broadcast_to(np.asarray(noise_nm, float), (6,)).copy()
         self.noise_rest_nm = (self.noise_nm.copy() if noise_rest_nm is None
                               else np.broadcast_to(np.asarray(noise_rest_nm, float), (6,)).copy())
-        self.rng = np.random.default_rng(seed)
+        self.rng = np.random.default_rng(seed if seed is None or not session else [int(seed), 20, int(session)])
         # angle noise and timestamp jitter draw from their own stream: switching them on leaves the
         # effort noise of a seeded robot unchanged
-        self._sensor_rng = np.random.default_rng(None if seed is None else [int(seed), 10])
+        self._sensor_rng = np.random.default_rng(
+            None if seed is None else [int(seed), 10] + ([int(session)] if session else []))
         self._ripple_phases = ripple_phases(seed if ripple_seed is None else ripple_seed)
         self._temperature_c = np.full(6, self.effects.temperature_ref_c)
         self._tau_gear = np.zeros(6)  # last tick's torque through the gears (start of the elastic fixed point)

@@ -102,6 +102,9 @@ class SimulationConfig:
     # the simulated arm's DH lengths against the YAML's kinematics, which the agent uses: each non-zero a and d off
     # by a uniform draw within ± this, seeded by ``seed`` (``fakes.arms.simulated_spec``); 0: exact, as shipped
     dh_length_error_mm: float = 0.0
+    # not a YAML key: which session of this simulated robot the cell starts (``session.simulation``), so that a
+    # calibration, a stored baseline and the run after them do not draw the same noise
+    session: int = 0
 
 
 def _inertia(payload: Node) -> tuple[tuple[float, float, float], ...]:

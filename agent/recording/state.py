@@ -48,6 +48,11 @@ class RobotState:
     def history_db(self) -> Path:
         return self.root / "history.sqlite"
 
+    @property
+    def simulated_sessions_path(self) -> Path:
+        """How many times a simulated controller was started for this robot (``session.simulation``)."""
+        return self.root / "simulated-sessions"
+
     def ensure(self) -> "RobotState":
         self.root.mkdir(parents=True, exist_ok=True)
         return self

@@ -8,6 +8,7 @@ protocol. Tool changes between the empty and the loaded run happen here.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from payload_agent.configuration.config import Config
@@ -27,6 +28,8 @@ class SimulatedCell:
         if config.simulation.arm not in SPECS:
             raise ConfigError("simulation.arm", f"unknown simulated arm {config.simulation.arm!r}; "
                                                 f"known: {', '.join(sorted(SPECS))}", config.source)
+        config = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation,
+                                                                            session=count_session(config)))
         self.config = config
         self.sim = config.simulation
         try:  # the simulated controller binds its ports as it is made
@@ -80,6 +83,30 @@ class SimulatedCell:
         if self.truth_inertia_com is not None:
             truth["inertia_com_kgm2"] = [list(row) for row in self.truth_inertia_com]
         return truth
+
+
+def count_session(config: Config) -> int:
+    """This session's number for the simulated robot, counted in the robot's state folder (0 the first time).
+
+    A seeded simulation draws the same noise each time it starts; a calibration, a stored baseline and the run
+    after them would then share their noise draws, which no real drive does, and their errors would cancel in the
+    subtraction (session 19: the online CoM errors after ``calibrate`` were a third of the offline ones). Each
+    session gets its own noise on the same arm (``SimRobot(session=...)``). A state folder that cannot be
+    written counts nothing: 0, the seed's own noise.
+    """
+    from payload_agent.recording.state import RobotState
+
+    path = RobotState.for_config(config).simulated_sessions_path
+    try:
+        done = int(path.read_text().strip() or 0) if path.exists() else 0
+    except (OSError, ValueError):
+        done = 0
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"{done + 1}\n")
+    except OSError:
+        return 0
+    return done
 
 
 def _cannot_listen(config: Config, exc: OSError) -> CommunicationError:
