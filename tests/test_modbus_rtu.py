@@ -137,6 +137,11 @@ def test_identification_over_rtu(tmp_path):
     data = tweak(data, "effort", {"unit": "Nm", "gains_nm_per_unit": 1.0})
     data = tweak(data, "simulation.time_scale", 2.5)  # the generic map carries a controller clock
     data = tweak(data, "procedure.bidirectional", False)
+    # one leg per sweep, so friction cancels only by subtracting the empty run, and its load-dependent part does
+    # not (0.005 x about 10 N·m on joint 2: some 10 g of mass, differing between the poses). The quality gate
+    # refused 2 of about 16 CI runs on the poses' agreement (3.01 and 3.18 against 3), likely from it: an effect
+    # of the shortened procedure, not of the RTU path, so here the arm's friction does not grow with the load
+    data = tweak(data, "simulation.friction.load_ratio", 0.0)
     data = tweak(data, "procedure.name", "j2_pair")  # 2 sweeps a run: the RTU path is under test, not the procedure
     data = tweak(data, "simulation.noise_nm", 0.5)
     data = tweak(data, "simulation.noise_rest_nm", 0.5)  # one level, moving or standing
