@@ -1,7 +1,7 @@
 """Each session of a simulated robot draws its own sensor noise on the same arm, as a real drive does after a restart.
 
 A calibration, a stored baseline and the run after them are separate sessions. With one noise draw for all of them
-their errors cancelled in the subtraction: in session 19 the online CoM errors after ``calibrate`` were a third of
+their errors cancelled in the subtraction: in session 19 the online CoM errors after ``calibrate`` were less than half
 the offline ones, and the reported σ looked too wide against them.
 """
 

@@ -90,7 +90,7 @@ def count_session(config: Config) -> int:
 
     A seeded simulation draws the same noise each time it starts; a calibration, a stored baseline and the run
     after them would then share their noise draws, which no real drive does, and their errors would cancel in the
-    subtraction (session 19: the online CoM errors after ``calibrate`` were a third of the offline ones). Each
+    subtraction (session 19: the online CoM errors after ``calibrate`` were less than half the offline ones). Each
     session gets its own noise on the same arm (``SimRobot(session=...)``). A state folder that cannot be
     written counts nothing: 0, the seed's own noise.
     """
