@@ -29,6 +29,8 @@ ACCELS_PERCENT = (40.0, 100.0)
 REPETITIONS = (1,)
 # "" = the configured procedure; the others are bundled (procedures/*.yaml)
 PROCEDURES = ("", "j2_pair", "j2_triple", "j2_quarter")
+# ``Candidate.inertia``: the robot YAML's inertia part (``procedure.inertia``) as it is
+CONFIGURED = "as configured"
 
 
 @dataclass(frozen=True)
@@ -40,12 +42,20 @@ class Candidate:
     repetitions: int = 1
     accel_percent: float = 20.0
     procedure: str = ""  # procedure name or file; "" = the configured one
+    # the run's inertia part (``procedure.inertia``: a wrist procedure's name, None off); ``CONFIGURED``: the YAML's.
+    # Only the stored baseline's plan sets it (``session.stored_candidate``): its run must make that plan exactly
+    inertia: str | None = CONFIGURED
+    # the stored baseline's plan: its run reuses the stored empty run (the calibration's, when it recorded it)
+    stored_baseline: bool = False
 
     def describe(self) -> str:
         reps = f" ×{self.repetitions}" if self.repetitions > 1 else ""
         proc = f"{self.procedure}: " if self.procedure else ""
+        inertia = ("" if self.inertia == CONFIGURED else
+                   ", inertia part off" if self.inertia is None else f", inertia part {self.inertia}")
+        stored = ", the stored baseline's plan" if self.stored_baseline else ""
         return (f"{proc}sweep {self.speed_percent:g} %, travel {self.travel_percent:g} %, "
-                f"accel {self.accel_percent:g} %, {self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}")
+                f"accel {self.accel_percent:g} %, {self.sweep_from_deg:g}–{self.sweep_to_deg:g}°{reps}{inertia}{stored}")
 
 
 def candidates(speeds: Iterable[float] = SPEEDS_PERCENT, travels: Iterable[float] = TRAVEL_PERCENT,

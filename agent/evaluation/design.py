@@ -47,8 +47,9 @@ import numpy as np
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.evaluation.effort_noise import measured_effort_std  # noqa: F401
-from payload_agent.evaluation.candidates import (ACCELS_PERCENT, PROCEDURES, RANGES_DEG, REPETITIONS,  # noqa: F401
-                                                 SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates, candidates_for)
+from payload_agent.evaluation.candidates import (ACCELS_PERCENT, CONFIGURED, PROCEDURES, RANGES_DEG,  # noqa: F401
+                                                 REPETITIONS, SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates,
+                                                 candidates_for)
 from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
 from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
@@ -165,9 +166,9 @@ def plan_for(config: Config, c: Candidate) -> Plan:
 
 
 def run_config(config: Config, c: Candidate) -> Config:
-    """The config a run of the candidate uses: the written robot YAML keeps ``procedure.inertia`` (``target_file``)."""
-    cfg = with_candidate(config, c)
-    return dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=config.procedure.inertia))
+    """The config a run of the candidate uses: the written robot YAML keeps ``procedure.inertia`` unless it sets it."""
+    cfg, inertia = with_candidate(config, c), config.procedure.inertia if c.inertia == CONFIGURED else c.inertia
+    return dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=inertia))
 
 
 def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
@@ -254,10 +255,9 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
                                                 noise.inflation, noise.friction_known)
     # the systematic terms do not shrink with more samples; they depend on where the samples lie
     # (procedure and sweep range) and hardly on the speed: computed once per range (the DH-length part is slow)
-    # (the calibration's measured response to the DH lengths, when it stored one, is part of what the term depends on)
     ref = None if noise.gain_reference is None else (tuple(noise.gain_reference[0]), tuple(noise.gain_reference[1]),
                                                      length_response.of_reference(noise.gain_reference))
-    # (keyed by what the terms depend on: the candidate's config is a new object per candidate)
+    # (keyed by what the terms depend on, the calibration's measured length response too: not the config object)
     key = (config.source, repr(config.robot.dh), plan.procedure.fingerprint,
            plan.moves[1].target_rad if len(plan.moves) > 1 else None,
            tuple(theta), rel, noise.length_std_m, ref, repr(noise.joints))

@@ -47,6 +47,9 @@ class BaselineInfo:
     source_run: str
     software_version: str
     joint_temperatures_c: list[float] | None = None
+    # the procedure keys the plan was made from (``procedure_keys``), so that ``plan --target-std`` can offer the run
+    # that reuses this baseline (``session.stored_candidate``); None in baselines stored before they were recorded
+    procedure_keys: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"format": BASELINE_FORMAT, **asdict(self)}
@@ -65,6 +68,16 @@ def controller_identity(info: ControllerInfo) -> dict[str, str]:
     return {"vendor": info.vendor, "model": info.model, "firmware": info.firmware, "serial": info.serial}
 
 
+def procedure_keys(config: Config) -> dict[str, Any]:
+    """The ``procedure`` keys a plan of ``config`` is made from, as the robot YAML spells them (the config as the
+    session used it: a ``calibrate --procedure``/``--speed-percent`` override included, which its YAML lacks)."""
+    pc = config.procedure
+    return {"name": pc.name, "speed_percent": float(pc.speed_percent),
+            "travel_speed_percent": float(pc.travel_speed_percent), "accel_percent": float(pc.accel_percent),
+            "base_deg": float(pc.base_deg), "sweep_deg": [float(pc.sweep_from_deg), float(pc.sweep_to_deg)],
+            "bidirectional": bool(pc.bidirectional), "inertia": pc.inertia or False}
+
+
 def describe_for(config: Config, plan: Plan, info: ControllerInfo, source_run: Path,
                  recorded_utc: str | None = None,
                  joint_temperatures_c: list[float] | None = None) -> BaselineInfo:
@@ -75,7 +88,8 @@ def describe_for(config: Config, plan: Plan, info: ControllerInfo, source_run: P
         bidirectional=config.procedure.bidirectional,
         recorded_utc=recorded_utc or datetime.now(timezone.utc).isoformat(timespec="seconds"),
         source_run=str(source_run), software_version=__version__,
-        joint_temperatures_c=None if joint_temperatures_c is None else [float(t) for t in joint_temperatures_c])
+        joint_temperatures_c=None if joint_temperatures_c is None else [float(t) for t in joint_temperatures_c],
+        procedure_keys=procedure_keys(config))
 
 
 def load_baseline(state: RobotState) -> BaselineInfo | None:

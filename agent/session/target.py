@@ -6,7 +6,8 @@ baseline is refused with what to do. The samples per second of sweep are what th
 (``stream_density``), else the nominal rate; the noise's correlation in time widens the noise term by the
 robust-to-white σ ratio the stored calibration run's own fit showed (``noise_inflation``), else not. The drive gains' uncertainty is the one the run will carry:
 the stored calibration's (whose fit also absorbs most of the DH-length error), or none with nominal
-gains, exactly as ``pipeline.run_gains`` gives the run. The payload the prediction assumes is the
+gains, exactly as ``pipeline.run_gains`` gives the run. The candidates are the grid and the stored baseline's plan, whose
+run reuses the stored empty run (``stored_candidate``). The payload the prediction assumes is the
 user's (``--payload-kg``/``--payload-cog-mm`` or a tool library entry), else a nominal one, and the
 output names it. The prediction itself is ``evaluation.design``.
 """
@@ -197,8 +198,10 @@ def plan_for_target(config: Config, text: str, payload: ExpectedPayload | None =
     grams, mm = parse_target(text)
     payload = payload or expected_payload(config)
     noise, source = noise or noise_for(config)
+    from payload_agent.session.stored_candidate import grid_for
+
     return choose(config, grams, mm, noise, nominal_mass_kg=payload.mass_kg, nominal_cog_mm=payload.cog_mm,
-                  start_q=start_q), source
+                  grid=grid_for(config), start_q=start_q), source
 
 
 def plan_target(config: Config, args, start_q, con) -> dict:
@@ -241,12 +244,22 @@ def plan_target(config: Config, args, start_q, con) -> dict:
             + ", ".join(f"{k}: {v}" for k, v in keys.items()))
     con.say(f"Written with the rest of {config.source} to {path}; run it with:\n"
             f"  payload-agent run --robot {path}")
-    if config.procedure.inertia is not None:
+    from payload_agent.evaluation.design import run_config
+
+    inertia = run_config(config, best.candidate).procedure.inertia
+    if best.candidate.stored_baseline:
+        con.say("It is the stored baseline's plan: its run reuses the stored empty-flange run (records none of its "
+                "own)" + (", the one the drive-gain calibration subtracted" if noise[0].shared_baseline else "")
+                + ("" if inertia == config.procedure.inertia else
+                   f"; its inertia part as that baseline recorded it ({inertia or 'off'}, the YAML: "
+                   f"{config.procedure.inertia or 'off'})"))
+    if inertia is not None:
         con.say(f"The robot time above is the mass and centre-of-mass part; the written file keeps "
-                f"procedure.inertia ({config.procedure.inertia}), whose wrist moves come on top (`plan` shows them).")
+                f"procedure.inertia ({inertia}), whose wrist moves come on top (`plan` shows them).")
     out["chosen"] = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                      "mass_std_g": best.mass_std_g, "cog_std_mm": best.cog_std_mm,
                      "mass_rms_std_g": best.mass_rms_std_g, "cog_rms_std_mm": best.cog_rms_std_mm,
                      "p_over_target": best.p_over(grams, mm), "procedure_keys": keys,
-                     "robot_file": str(path), "inertia_part": config.procedure.inertia}
+                     "robot_file": str(path), "inertia_part": inertia,
+                     "reuses_stored_baseline": best.candidate.stored_baseline}
     return out

@@ -26,9 +26,14 @@ def procedure_keys(config: Config, candidate) -> dict[str, Any]:
     path = Path(name)
     if path.suffix in (".yaml", ".yml") and path.exists():
         name = str(path.resolve())
-    return {"name": name, "speed_percent": float(candidate.speed_percent),
+    from payload_agent.evaluation.candidates import CONFIGURED
+
+    keys = {"name": name, "speed_percent": float(candidate.speed_percent),
             "travel_speed_percent": float(candidate.travel_percent), "accel_percent": float(candidate.accel_percent),
             "sweep_deg": [float(candidate.sweep_from_deg), float(candidate.sweep_to_deg)]}
+    if candidate.inertia != CONFIGURED:  # the stored baseline's plan: its inertia part as it recorded it
+        keys["inertia"] = candidate.inertia or False
+    return keys
 
 
 def chosen_yaml(config: Config, candidate) -> dict[str, Any]:
