@@ -8,7 +8,8 @@ hold the truth.
 
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
         [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]
-        [--calibrate-procedure NAME|FILE]]]
+        [--calibrate-procedure NAME|FILE] [--calibrate-sweep-deg FROM,TO] [--calibrate-travel PERCENT]
+        [--calibrate-accel PERCENT]] [--reuse-baseline]]
         [--driver-option KEY=VALUE] [--dh-error-mm MM]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
@@ -22,7 +23,11 @@ the effort noise and the stream's samples per second in it; the run still record
 reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it. ``--calibrate-with``
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
 ``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
-its procedure (the YAML's otherwise). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
+its procedure (the YAML's otherwise), ``--calibrate-sweep-deg``/``--calibrate-travel``/``--calibrate-accel`` its
+range, travel speed and acceleration (as a copy of the YAML with those keys would give them). ``--reuse-baseline``: the
+run reuses the stored baseline when its plan has the baseline's fingerprint, as ``run`` does (the chosen candidate is
+then the calibration's plan, ``session.stored_candidate``), the inertia part off for the whole seed so that the
+calibration's, the plan's and the run's plans agree. ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
 plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
 --robot`` the written file), predict that procedure again with the calibration and run it with the stored baseline,
 as ``run`` does without ``--fresh-baseline``: the run subtracts the calibration's empty run, and its σ and the
@@ -65,7 +70,8 @@ def parse_reference(text: str | None) -> tuple:
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
                 calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False,
-                dh_error_mm: float = 0.0, calibrate_procedure: str | None = None):
+                dh_error_mm: float = 0.0, calibrate_procedure: str | None = None, calibrate_keys: dict | None = None,
+                inertia: bool = True):
     """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
     YAML's procedure stored, then calibrated, first when asked: on ``calibrate_procedure``, a procedure's name or
     file, as ``calibrate --procedure``, else the YAML's); ``dh_error_mm``: the simulated arm's DH lengths off
@@ -79,13 +85,20 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
     data.pop("watch", None)
     if DRIVER_OVERRIDES:  # ``--driver-option KEY=VALUE``: a harness setting for a loaded host, printed with the results
         data["driver"].update(DRIVER_OVERRIDES)
+    if not inertia:  # the whole seed without the inertia part (calibration, plan and run alike)
+        data["procedure"]["inertia"] = False
     config = parse_config(data, source=f"configs/{robot}.yaml", base_dir=ROOT / "configs")
     if baseline:  # `payload-agent baseline`: the plan then measures the noise and the stream in it
         run_identification(config, RunOptions(mode="baseline", **_quiet(retry_sweeps)), _silent())
     if calibrate:
         from payload_agent.calibrate_args import with_procedure, with_speed
 
-        calibrate_on(with_procedure(with_speed(config, calibrate_speed), calibrate_procedure), reference, retry_sweeps)
+        cal = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
+        if calibrate_keys:  # the rest of the calibration's procedure keys, as a copy of the YAML would give them
+            import dataclasses
+
+            cal = dataclasses.replace(cal, procedure=dataclasses.replace(cal.procedure, **calibrate_keys))
+        calibrate_on(cal, reference, retry_sweeps)
     return config
 
 
@@ -110,11 +123,12 @@ def _silent() -> OperatorUI:
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
             baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None,
-            calibrate_on_chosen: bool = False) -> dict:
+            calibrate_on_chosen: bool = False, calibrate_keys: dict | None = None, reuse_baseline: bool = False
+            ) -> dict:
     import dataclasses
 
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
-                         dh_error_mm, calibrate_procedure)
+                         dh_error_mm, calibrate_procedure, calibrate_keys, inertia=not reuse_baseline)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
@@ -150,9 +164,10 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target)),
                 "pred_wrist_share": float(np.mean(wrist.a > 0)),  # the plan's chance the run's wrist term is in σ
-                "pred_shared_baseline": bool(shared), "calibrated_on": calibrated_on, "pred_baseline_cut": list(term_sigmas(-terms["baseline"], sim))}
+                "pred_shared_baseline": bool(shared), "stored_plan": best.candidate.stored_baseline, "calibrated_on": calibrated_on, "pred_baseline_cut": list(term_sigmas(-terms["baseline"], sim))}
     planned_share, planned = stream_share(config), noise_inflation.stored(config)
-    outcome = run_identification(config, RunOptions(fresh_baseline=not calibrate_on_chosen, **quiet), ui)
+    reuse = calibrate_on_chosen or reuse_baseline
+    outcome = run_identification(config, RunOptions(fresh_baseline=not reuse, **quiet), ui)
     try:  # what the run's σ follows: its own robust-to-white ratio (a diagnostic: a run it cannot fit still counts)
         own = noise_inflation.of_run(config, outcome.run_dir)
         ratio = [own.mass_ratio, own.cog_ratio]
@@ -174,7 +189,9 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
     return {"seed": seed, "error": [float(e) for e in err], "std": [float(s) for s in std],
             "passed": bool(outcome.result.quality.get("passed")), "wrist_note": wrist[0] if wrist else None,
             "wrist_weight": wrist_weight(wrist[0] if wrist else None),
-            "shared_baseline": any("empty baseline" in n for n in est.notes), **plan}
+            "shared_baseline": any("empty baseline" in n for n in est.notes),
+            "reused_baseline": "from_baseline" in json.loads((outcome.run_dir / "manifest.json").read_text())[
+                "phases"]["empty"], **plan}
 
 
 def wrist_weight(note: str | None) -> float:
@@ -247,6 +264,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calibrate-on-chosen", action="store_true",
                    help="with --target-std: calibrate on the chosen procedure, predict it again, run it with the stored "
                         "baseline")
+    p.add_argument("--calibrate-sweep-deg", metavar="FROM,TO", help="the calibration's sweep range (the YAML's otherwise)")
+    p.add_argument("--calibrate-travel", type=float, metavar="PERCENT", help="the calibration's travel speed")
+    p.add_argument("--calibrate-accel", type=float, metavar="PERCENT", help="the calibration's acceleration")
+    p.add_argument("--reuse-baseline", action="store_true",
+                   help="the run reuses the stored baseline when its plan has its fingerprint, as `run` does (else "
+                        "each run records its own empty run); the inertia part off for the whole seed")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
@@ -255,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="set a driver key for every seed (a Modbus timeout_s on a loaded host); printed with the results")
     args = p.parse_args(argv)
     reference = parse_reference(args.calibrate_with)
+    keys = {k: v for k, v in (("travel_speed_percent", args.calibrate_travel), ("accel_percent", args.calibrate_accel))
+            if v is not None}
+    if args.calibrate_sweep_deg:
+        keys["sweep_from_deg"], keys["sweep_to_deg"] = (float(v) for v in args.calibrate_sweep_deg.split(","))
     for item in args.driver_option:
         key, _, value = item.partition("=")
         DRIVER_OVERRIDES[key] = yaml.safe_load(value)
@@ -266,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
                             args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
-                            args.calibrate_procedure, args.calibrate_on_chosen)
+                            args.calibrate_procedure, args.calibrate_on_chosen, keys, args.reuse_baseline)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
