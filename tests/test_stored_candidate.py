@@ -33,8 +33,13 @@ def _store(config, recorded):
     return info
 
 
-def _reusing(config, grid, fingerprint):
-    return [c for c in grid if make_plan(design.run_config(config, c)).fingerprint() == fingerprint]
+def _reusing(config, grid, info):
+    """The candidates whose run reuses the stored baseline (``SharedBaseline.reused_by``: the fingerprint, after a
+    cheap screen on the procedure's name and sweep speed)."""
+    from payload_agent.evaluation.planned_baseline import SharedBaseline
+
+    stored = SharedBaseline(info.plan_fingerprint, info.procedure, info.speed_percent)
+    return [c for c in grid if stored.reused_by(design.run_config(config, c))]
 
 
 def test_the_grid_holds_the_stored_baselines_plan_exactly_when_one_is_stored(monkeypatch, tmp_path):
@@ -51,8 +56,8 @@ def test_the_grid_holds_the_stored_baselines_plan_exactly_when_one_is_stored(mon
         config.procedure, name="j2_triple", speed_percent=7.0, inertia=None))
     info = _store(config, calibrated)
     grid = grid_for(config)
-    assert _reusing(config, candidates_for(config), info.plan_fingerprint) == []
-    reusing = _reusing(config, grid, info.plan_fingerprint)
+    assert _reusing(config, candidates_for(config), info) == []
+    reusing = _reusing(config, grid, info)
     assert len(reusing) == 1 and len(grid) == len(candidates_for(config)) + 1
     c = reusing[0]
     assert c.stored_baseline and c.inertia is None and c.procedure == "j2_triple"
@@ -61,7 +66,7 @@ def test_the_grid_holds_the_stored_baselines_plan_exactly_when_one_is_stored(mon
         config.procedure.sweep_to_deg)
     # the YAML's own procedure: the candidate keeps the YAML's inertia part, and the written keys do not touch it
     info = _store(config, config)
-    (c,) = _reusing(config, grid_for(config), info.plan_fingerprint)
+    (c,) = _reusing(config, grid_for(config), info)
     assert c.stored_baseline and c.inertia == CONFIGURED and c.procedure == ""
     from payload_agent.session.target_file import procedure_keys
 
