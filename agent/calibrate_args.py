@@ -73,3 +73,32 @@ def with_procedure(config: Config, name_or_file: str | None) -> Config:
     # (j2_quarter on sim-ur5e: a 270° approach of joint 6 that the safety gate refuses before the loaded run)
     return dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, name=name_or_file,
                                                                      inertia=None))
+
+
+def with_sweep_and_motion(config: Config, sweep_deg: str | None = None, travel_percent: float | None = None,
+                          accel_percent: float | None = None) -> Config:
+    """The config with ``--sweep-deg FROM,TO``, ``--travel-speed-percent`` and ``--accel-percent`` as the procedure's
+    (each unchanged without one), checked as the YAML's keys are. With ``--procedure`` and ``--speed-percent`` they
+    make the calibration's plan any candidate's of ``plan --target-std``: a run of that plan then reuses the empty run
+    the calibration recorded and shares its noise (``session.stored_candidate``; docs/benchmarks.md, session 20)."""
+    pc, cap = config.procedure, config.safety.max_speed_percent
+    changes: dict = {}
+    if sweep_deg is not None:
+        try:
+            lo, hi = (float(v) for v in sweep_deg.split(","))
+        except ValueError:
+            lo = hi = math.nan
+        if not (-90 <= lo <= 90 and -90 <= hi <= 90 and hi - lo >= 10):
+            raise ConfigError("--sweep-deg", f"expected FROM,TO in degrees of link elevation within -90 to 90 and at "
+                                             f"least 10 apart (as procedure.sweep_deg), got {sweep_deg!r}")
+        changes.update(sweep_from_deg=lo, sweep_to_deg=hi)
+    for option, key, value, top in (("--travel-speed-percent", "travel_speed_percent", travel_percent, cap),
+                                    ("--accel-percent", "accel_percent", accel_percent, 100.0)):
+        if value is None:
+            continue
+        if not (math.isfinite(value) and 0 < value <= top):
+            raise ConfigError(option, f"expected a percentage above 0 and at most {top:g} % "
+                                      + (f"(safety.max_speed_percent in {config.source})" if top == cap else "")
+                                      + f", got {value:g}")
+        changes[key] = float(value)
+    return dataclasses.replace(config, procedure=dataclasses.replace(pc, **changes)) if changes else config

@@ -161,9 +161,18 @@ def build_parser() -> argparse.ArgumentParser:
                           "run once per robot, not per tool)")
     cal.add_argument("--procedure", metavar="NAME|FILE",
                      help="the procedure to calibrate on instead of the YAML's procedure.name: a bundled procedure's "
-                          "name or a procedure file (its sweep range and speed stay the YAML's; the inertia part is "
-                          "left out). A calibration on the procedure your runs sweep takes most of the arm's DH-length "
+                          "name or a procedure file (its sweep range and speeds stay the YAML's unless given "
+                          "below; the inertia part is left out). A calibration on the procedure your runs sweep takes most of the arm's DH-length "
                           "error out of their σ, e.g. the one `plan --target-std` chose")
+    cal.add_argument("--sweep-deg", metavar="FROM,TO", help="the calibration's sweep range instead of the YAML's "
+                                                            "procedure.sweep_deg (link elevation, degrees)")
+    cal.add_argument("--travel-speed-percent", type=float, metavar="PERCENT",
+                     help="the calibration's travel speed instead of the YAML's procedure.travel_speed_percent")
+    cal.add_argument("--accel-percent", type=float, metavar="PERCENT",
+                     help="the calibration's acceleration instead of the YAML's procedure.accel_percent. With "
+                          "--procedure and --speed-percent these make the calibration's plan a candidate's of `plan "
+                          "--target-std`: `plan` then offers that plan, whose run reuses the calibration's empty run "
+                          "and shares its noise (a σ up to a fifth tighter, no empty run of its own)")
     _session_args(cal)
 
     hist = add("history", "list past identifications of this robot", json_ok=True)

@@ -130,7 +130,7 @@ def cmd_baseline(args, con: Console) -> int:
 
 
 def cmd_calibrate(args, con: Console) -> int:
-    from payload_agent.calibrate_args import reference_payload, with_procedure, with_speed
+    from payload_agent.calibrate_args import reference_payload, with_procedure, with_speed, with_sweep_and_motion
 
     ref, cog = reference_payload(args.known_mass, args.known_cog)
 
@@ -140,7 +140,9 @@ def cmd_calibrate(args, con: Console) -> int:
                 "simulated tool for this calibration (the YAML's simulation.payload is not used)")
 
     _session(args, con, "calibrate", reference=ref, on_cell=mount_reference,
-             adjust=lambda config: with_procedure(with_speed(config, args.speed_percent), args.procedure))
+             adjust=lambda config: with_sweep_and_motion(with_procedure(with_speed(config, args.speed_percent),
+                                                                        args.procedure),
+                                                         args.sweep_deg, args.travel_speed_percent, args.accel_percent))
     return 0
 
 

@@ -24,7 +24,7 @@ reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
 ``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
 its procedure (the YAML's otherwise), ``--calibrate-sweep-deg``/``--calibrate-travel``/``--calibrate-accel`` its
-range, travel speed and acceleration (as a copy of the YAML with those keys would give them). ``--reuse-baseline``: the
+range, travel speed and acceleration (as ``calibrate --sweep-deg``, ``--travel-speed-percent``, ``--accel-percent``). ``--reuse-baseline``: the
 run reuses the stored baseline when its plan has the baseline's fingerprint, as ``run`` does (the chosen candidate is
 then the calibration's plan, ``session.stored_candidate``), the inertia part off for the whole seed so that the
 calibration's, the plan's and the run's plans agree. ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
@@ -70,7 +70,7 @@ def parse_reference(text: str | None) -> tuple:
 
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
                 calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False,
-                dh_error_mm: float = 0.0, calibrate_procedure: str | None = None, calibrate_keys: dict | None = None,
+                dh_error_mm: float = 0.0, calibrate_procedure: str | None = None, calibrate_motion: tuple | None = None,
                 inertia: bool = True):
     """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
     YAML's procedure stored, then calibrated, first when asked: on ``calibrate_procedure``, a procedure's name or
@@ -93,12 +93,10 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
     if calibrate:
         from payload_agent.calibrate_args import with_procedure, with_speed
 
-        cal = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
-        if calibrate_keys:  # the rest of the calibration's procedure keys, as a copy of the YAML would give them
-            import dataclasses
+        from payload_agent.calibrate_args import with_sweep_and_motion
 
-            cal = dataclasses.replace(cal, procedure=dataclasses.replace(cal.procedure, **calibrate_keys))
-        calibrate_on(cal, reference, retry_sweeps)
+        cal = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
+        calibrate_on(with_sweep_and_motion(cal, *(calibrate_motion or ())), reference, retry_sweeps)
     return config
 
 
@@ -123,12 +121,12 @@ def _silent() -> OperatorUI:
 def one_run(robot: str, seed: int, storage: Path, target: str | None = None, calibrate: bool = False,
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
             baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None,
-            calibrate_on_chosen: bool = False, calibrate_keys: dict | None = None, reuse_baseline: bool = False
+            calibrate_on_chosen: bool = False, calibrate_motion: tuple | None = None, reuse_baseline: bool = False
             ) -> dict:
     import dataclasses
 
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
-                         dh_error_mm, calibrate_procedure, calibrate_keys, inertia=not reuse_baseline)
+                         dh_error_mm, calibrate_procedure, calibrate_motion, inertia=not reuse_baseline)
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
@@ -278,10 +276,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="set a driver key for every seed (a Modbus timeout_s on a loaded host); printed with the results")
     args = p.parse_args(argv)
     reference = parse_reference(args.calibrate_with)
-    keys = {k: v for k, v in (("travel_speed_percent", args.calibrate_travel), ("accel_percent", args.calibrate_accel))
-            if v is not None}
-    if args.calibrate_sweep_deg:
-        keys["sweep_from_deg"], keys["sweep_to_deg"] = (float(v) for v in args.calibrate_sweep_deg.split(","))
+    motion = (args.calibrate_sweep_deg, args.calibrate_travel, args.calibrate_accel)  # as `calibrate --sweep-deg` ...
     for item in args.driver_option:
         key, _, value = item.partition("=")
         DRIVER_OVERRIDES[key] = yaml.safe_load(value)
@@ -293,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="seeded-runs-") as tmp:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
                             args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
-                            args.calibrate_procedure, args.calibrate_on_chosen, keys, args.reuse_baseline)
+                            args.calibrate_procedure, args.calibrate_on_chosen, motion, args.reuse_baseline)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

@@ -121,3 +121,32 @@ def test_after_calibrate_the_plan_chooses_the_calibrations_plan_and_its_run_reus
     truth = np.array([2.0, 40.0, -25.0, 70.0])  # the YAML's simulated tool, which the agent was not told
     est = out.result.primary
     assert abs(1000 * est.mass_kg - 1000 * truth[0]) < 30 and np.max(np.abs(np.array(est.cog_mm) - truth[1:])) < 5
+
+
+def test_calibrate_takes_the_range_travel_and_acceleration_of_a_candidate(monkeypatch, tmp_path, capsys):
+    """`calibrate --procedure j2_triple --speed-percent 7 --sweep-deg 0,15 --travel-speed-percent 25 --accel-percent
+    100` records the grid candidate's sweeps and moves (the inertia part left out, as `--procedure` does), so the plan
+    offers that candidate's plan as the stored baseline's; bad values are refused by name before anything starts."""
+    from payload_agent.calibrate_args import with_procedure, with_speed, with_sweep_and_motion
+    from payload_agent.session import runner
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    assert with_sweep_and_motion(config) is config
+    cal = with_sweep_and_motion(with_procedure(with_speed(config, 7.0), "j2_triple"), "0,15", 25.0, 100.0)
+    grid_twin = design.Candidate(7.0, 25.0, 0.0, 15.0, 1, 100.0, "j2_triple")
+    assert grid_twin in candidates_for(config)
+    assert make_plan(cal).fingerprint() == make_plan(design.run_config(
+        config, dataclasses.replace(grid_twin, inertia=None))).fingerprint()
+    _store(config, cal)
+    stored = [c for c in grid_for(config) if c.stored_baseline]
+    assert stored == [dataclasses.replace(grid_twin, inertia=None, stored_baseline=True)]
+    started = []
+    monkeypatch.setattr(runner, "run_identification", lambda *a, **k: started.append(a))
+    for option, bad in (("--sweep-deg", "0,5"), ("--sweep-deg", "15"), ("--travel-speed-percent", "40"),
+                        ("--accel-percent", "0")):
+        rc = cli.main(["calibrate", "--robot", str(ROOT / "configs" / "sim-ec66.yaml"), "--yes", "--known-mass", "5",
+                       "--known-cog", "60,0,80", option, bad])
+        err = capsys.readouterr().err
+        assert rc == 2 and option in err and "Traceback" not in err, err
+    assert started == []
