@@ -162,8 +162,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--procedure", metavar="NAME|FILE",
                      help="the procedure to calibrate on instead of the YAML's procedure.name: a bundled procedure's "
                           "name or a procedure file (its sweep range and speeds stay the YAML's unless given "
-                          "below; the inertia part is left out). A calibration on the procedure your runs sweep takes most of the arm's DH-length "
-                          "error out of their σ, e.g. the one `plan --target-std` chose")
+                          "below; the inertia part is left out). A calibration on the procedure your runs sweep takes "
+                          "most of the arm's DH-length error out of their σ, e.g. the one `plan --target-std` chose")
     cal.add_argument("--sweep-deg", metavar="FROM,TO", help="the calibration's sweep range instead of the YAML's "
                                                             "procedure.sweep_deg (link elevation, degrees)")
     cal.add_argument("--travel-speed-percent", type=float, metavar="PERCENT",

@@ -24,8 +24,8 @@ reference at 0, 0, 80 mm, the default procedure), so the plan and the run use it
 another reference (a centre of mass off the flange axis loads joint 6 too, so its gain is fitted),
 ``--calibrate-speed`` the calibration's sweep speed (the robot YAML's procedure otherwise), ``--calibrate-procedure``
 its procedure (the YAML's otherwise), ``--calibrate-sweep-deg``/``--calibrate-travel``/``--calibrate-accel`` its
-range, travel speed and acceleration (as ``calibrate --sweep-deg``, ``--travel-speed-percent``, ``--accel-percent``). ``--reuse-baseline``: the
-run reuses the stored baseline when its plan has the baseline's fingerprint, as ``run`` does (the chosen candidate is
+range, travel speed and acceleration (as ``calibrate --sweep-deg``, ``--travel-speed-percent``, ``--accel-percent``).
+``--reuse-baseline``: the run reuses the stored baseline when its plan has the baseline's fingerprint, as ``run`` does (the chosen candidate is
 then the calibration's plan, ``session.stored_candidate``), the inertia part off for the whole seed so that the
 calibration's, the plan's and the run's plans agree. ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
 plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
@@ -155,7 +155,8 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(config)
         terms, _, wrist, _ = design.terms_and_wrist_model(config, design.plan_for(config, best.candidate), noise,
                                                           design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm),
-                                                          shared=shared)
+                                                          shared=shared, mount_rad=np.radians(sim.start_deg)
+                                                          if best.candidate.stored_baseline else None)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "pred_length_std": list(term_sigmas(terms["lengths"], sim)),
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],

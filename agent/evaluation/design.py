@@ -1,9 +1,8 @@
 """A procedure chosen for a target accuracy: predict σ of each candidate before moving, pick the fastest.
 
-For a candidate procedure (which poses and sweeps: a procedure file; sweep speed, travel speed,
-acceleration, sweep range, repetitions) the plan is made
-as ``plan`` would make it; every sweep's constant-speed samples are placed where the segmenter will
-find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
+For a candidate procedure (which poses and sweeps: a procedure file; sweep speed, travel speed, acceleration, sweep
+range, repetitions) the plan is made as ``plan`` would make it; every sweep's constant-speed samples are placed where
+the segmenter will find them (the commanded profile's cruise interval, ``SweepCommand.cruise_interval``, sampled at
 the controller's period), and the general solver's regressor is evaluated there for a nominal
 payload. With white effort noise σ_j per joint (declared, or measured in the stored baseline by
 ``measured_effort_std``; a joint standing while another sweeps has its own, lower on a UR), present in the loaded and the empty run alike (variance doubled by the
@@ -198,13 +197,13 @@ def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.nd
     return terms, n
 
 
-def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
-                          ) -> tuple[dict[str, np.ndarray], int, WristModel, NoiseScatter]:
+def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False,
+                          mount_rad=None) -> tuple[dict[str, np.ndarray], int, WristModel, NoiseScatter]:
     """``covariance_terms``, the wrist term the run will fit (``planned_terms.WristModel``: a tool cable's spring
-    relaxed where the loaded run starts, which is where the run's own empty run ended and the tool was mounted) and
-    the scatter of the run's own noise estimate (``noise_scatter``), from which ``predict`` draws the σ a run
-    reports. ``shared``: the run subtracts the calibration's empty run (``planned_baseline``), and its σ carries the
-    correlation of the two (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
+    relaxed where the loaded run starts: where its own empty run ended, or ``mount_rad``, where the robot stands, for a
+    run that reuses the stored baseline) and the scatter of the run's own noise estimate (``noise_scatter``), from
+    which ``predict`` draws the σ a run reports. ``shared``: the run subtracts the calibration's empty run
+    (``planned_baseline``), and its σ carries the correlation of the two (``shared_baseline.planned_cross_covariance``, "baseline"; 0 otherwise)."""
     from payload_agent.solvers import general, length_response, wls
 
     kin = config.robot.kinematics
@@ -239,7 +238,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     if rel is not None and noise.gain_swept_only:
         swept = {m.sweep.joint - 1 for m in plan.sweeps}
         rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
-    wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel, plan.moves[-1].target_rad)
+    wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel,
+                        plan.moves[-1].target_rad if mount_rad is None else mount_rad)
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
     terms["baseline"] = np.zeros((4, 4))
@@ -336,14 +336,14 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
         if check_safety:
             from payload_agent.motion.safety import SafetyGate
 
-            # the whole plan, exactly as ``plan`` and ``run`` check it before the first move (the approach too
-            # when where the robot stands is known)
+            # the whole plan, exactly as ``plan`` and ``run`` check it before the first move (the approach too if known)
             begin = plan.moves[0].target_rad if start is None else start
             problems = tuple(SafetyGate(cfg).check(turned_to(cfg, plan, np.asarray(begin)),
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
         shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(run_config(config, c))
-        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared)
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared,  # mounted where it
+                                                        mount_rad=start if c.stored_baseline else None)  # stands
         out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
                       spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:
