@@ -117,6 +117,11 @@ def test_after_calibrate_the_plan_chooses_the_calibrations_plan_and_its_run_reus
     out = run_identification(written, RunOptions(unattended=True, report=False), quiet)
     manifest = json.loads((out.run_dir / "manifest.json").read_text())
     assert manifest["phases"]["empty"]["from_baseline"]["source_run"] == stored.source_run
+    # no empty run before it: the loaded run starts where the robot stood, not where the plan ends (the rest of a
+    # cable's spring in the run's wrist term, and so in the plan's draws for this candidate)
+    start = np.asarray(manifest["phases"]["loaded"]["start_joint_angles_rad"])
+    assert np.allclose(start, np.radians(data["simulation"]["start_deg"]), atol=1e-3)
+    assert not np.allclose(start, make_plan(written).moves[-1].target_rad, atol=1e-2)
     assert any("empty baseline" in n for n in out.result.primary.notes), out.result.primary.notes
     truth = np.array([2.0, 40.0, -25.0, 70.0])  # the YAML's simulated tool, which the agent was not told
     est = out.result.primary
