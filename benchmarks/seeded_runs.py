@@ -139,6 +139,7 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         config = dataclasses.replace(config, procedure=dataclasses.replace(config.procedure, inertia=None))
     if target:
         from payload_agent.evaluation import design
+        from payload_agent.evaluation.planned_baseline import reusing_run_mount
         from payload_agent.session import target as targets
 
         sim = config.simulation
@@ -160,7 +161,8 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
         shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(config)
         terms, _, wrist, _ = design.terms_and_wrist_model(config, design.plan_for(config, best.candidate), noise,
                                                           design.nominal_theta(sim.payload.mass_kg, sim.payload.cog_mm),
-                                                          shared=shared, mount_rad=np.radians(sim.start_deg)
+                                                          shared=shared, mount_rad=reusing_run_mount(
+            config, design.plan_for(config, best.candidate), np.radians(sim.start_deg))
                                                           if best.candidate.stored_baseline else None)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "pred_length_std": list(term_sigmas(terms["lengths"], sim)),

@@ -50,7 +50,7 @@ from payload_agent.evaluation.candidates import (ACCELS_PERCENT, CONFIGURED, PRO
                                                  REPETITIONS, SPEEDS_PERCENT, TRAVEL_PERCENT, Candidate, candidates,
                                                  candidates_for)
 from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
-from payload_agent.evaluation.planned_baseline import SharedBaseline
+from payload_agent.evaluation.planned_baseline import SharedBaseline, reusing_run_mount
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model)
@@ -342,8 +342,8 @@ def _one_run(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray,
                                                    np.asarray(begin)).problems)
         problems += too_few_samples(plan, noise.sample_period_s)
         shared = noise.shared_baseline is not None and noise.shared_baseline.reused_by(run_config(config, c))
-        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared,  # mounted where it
-                                                        mount_rad=start if c.stored_baseline else None)  # stands
+        terms, n, wrist, spread = terms_and_wrist_model(cfg, plan, noise, theta, shared=shared, mount_rad=None if (
+            start is None or not c.stored_baseline) else reusing_run_mount(cfg, plan, start))  # where it stands
         out: tuple = (robot_time_s(plan), terms["noise"], wrist, sum(terms[k] for k in SYSTEMATIC_TERMS), n, problems,
                       spread)
     except (PayloadAgentError, ValueError, np.linalg.LinAlgError) as exc:

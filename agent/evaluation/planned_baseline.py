@@ -36,4 +36,18 @@ class SharedBaseline:
             return False
 
 
-__all__ = ["SharedBaseline"]
+def reusing_run_mount(config: Config, plan, start_q) -> "np.ndarray":
+    """Where the loaded run of a run that reuses the stored baseline starts, in the plan's own joint turns: it records
+    no empty run, so it starts where the robot stands (``start_q``), and the run's moves are the plan's turned by whole
+    turns to start near there (``turned_to``). The rest of a cable's spring in the plan's wrist term
+    (``planned_terms.wrist_model``)."""
+    import numpy as np
+
+    from payload_agent.motion.planner import turned_to
+
+    start = np.asarray(start_q, float)
+    shift = np.asarray(turned_to(config, plan, start).moves[0].target_rad) - np.asarray(plan.moves[0].target_rad)
+    return start - shift
+
+
+__all__ = ["SharedBaseline", "reusing_run_mount"]
