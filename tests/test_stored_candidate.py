@@ -155,3 +155,30 @@ def test_calibrate_takes_the_range_travel_and_acceleration_of_a_candidate(monkey
         err = capsys.readouterr().err
         assert rc == 2 and option in err and "Traceback" not in err, err
     assert started == []
+
+
+def test_the_plans_cable_rest_for_a_run_that_reuses_the_baseline_is_where_the_run_starts_in_the_plans_turns():
+    """A run that reuses the stored baseline starts its loaded run where the robot stands, and turns its moves by whole
+    turns to start near there: the spring's lever q − rest the plan draws is the one that run will have, also when
+    the robot stands a whole wrist turn away from the plan's own angles (the plan's end as the rest, as for a run with
+    its own empty run, or the standing angles unturned, were 0.3-2π off here)."""
+    import math
+
+    from payload_agent.evaluation.planned_baseline import reusing_run_mount
+    from payload_agent.motion.planner import turned_to
+
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    c = design.Candidate(7.0, 25.0, 0.0, 15.0, 1, 100.0, "j2_triple")
+    plan = design.plan_for(config, c)
+    targets = np.array([m.target_rad for m in plan.moves])
+    limits, margin = config.robot.joint_limits_rad, config.safety.joint_limit_margin_rad
+    turns = [(j, k) for j in (3, 4, 5) for k in (-1, 1) if np.all(targets[:, j] + 2 * math.pi * k >= limits[j][0] + margin)
+             and np.all(targets[:, j] + 2 * math.pi * k <= limits[j][1] - margin)]
+    assert turns  # a wrist joint the run can turn a whole turn within its limits
+    start = targets[0] + np.array([0.0, 0.1, -0.1, 0.3, 0.2, -0.2])
+    start[turns[0][0]] += 2 * math.pi * turns[0][1]  # the robot stands a whole turn away there
+    mount = reusing_run_mount(design.with_candidate(config, c), plan, start)
+    ran = turned_to(design.with_candidate(config, c), plan, start)
+    for planned, run in zip(plan.sweeps, ran.sweeps):
+        assert np.allclose(np.asarray(planned.target_rad) - mount, np.asarray(run.target_rad) - start)
+    assert not np.allclose(mount, start) and not np.allclose(mount, plan.moves[-1].target_rad)
