@@ -29,7 +29,8 @@ range, travel speed and acceleration (as ``calibrate --sweep-deg``, ``--travel-s
 then the calibration's plan, ``session.stored_candidate``), the inertia part off for the whole seed so that the
 calibration's, the plan's and the run's plans agree. ``--start-where-calibration-ended``: the plan (its approach) and
 the run start where the calibration's plan ended, as after ``calibrate`` with the tool swapped in place (the run that
-reuses the baseline then has its cable's rest there). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
+reuses the baseline then has its cable's rest there); ``--start-where-calibration-began``: at its first pose (the robot
+parked there for the tool change). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
 plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
 --robot`` the written file), predict that procedure again with the calibration and run it with the stored baseline,
 as ``run`` does without ``--fresh-baseline``: the run subtracts the calibration's empty run, and its σ and the
@@ -124,14 +125,14 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
             baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None,
             calibrate_on_chosen: bool = False, calibrate_motion: tuple | None = None, reuse_baseline: bool = False,
-            start_where_calibration_ended: bool = False) -> dict:
+            start_where_calibration_ended: bool = False, start_where_calibration_began: bool = False) -> dict:
     import dataclasses
 
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
                          dh_error_mm, calibrate_procedure, calibrate_motion, inertia=not reuse_baseline)
-    if start_where_calibration_ended:  # the tool mounted where the calibration's reference came off; nothing moved since
+    if start_where_calibration_ended or start_where_calibration_began:  # the tool mounted there; nothing moved since
         config = dataclasses.replace(config, simulation=dataclasses.replace(
-            config.simulation, start_deg=tuple(calibration_end_deg(config))))
+            config.simulation, start_deg=tuple(calibration_end_deg(config, 0 if start_where_calibration_began else -1))))
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
@@ -200,12 +201,13 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                 "phases"]["empty"], **plan}
 
 
-def calibration_end_deg(config) -> list[float]:
-    """Where the stored calibration's plan ended (its empty run became the stored baseline: the last move's target)."""
+def calibration_end_deg(config, move: int = -1) -> list[float]:
+    """Where the stored calibration's plan ended (its empty run became the stored baseline: the last move's target), or
+    began (``move`` 0: its first pose, the approach's target)."""
     from payload_agent.recording.rundata import load_manifest
     from payload_agent.recording.state import RobotState
 
-    return [float(v) for v in load_manifest(RobotState.for_config(config).baseline_dir)["plan"][-1]["target_deg"]]
+    return [float(v) for v in load_manifest(RobotState.for_config(config).baseline_dir)["plan"][move]["target_deg"]]
 
 
 def wrist_weight(note: str | None) -> float:
@@ -287,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--start-where-calibration-ended", action="store_true",
                    help="with --calibrate: the plan and the run start where the calibration's plan ended (the tool "
                         "mounted there, as after `calibrate` with nothing moved since), not at simulation.start_deg")
+    p.add_argument("--start-where-calibration-began", action="store_true",
+                   help="with --calibrate: the plan and the run start at the calibration plan's first pose (the robot "
+                        "parked there for the tool change)")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
@@ -308,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
                             args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
                             args.calibrate_procedure, args.calibrate_on_chosen, motion, args.reuse_baseline,
-                            args.start_where_calibration_ended)
+                            args.start_where_calibration_ended, args.start_where_calibration_began)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)
