@@ -93,7 +93,8 @@ def test_after_calibrate_the_plan_chooses_the_calibrations_plan_and_its_run_reus
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
     data = sim_ec66_data
     for key, value in (("procedure.name", "j2_pair"), ("procedure.speed_percent", 15), ("procedure.sweep_deg", [5, 25]),
-                       ("procedure.travel_speed_percent", 25), ("procedure.accel_percent", 100)):
+                       ("procedure.travel_speed_percent", 25), ("procedure.accel_percent", 100),
+                       ("driver.rpc_port", 0), ("driver.monitor_port", 0)):  # ephemeral ports, as test_workflow's
         data = tweak(data, key, value)
     data = fast_start(data)
     data["storage"] = {"runs_dir": str(tmp_path / "runs")}
