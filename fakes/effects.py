@@ -25,6 +25,7 @@ and where they come from. In order of the signal path:
 
 from __future__ import annotations
 
+from functools import cached_property
 from dataclasses import dataclass, field
 import numpy as np
 
@@ -66,7 +67,7 @@ class TorqueRipple:
         object.__setattr__(self, "load_ratio", _six(self.load_ratio, "ripple.load_ratio"))
         object.__setattr__(self, "gear_ratio", _six(self.gear_ratio, "ripple.gear_ratio"))
 
-    @property
+    @cached_property  # asked every tick
     def active(self) -> bool:
         return any(self.amplitude_nm) or any(self.load_ratio)
 
@@ -97,7 +98,7 @@ class ToolCable:
         if self.rest_rad is not None:
             object.__setattr__(self, "rest_rad", _three(self.rest_rad, "cable rest angles"))
 
-    @property
+    @cached_property  # asked every tick
     def active(self) -> bool:
         return any(self.stiffness_nm_per_rad) or any(self.preload_nm)
 
@@ -136,21 +137,38 @@ class PhysicsEffects:
             raise ValueError("coulomb_asymmetry must lie within (-1, 1)")
 
     # -- pieces SimRobot asks for -------------------------------------------------------------
-    @property
+    # (asked every tick of every simulated arm; the effects are frozen, so what depends on them alone is computed
+    # once per instance: cached_property)
+    @cached_property
     def compliance_rad_per_nm(self) -> np.ndarray:
         k = np.asarray(self.stiffness_nm_per_rad)
-        return np.where(k > 0, 1.0 / np.where(k > 0, k, 1.0), 0.0)
+        out = np.where(k > 0, 1.0 / np.where(k > 0, k, 1.0), 0.0)
+        out.flags.writeable = False  # shared by every tick
+        return out
 
-    @property
+    @cached_property
     def elastic(self) -> bool:
         return any(k > 0 for k in self.stiffness_nm_per_rad)
+
+    @cached_property
+    def _quanta(self) -> np.ndarray | None:
+        """The effort quanta, None when no joint has one (``quantise`` then returns the effort as it is)."""
+        qn = np.asarray(self.effort_quantum_nm)
+        return qn if qn.any() else None
+
+    @cached_property
+    def _angle_noise(self) -> np.ndarray | None:
+        sigma = np.asarray(self.angle_noise_rad)
+        return sigma if sigma.any() else None
 
     def friction_factor(self, temperature_c: np.ndarray) -> np.ndarray:
         """Relative friction at these joint temperatures (never below 10 % of the reference)."""
         return np.maximum(0.1, 1.0 + self.friction_per_c * (np.asarray(temperature_c) - self.temperature_ref_c))
 
     def quantise(self, tau: np.ndarray) -> np.ndarray:
-        qn = np.asarray(self.effort_quantum_nm)
+        qn = self._quanta
+        if qn is None:
+            return tau
         return np.where(qn > 0, np.round(tau / np.where(qn > 0, qn, 1.0)) * qn, tau)
 
     def jitter(self, rng: np.random.Generator, tick_s: float) -> float:
@@ -160,8 +178,8 @@ class PhysicsEffects:
         return float(np.clip(rng.normal(0.0, self.time_jitter_s), -0.4 * tick_s, 0.4 * tick_s))
 
     def angle_noise(self, rng: np.random.Generator) -> np.ndarray:
-        sigma = np.asarray(self.angle_noise_rad)
-        return rng.normal(0.0, 1.0, N_JOINTS) * sigma if sigma.any() else np.zeros(N_JOINTS)
+        sigma = self._angle_noise
+        return rng.normal(0.0, 1.0, N_JOINTS) * sigma if sigma is not None else np.zeros(N_JOINTS)
 
 
 def ripple_phases(seed: int | None) -> np.ndarray:

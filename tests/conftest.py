@@ -111,17 +111,23 @@ def ec66_sim():
 # `--dist loadfile` a worker takes the next file while its last two tests still run, so a long file collected
 # late leaves the other worker idle at the end. xdist would order files by their number of tests (which puts
 # the few-but-long session files last); `make test` passes --no-loadscope-reorder so this order stands.
-# Every file over 5 s, slowest first (junit times of one `make test`-like run, 2026-11-27: ur_driver 44 s,
-# conformance 44, verify 33, workflow 31, modbus_rtu 31, canopen_driver 26, ur_end_to_end 24, cli_session 17,
-# ... empty_run_check 5; the files left, alphabetical, are 4.8 s at most).
-SLOWEST_FIRST = ("test_ur_driver.py", "test_driver_conformance.py", "test_verify.py", "test_workflow.py",
-                 "test_modbus_rtu.py", "test_canopen_driver.py", "test_ur_end_to_end.py", "test_cli_session.py",
-                 "test_minimal_driver.py", "test_end_to_end.py", "test_ur_payload_inertia.py", "test_ur_fake.py",
-                 "test_elite_driver.py", "test_segmentation_speeds.py", "test_modbus_driver.py", "test_elite_fake.py",
-                 "test_canopen_end_to_end.py", "test_session_collision.py", "test_durability.py", "test_report.py",
-                 "test_opcua_server.py", "test_systematics.py", "test_api.py", "test_plan_target.py",
-                 "test_report_inertia.py", "test_ur_controller_gains.py", "test_architecture.py",
-                 "test_empty_run_check.py")
+# Every file over 10 s of worker time, slowest first (one `make test`-like run with per-test times, 2026-11-27,
+# session 20, at load 9-12 beside other benchmarks: calibration_shares 105 s, modbus_rtu 96, noise_scatter 93,
+# driver_conformance 93, cli_session 87, workflow 84, length_response 82, cable_spring 74, plan_target 67, ...
+# decoders_canopen 10; the 56 files left, alphabetical, are 9.6 s at most). The two workers then ended 3 s apart.
+SLOWEST_FIRST = ("test_calibration_shares.py", "test_modbus_rtu.py", "test_noise_scatter.py", "test_driver_conformance.py",
+                 "test_cli_session.py", "test_workflow.py", "test_length_response.py", "test_cable_spring.py",
+                 "test_plan_target.py", "test_three_step_scatter.py", "test_report_inertia.py", "test_ur_driver.py",
+                 "test_report.py", "test_reference_friction.py", "test_friction_split.py", "test_ur_end_to_end.py",
+                 "test_verify.py", "test_end_to_end.py", "test_canopen_driver.py", "test_shared_baseline.py",
+                 "test_wrist_chance.py", "test_systematics.py", "test_calibration_zeros.py", "test_plan_quarter.py",
+                 "test_session_collision.py", "test_segmentation_speeds.py", "test_architecture.py",
+                 "test_plan_loop.py", "test_ur_payload_inertia.py", "test_general_solver.py",
+                 "test_planned_terms.py", "test_opcua_server.py", "test_minimal_driver.py", "test_physics_design.py",
+                 "test_physics_config_and_remedies.py", "test_durability.py", "test_quality.py",
+                 "test_elite_driver.py", "test_elite_fake.py", "test_analysis_core.py", "test_ur_script_restart.py",
+                 "test_calibration.py", "test_run_format.py", "test_empty_run_check.py", "test_ur_fake.py",
+                 "test_modbus_driver.py", "test_canopen_end_to_end.py", "test_decoders_canopen.py")
 
 
 def pytest_collection_modifyitems(session, config, items):

@@ -147,3 +147,43 @@ def test_invalid_effects_are_refused():
         PhysicsEffects(angle_noise_rad=-1e-5)
     with pytest.raises(ValueError):
         PhysicsEffects(coulomb_asymmetry=1.2)
+
+
+class _PerTick(PhysicsEffects):
+    """The effects' per-tick pieces as they were computed before they were cached per instance (session 20)."""
+
+    @property
+    def compliance_rad_per_nm(self) -> np.ndarray:
+        k = np.asarray(self.stiffness_nm_per_rad)
+        return np.where(k > 0, 1.0 / np.where(k > 0, k, 1.0), 0.0)
+
+    @property
+    def elastic(self) -> bool:
+        return any(k > 0 for k in self.stiffness_nm_per_rad)
+
+    def quantise(self, tau: np.ndarray) -> np.ndarray:
+        qn = np.asarray(self.effort_quantum_nm)
+        return np.where(qn > 0, np.round(tau / np.where(qn > 0, qn, 1.0)) * qn, tau)
+
+    def angle_noise(self, rng: np.random.Generator) -> np.ndarray:
+        sigma = np.asarray(self.angle_noise_rad)
+        return rng.normal(0.0, 1.0, 6) * sigma if sigma.any() else np.zeros(6)
+
+
+@pytest.mark.parametrize("effects", [{}, dict(stiffness_nm_per_rad=(0, 3e4, 2e4, 0, 0, 0), effort_quantum_nm=0.01,
+                                              angle_noise_rad=1e-5, time_jitter_s=1e-4, friction_per_c=0.01,
+                                              tool_warmup_c=3.0, ripple=TorqueRipple(amplitude_nm=0.2),
+                                              tool_cable=ToolCable((0.1, 0.1, 0.1)))], ids=["ideal", "every_effect"])
+def test_the_effects_cached_per_instance_give_every_sample_as_computed_per_tick(effects):
+    """What depends on the frozen effects alone is computed once per instance (every simulated tick asked for it):
+    a seeded arm moving with a payload reports exactly the samples it reported when each tick computed it."""
+    runs = []
+    for cls in (PhysicsEffects, _PerTick):
+        r = SimRobot(ec66_spec(), q0_rad=Q0, tick_s=TICK, seed=3, noise_nm=0.3, effects=cls(**effects))
+        r.set_payload(PAYLOAD)
+        r.move_joints(Q0 + np.radians([0.0, 20.0, -15.0, 10.0, 10.0, 30.0]), 0.5, 2.0)
+        runs.append([r.step() for _ in range(400)])
+    assert runs[0][-1].q_true[1] != runs[0][0].q_true[1]  # it moved
+    for a, b in zip(*runs):
+        assert a.t == b.t and np.array_equal(a.q, b.q) and np.array_equal(a.torque_nm, b.torque_nm)
+        assert np.array_equal(a.q_link, b.q_link)

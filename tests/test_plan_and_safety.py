@@ -86,6 +86,37 @@ def test_the_tool_sphere_is_kept_above_the_floor_where_the_flange_alone_would_pa
         SafetyGate(tool).approve(plan, start)
 
 
+def test_the_path_check_finds_the_first_point_out_of_bounds_as_one_pose_at_a_time_does(sim_ec66_data):
+    """``workspace.outside_on_path`` takes the flange positions of a whole path in one batch (the gate's and the
+    plan's cost): on every move of the shipped plan, with a floor and a box that cut the paths at different points,
+    it names the same point as ``outside`` on one ``Kinematics.flange`` at a time, and the batch's positions are
+    those poses' to 1e-12 m."""
+    from payload_agent.motion import workspace
+
+    cfg = parse_config(sim_ec66_data)
+    start = np.radians(cfg.simulation.start_deg)
+    plan = turned_to(cfg, make_plan(cfg), start)
+    kin, n = cfg.robot.kinematics, workspace.PATH_CHECK_POINTS
+    qs = [start] + [np.asarray(m.target_rad) for m in plan.moves]
+    paths = list(zip(qs, qs[1:]))
+    one_by_one = [[kin.flange(a + (b - a) * k / n)[:3, 3] for k in range(n + 1)] for a, b in paths]
+    for (a, b), xyz in zip(paths, one_by_one):
+        batch = kin.frames(a + (b - a) * np.arange(n + 1.0)[:, None] / n)[-1][:, :3, 3]
+        assert np.allclose(batch, xyz, rtol=0.0, atol=1e-12)
+    z = np.array([p[2] for xyz in one_by_one for p in xyz])
+    x = np.array([p[0] for xyz in one_by_one for p in xyz])
+    cuts = [("safety.floor_z_mm", float(np.round(1000 * q, 3))) for q in np.quantile(z, (0.1, 0.5, 0.9))]
+    cuts += [("safety.reach_box_mm.x", [float(np.round(1000 * q, 3)), 2000.0]) for q in np.quantile(x, (0.2, 0.7))]
+    found = 0
+    for key, value in cuts:
+        s = parse_config(tweak(sim_ec66_data, key, value)).safety
+        for (a, b), xyz in zip(paths, one_by_one):
+            expected = next((out for out in (workspace.outside(s, p) for p in xyz) if out is not None), None)
+            assert workspace.outside_on_path(s, kin, a, b) == expected
+            found += expected is not None
+    assert found > 10  # the cuts do cut
+
+
 def test_gate_refuses_unknown_start_and_fast_approach(sim_ec66_data):
     cfg = parse_config(sim_ec66_data)
     plan = make_plan(cfg)

@@ -23,8 +23,6 @@ from payload_agent.motion import workspace
 from payload_agent.motion.planner import MAX_SINGLE_MOVE_RAD, Move, Plan, move_duration_s, turned_to
 from payload_agent.recording.resting_pose import RestingPose
 
-PATH_CHECK_POINTS = 60
-
 
 @dataclass
 class Verdict:
@@ -118,12 +116,10 @@ class SafetyGate:
                 problems.append(f"{where}: joint {j + 1} turns {math.degrees(abs(tgt[j] - prev[j])):.0f}° in one "
                                 f"move (more than {math.degrees(MAX_SINGLE_MOVE_RAD):.0f}°), from "
                                 f"{math.degrees(prev[j]):.1f}° to {math.degrees(tgt[j]):.1f}°")
-            for k in range(PATH_CHECK_POINTS + 1):
-                out = workspace.outside(s, self.kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3])
-                if out is not None:
-                    problems.append(f"{where}: {out[1]}" + ("; narrow procedure.sweep_deg or change procedure.base_deg, "
-                                                            "or check safety.floor_z_mm" if out[0] == "floor" else ""))
-                    break
+            out = workspace.outside_on_path(s, self.kin, prev, tgt)
+            if out is not None:
+                problems.append(f"{where}: {out[1]}" + ("; narrow procedure.sweep_deg or change procedure.base_deg, "
+                                                        "or check safety.floor_z_mm" if out[0] == "floor" else ""))
             prev = tgt
         checks = [
             f"{len(plan.moves)} moves within joint limits less {math.degrees(margin):.0f}° margin",

@@ -25,7 +25,7 @@ from payload_agent.errors import ConfigError, DataError, PayloadAgentError
 from payload_agent.motion import workspace
 from payload_agent.motion.planner import Plan, make_plan
 from payload_agent.output.plan_table import loop_sentence
-from payload_agent.motion.safety import APPROACH_UNKNOWN, PATH_CHECK_POINTS, SafetyGate, Verdict
+from payload_agent.motion.safety import APPROACH_UNKNOWN, SafetyGate, Verdict
 
 
 @dataclass
@@ -64,16 +64,13 @@ def sweep_envelope_problems(config: Config, plan: Plan) -> list[ConfigError]:
     for m in plan.moves:
         tgt = np.asarray(m.target_rad, float)
         if m.sweep is not None and prev is not None:
-            for k in range(PATH_CHECK_POINTS + 1):
-                out = workspace.outside(s, kin.flange(prev + (tgt - prev) * k / PATH_CHECK_POINTS)[:3, 3])
-                if out is None:
-                    continue
+            out = workspace.outside_on_path(s, kin, prev, tgt)
+            if out is not None:
                 where = (f"the sweep {m.label} over procedure.sweep_deg [{pc.sweep_from_deg:g}, {pc.sweep_to_deg:g}]° "
                          f"(joint 1 at procedure.base_deg {pc.base_deg:g}°)")
                 hint = ("safety.floor_z_mm: narrow the range (a smaller lower elevation keeps the flange higher)"
                         if out[0] == "floor" else "safety.reach_box_mm")
                 problems.append(ConfigError("procedure.sweep_deg", f"{where}: {out[1]}; see {hint}", config.source))
-                break
         prev = tgt
     return problems
 
