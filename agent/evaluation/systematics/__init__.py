@@ -67,7 +67,7 @@ from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
-                                                  reference_friction, three_step_response,
+                                                  reference_friction, residual_friction, three_step_response,
                                                   three_step_scatter, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
@@ -264,7 +264,6 @@ def friction_terms(ctx: Context) -> list[Term]:
         ok = g.joint == d.moving and d.key.direction == "both" and g.joint in tool_joints
         return str(g.joint) if ok else None
 
-    std = np.array([asym * change[j].rms_nm for j in joints])
     ref, all_joints = "", list(joints)
     if ctx.gain_reference is not None:  # the same asymmetry in the calibration's reference run, read through the
         # gains: its change as the calibration measured it, else the declared change of the baseline's constant part;
@@ -278,15 +277,19 @@ def friction_terms(ctx: Context) -> list[Term]:
             change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
     labels = [str(j) for j in all_joints]
     sens = ctx.offset_sens(per_joint, labels)
+    mu_r = sd_r = np.zeros(len(all_joints))
     if ctx.gain_reference is not None:
         calib = reference_friction.reference_columns(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
                                                      ctx.three_step, sens, all_joints)
-        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in all_joints], calib,
-                                                              ctx.gain_reference, all_joints, rel, constant)
+        mu_r, sd_r, ref = reference_friction.reference_change(ctx.gain_reference, all_joints, rel, constant)
         how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
                    else reference_shares.STAND_IN_NOTE)
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
+    else:
+        calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
+    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, _measured_residual(ctx))
+    std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]
@@ -296,8 +299,21 @@ def friction_terms(ctx: Context) -> list[Term]:
         how += ("; " if how else "") + (f"declared ±{100 * rel:.3g} % of the baseline's level where the sweeps' load "
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
-                 f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
-                 f"the change of the Coulomb friction part between the runs ({how}){ref} in σ")]
+                 f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
+                 f"{residual_friction.describe(post, asym)}{ref} in σ")]
+
+
+def _measured_residual(ctx: Context) -> residual_friction.Measured | None:
+    """The offsets one per moving joint's two-direction rows, fitted beside θ on the model (once per model); None
+    where they cannot be separated from the payload's torque."""
+    try:
+        fit = offsets.fit_offsets(ctx.prepared.deltas, ctx.kin, residual_friction.residual_joint, model=ctx.model)
+    except (DataError, np.linalg.LinAlgError):
+        return None
+    cov = np.asarray(fit.offsets_cov, float)
+    if not fit.labels or not np.all(np.isfinite(cov)):
+        return None
+    return residual_friction.Measured(tuple(int(lab) for lab in fit.labels), np.asarray(fit.offsets_nm, float), cov)
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
