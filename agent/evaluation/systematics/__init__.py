@@ -31,9 +31,8 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      it). The net change of the whole gap is no measure of it: the tool's load raises the load-dependent
      part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
-     prior the measurement is combined with. The asymmetry itself stays DECLARED
-     (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
-     payload's torque. One parameter per joint, a_j·Δ_j, of standard deviation σ_a·√(E[Δ_j²]);
+     prior the measurement is combined with. The residual a_j·Δ_j itself is MEASURED (session 19): one offset per
+     moving joint beside θ (``residual_friction``), the declared asymmetry × the measured change its prior;
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load): its effect on θ, less what a
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
@@ -237,8 +236,10 @@ def joint_terms(ctx: Context) -> list[Term]:
 
 
 def friction_terms(ctx: Context) -> list[Term]:
-    """Coulomb direction asymmetry (declared) × the change of the constant friction part between the runs
-    (measured per joint from the legs' gaps, ``systematics.friction``; the declared change is its prior)."""
+    """What a Coulomb direction asymmetry leaves of the friction in the two-direction average: measured as one
+    offset per moving joint beside the fit (``residual_friction``), with the declared asymmetry × the change of the
+    Coulomb part between the runs (measured per joint from the legs' gaps, ``systematics.friction``; the declared
+    change its prior) as the prior."""
     asym = float(ctx.decl.friction_asymmetry_std)
     if asym <= 0:
         return []
@@ -288,7 +289,7 @@ def friction_terms(ctx: Context) -> list[Term]:
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
     else:
         calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, _measured_residual(ctx))
+    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, residual_friction.measure(ctx.model))
     std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
@@ -301,19 +302,6 @@ def friction_terms(ctx: Context) -> list[Term]:
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
                  f"{residual_friction.describe(post, asym)}{ref} in σ")]
-
-
-def _measured_residual(ctx: Context) -> residual_friction.Measured | None:
-    """The offsets one per moving joint's two-direction rows, fitted beside θ on the model (once per model); None
-    where they cannot be separated from the payload's torque."""
-    try:
-        fit = offsets.fit_offsets(ctx.prepared.deltas, ctx.kin, residual_friction.residual_joint, model=ctx.model)
-    except (DataError, np.linalg.LinAlgError):
-        return None
-    cov = np.asarray(fit.offsets_cov, float)
-    if not fit.labels or not np.all(np.isfinite(cov)):
-        return None
-    return residual_friction.Measured(tuple(int(lab) for lab in fit.labels), np.asarray(fit.offsets_nm, float), cov)
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

@@ -36,7 +36,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.evaluation.systematics import friction
+from payload_agent.errors import DataError
+from payload_agent.evaluation.systematics import friction, offsets
+from payload_agent.solvers.fitted import FittedModel
 from payload_agent.solvers.wls import Group
 
 
@@ -78,6 +80,19 @@ class Posterior:
         """(p,) E[a_j²] given the data: what the reference run's uncertain change multiplies."""
         p = len(self.joints)
         return self.mean[p:] ** 2 + np.diag(self.cov)[p:]
+
+
+def measure(model: FittedModel) -> Measured | None:
+    """The offsets, one per moving joint's two-direction rows, fitted beside θ on ``model``'s rows (once per model);
+    None where they cannot be separated from the payload's torque."""
+    try:
+        fit = offsets.fit_offsets({}, None, residual_joint, model=model)
+    except (DataError, np.linalg.LinAlgError):
+        return None
+    cov = np.asarray(fit.offsets_cov, float)
+    if not fit.labels or not np.all(np.isfinite(cov)):
+        return None
+    return Measured(tuple(int(lab) for lab in fit.labels), np.asarray(fit.offsets_nm, float), cov)
 
 
 def posterior(asym_std: float, tool: Sequence[friction.CoulombChange], joints: Sequence[int],
@@ -145,4 +160,4 @@ def describe(post: Posterior, asym_std: float) -> str:
     return out
 
 
-__all__ = ["residual_joint", "Measured", "Posterior", "posterior", "columns", "describe"]
+__all__ = ["residual_joint", "Measured", "measure", "Posterior", "posterior", "columns", "describe"]
