@@ -24,8 +24,10 @@ posterior (μ, P) of x, plus R_j²·E[a_j²]·sr_j². Without a measurement (C �
 R²·sr²] per joint, the declared term of sessions 13–18 (``reference_friction.shared_asymmetry``).
 
 What the offsets also take up: any slowly varying torque on the moving joint's rows that is not the payload's,
-e.g. the load-dependent part of gear ripple once per output turn, whose projection on a constant is part of b̂. The
-term then carries its effect as if it were constant (docs/benchmarks.md, session 19).
+e.g. the load-dependent part of gear ripple once per output turn, whose projection on a constant is part of b̂. Where
+that makes b̂_j larger than the friction residual can be (``consistent``: the prior predictive), the joint's offset is
+not used and the declared form decides there; a smaller share rides along in the term as if it were friction
+(docs/benchmarks.md, session 19).
 """
 
 from __future__ import annotations
