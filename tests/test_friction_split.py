@@ -301,8 +301,8 @@ def test_friction_left_in_the_calibration_reaches_the_three_step_through_the_gai
 
 def test_an_offset_beyond_what_the_asymmetry_can_leave_is_not_read_as_friction():
     """Joint 2's Coulomb level changed by 0.05 ± 0.02 N·m, the declared asymmetry is 8.7 %: its residual is a few
-    mN·m. An offset of 0.19 N·m measured to 0.01 N·m (what the hard arm's gear ripple left on joint 2 at 1 % sweeps,
-    docs/benchmarks.md session 19) is another torque: the term keeps the declared prior there, where the linear update
+    mN·m. An offset of 0.19 N·m measured to 0.01 N·m (what the hard arm's case 8 left on joint 2 at 1 % sweeps with the
+    asymmetry switched off, docs/benchmarks.md session 19) is another torque: the term keeps the declared prior there, where the linear update
     would have read an asymmetry of 0.59 (on the hard arm's case 8: the mass σ 46 g against a 0.6 g error). An offset
     of 4 mN·m is used."""
     from payload_agent.evaluation.systematics import residual_friction as rf

@@ -103,8 +103,8 @@ def measure(model: FittedModel) -> Measured | None:
 def consistent(measured: Measured, joint: int, prior_var: float) -> bool:
     """Whether joint's offset is one a friction residual of the declared size can leave: b̂_j²/(Var b + C_jj) within
     the 1 − ``CHECK_ALPHA`` quantile of χ²₁ (the prior predictive). An offset far beyond it holds another torque the
-    payload model lacks (the load-dependent gear ripple once per output turn on the hard arm: 0.1–0.2 N·m on joint 2
-    with the asymmetry switched off, where the residual is at most tens of mN·m), and the linear update would read it
+    payload model lacks (on the hard arm 0.1–0.2 N·m on joint 2 with the asymmetry switched off, likely the
+    load-dependent gear ripple once per output turn; the residual there is at most tens of mN·m), and the linear update would read it
     as an asymmetry far beyond any plausible one (|a| > 1 through a small Δt); the declared form decides there."""
     i = measured.joints.index(joint)
     var = float(prior_var) + float(measured.cov[i, i])
