@@ -104,21 +104,13 @@ def test_the_three_step_sigma_uses_the_measured_change_and_covers_the_shift_it_c
     shift_g = 1000.0 * abs(theta_dropped[0] - theta_same[0])
     assert shift_g > 5.0  # a per-mille gain error of joint 2 or 3 moves the three-step mass by grams
 
-    # per joint (in joint order): the one asymmetry of both runs, then the uncertain parts of the tool run's and the
-    # reference run's changes; the reference run's as the calibration stored it, not the declaration
-    n = len(fric.std) // 3
-    assert n == len(cal.reference_friction.joints)  # the same procedure: the same joints
-    asym = joints.friction_asymmetry_std
-    A, G = fric.sens[systematics.THREE_STEP], fric.sens[systematics.ALL]
-    assert G[:, 2 * n:].any()  # the general fit takes the reference run's path too (through the gains, session 14)
-    for k, c in enumerate(cal.reference_friction.joints):
-        assert fric.std[k] == pytest.approx(asym) and fric.std[2 * n + k] == pytest.approx(asym * c.change.std_nm)
-        mu_r = c.change.mean_nm
-        rest = G[:, k] - G[:, 2 * n + k] * mu_r  # a_j's column: S·μt + R·μr, for each fit
-        mu_tool = float(rest @ G[:, n + k] / (G[:, n + k] @ G[:, n + k]))
-        np.testing.assert_allclose(rest, G[:, n + k] * mu_tool, rtol=1e-9, atol=1e-15)
-        np.testing.assert_allclose(A[:, k], A[:, n + k] * mu_tool + A[:, 2 * n + k] * c.change.mean_nm,
-                                   rtol=1e-9, atol=1e-15)
+    # per joint (in joint order), the last columns: the reference run's constant torque through the gains, its std
+    # the reference run's uncertain change as the calibration stored it (not the declaration) × √E[a_j²]
+    n = len(cal.reference_friction.joints)  # the same procedure: the same joints
+    G = fric.sens[systematics.ALL]
+    assert G[:, -n:].any()  # the general fit takes the reference run's path too (through the gains, session 14)
+    ratio = [fric.std[len(fric.std) - n + k] / c.change.std_nm for k, c in enumerate(cal.reference_friction.joints)]
+    assert all(0.0 < r < 3.0 * joints.friction_asymmetry_std for r in ratio), ratio
     assert "the calibration measured against its baseline" in fric.note
     assert "declared ±3 % of the baseline's constant part" in fric_declared.note
 
@@ -149,8 +141,8 @@ def test_the_general_fit_reads_the_reference_runs_friction_through_the_gains(run
     theta_same, _, _ = analysed(ref_same)
     theta_dropped, fric, cal = analysed(ref_dropped)
     shift_g = 1000.0 * (theta_dropped[0] - theta_same[0])
-    n = len(fric.std) // 3
-    R = fric.sens[systematics.ALL][:, 2 * n:]  # per N·m of constant torque in the reference run's rows of joint j
+    n = len(cal.reference_friction.joints)
+    R = fric.sens[systematics.ALL][:, -n:]  # per N·m of constant torque in the reference run's rows of joint j
     true_leftover = {c.joint: ASYMMETRY[c.joint] * -REF_DROP * COULOMB[c.joint] for c in cal.reference_friction.joints}
     predicted_g = 1000.0 * sum(R[0, k] * true_leftover[c.joint] for k, c in enumerate(cal.reference_friction.joints))
     assert abs(shift_g) > 3.0, shift_g
