@@ -244,8 +244,7 @@ def friction_terms(ctx: Context) -> list[Term]:
     if asym <= 0:
         return []
     p = ctx.prepared
-    loaded = friction.friction_gaps(p.loaded, p.commands)
-    empty = friction.friction_gaps(p.empty, p.commands)
+    loaded, empty = friction.friction_gaps(p.loaded, p.commands), friction.friction_gaps(p.empty, p.commands)
     pairs = sorted({(d.key.pose, d.moving) for d in ctx.sweeps if d.key.direction == "both"}
                    & set(loaded) & set(empty))
     if not pairs:
@@ -277,19 +276,22 @@ def friction_terms(ctx: Context) -> list[Term]:
         for k in extra:
             change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
     labels = [str(j) for j in all_joints]
-    sens = ctx.offset_sens(per_joint, labels)
+    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model), None
     mu_r = sd_r = np.zeros(len(all_joints))
     if ctx.gain_reference is not None:
+        eps = three_step_response.reference_offset_shares(ctx.sweeps, ctx.groups[ALL], per_joint, labels,
+                                                          ctx.gain_reference, all_joints)
         calib = reference_friction.reference_columns(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
-                                                     ctx.three_step, sens, all_joints)
+                                                     ctx.three_step, sens, all_joints, eps)
         mu_r, sd_r, ref = reference_friction.reference_change(ctx.gain_reference, all_joints, rel, constant)
+        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r)
         how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
                    else reference_shares.STAND_IN_NOTE)
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
     else:
         calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, residual_friction.measure(ctx.model))
+    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, offs, gains)
     std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")

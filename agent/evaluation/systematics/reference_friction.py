@@ -143,7 +143,8 @@ def change_rms_nm(reference: Sequence | None, joints: Sequence[int], declared_re
 
 def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequence[DeltaSweep], groups: Sequence,
                       selector, labels: Sequence[str], reference: tuple, general_fit, three_step_theta,
-                      sens: Mapping[str, np.ndarray], joints: Sequence[int] | None = None) -> dict[str, np.ndarray]:
+                      sens: Mapping[str, np.ndarray], joints: Sequence[int] | None = None,
+                      eps: Mapping[int, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
     the calibration's reference run, which every solver reads through the calibrated gains (the tool data off by
     −ε_jk·b_k relatively, ``three_step_response.reference_offset_shares``: the calibration's own response where
@@ -151,12 +152,14 @@ def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequen
     fit's (``ALL``):
     −Σ_j G_j·ε_jᵀ, G_j its response to a relative gain error of joint j (as ``wls.gain_covariance``); the
     three-step's by finite differences (``three_step_response.reference_offset_response``); a pose's own fit gets
-    zeros (the gains are common to the poses, which the pose comparison differences)."""
+    zeros (the gains are common to the poses, which the pose comparison differences). ``eps``: those shares when the
+    caller has them already."""
     from payload_agent.evaluation.systematics import three_step_response
     from payload_agent.solvers.fitted import ALL
 
     out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
+    if eps is None:
+        eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
     if ALL in sens and eps:
         inv, w, theta = general_fit.normal_inverse, general_fit.weights, general_fit.theta
         joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])

@@ -64,6 +64,18 @@ class Measured:
 
 
 @dataclass(frozen=True)
+class ThroughGains:
+    """How a drive-gain calibration's reference run reaches the measured offsets: the same asymmetry left a_k·Δr_k
+    in its rows, the gains took a share of it, and the tool data read through them move b̂ by Q·(a∘Δr) (``through_gains``).
+    Where both runs' friction changed alike this takes back part of b = a·Δt (hard-coded as b̂ ~ N(b, C) until
+    session 20, the posterior read too small an asymmetry there: tests/test_reference_friction.py)."""
+
+    response: np.ndarray  # (k, p) Q: b̂ of the measured joints per N·m on each term joint's reference-run rows
+    mean_nm: np.ndarray  # (p,) μr, the reference run's Coulomb change as the calibration measured it
+    std_nm: np.ndarray  # (p,) sr
+
+
+@dataclass(frozen=True)
 class Posterior:
     """x = (b_1..b_p, a_1..a_p) of the term's joints given b̂: mean and covariance, and the prior's std of b."""
 
@@ -72,14 +84,25 @@ class Posterior:
     cov: np.ndarray  # (2p, 2p)
     prior_std_nm: np.ndarray  # (p,) σ_a·√(μt² + st²): the declared form's size of b
     measured: Measured | None
+    expected_var_nm2: np.ndarray | None = None  # (k,) the prior's variance of b̂ (without C), per measured joint
+
+    def expected(self, joint: int) -> float:
+        """The prior's variance of the measured offset of ``joint`` (the prior predictive's, less C)."""
+        if self.expected_var_nm2 is not None:
+            return float(self.expected_var_nm2[self.measured.joints.index(joint)])
+        return float(self.prior_std_nm[self.joints.index(joint)] ** 2)
+
+    def used(self, joint: int) -> bool:
+        """Whether joint's offset is one a friction residual of the declared size can leave (``consistent``)."""
+        return self.measured is not None and joint in self.measured.joints and consistent(
+            self.measured, joint, self.expected(joint))
 
     def decided(self) -> list[int]:
         """The term's joints (0-based) where the measurement is at least as precise as the prior."""
         if self.measured is None:
             return []
         var = dict(zip(self.measured.joints, np.diag(self.measured.cov)))
-        return [j for j, s in zip(self.joints, self.prior_std_nm)
-                if j in var and var[j] <= s ** 2 and consistent(self.measured, j, s ** 2)]
+        return [j for j in self.joints if j in var and var[j] <= self.expected(j) and self.used(j)]
 
     def a_second_moment(self) -> np.ndarray:
         """(p,) E[a_j²] given the data: what the reference run's uncertain change multiplies."""
@@ -100,8 +123,30 @@ def measure(model: FittedModel) -> Measured | None:
     return Measured(tuple(int(lab) for lab in fit.labels), np.asarray(fit.offsets_nm, float), cov)
 
 
+def through_gains(model: FittedModel, eps: Mapping[int, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
+                  ) -> ThroughGains | None:
+    """Q (k, p): how the offsets ``measure`` fits move per N·m of constant torque on each of the term's p labels' rows
+    of the calibration's reference run, with that run's change (μr, sr) as the calibration measured it. The gains took ε_jk of it (``three_step_response.reference_offset_shares``),
+    so the tool data on joint j's rows are off by −ε_jk·b_k relatively; the offsets' fit reads that as θ's does
+    (``reference_friction.reference_columns``): Q = −Σ_j G_j·ε_jᵀ, G_j the offsets' response to a relative gain error
+    of joint j. None where the offsets cannot be fitted."""
+    try:
+        fit = offsets.fit_offsets({}, None, residual_joint, model=model)  # the fit ``measure`` made (cached)
+    except (DataError, np.linalg.LinAlgError):
+        return None
+    r = fit.result
+    joint_of_row = np.repeat([g.joint for g in fit.groups], [len(g.y) for g in fit.groups])
+    Y = np.vstack([g.Y for g in fit.groups])
+    Q = np.zeros((len(fit.labels), len(ref_mean_nm)))
+    for j, e in eps.items():
+        rows = joint_of_row == j
+        Q -= np.outer((r.normal_inverse @ (Y[rows].T @ (r.weights[rows] * (Y[rows] @ r.theta))))[4:], e)
+    return ThroughGains(Q, np.asarray(ref_mean_nm, float), np.asarray(ref_std_nm, float))
+
+
 def consistent(measured: Measured, joint: int, prior_var: float) -> bool:
-    """Whether joint's offset is one a friction residual of the declared size can leave: b̂_j²/(Var b + C_jj) within
+    """Whether joint's offset is one a friction residual of the declared size can leave: b̂_j²/(``prior_var`` + C_jj),
+    ``prior_var`` the prior's variance of b̂_j (Var b_j, and the reference run's part through the gains), within
     the 1 − ``CHECK_ALPHA`` quantile of χ²₁ (the prior predictive). An offset far beyond it holds another torque the
     payload model lacks (on the hard arm 0.1–0.2 N·m on joint 2 with the asymmetry switched off, likely the
     load-dependent gear ripple once per output turn; the residual there is at most tens of mN·m), and the linear update would read it
@@ -112,9 +157,11 @@ def consistent(measured: Measured, joint: int, prior_var: float) -> bool:
 
 
 def posterior(asym_std: float, tool: Sequence[friction.CoulombChange], joints: Sequence[int],
-              measured: Measured | None) -> Posterior:
+              measured: Measured | None, gains: ThroughGains | None = None) -> Posterior:
     """The residual b_j = a_j·Δt_j and the asymmetry a_j of ``joints`` given the measured offsets (linear normal update
-    of the declared prior: a ~ N(0, σ_a²) per joint, independent; Δt_j ~ N(μt, st²) as ``tool[j]`` measured it)."""
+    of the declared prior: a ~ N(0, σ_a²) per joint, independent; Δt_j ~ N(μt, st²) as ``tool[j]`` measured it).
+    b̂ ~ N(b + Q·diag(μr)·a, C + Q·diag(σ_a²·sr²)·Qᵀ): with a calibration (``gains``) the reference run's part of the
+    same asymmetry moves b̂ too; without one b̂ ~ N(b, C)."""
     p = len(joints)
     mu_t = np.array([c.mean_nm for c in tool], float)
     sd_t = np.array([c.std_nm for c in tool], float)
@@ -124,19 +171,28 @@ def posterior(asym_std: float, tool: Sequence[friction.CoulombChange], joints: S
     P0[idx, idx] = s2 * (mu_t ** 2 + sd_t ** 2)
     P0[p + idx, p + idx] = s2
     P0[idx, p + idx] = P0[p + idx, idx] = s2 * mu_t
-    mean, cov = np.zeros(2 * p), P0
-    seen = [] if measured is None else [k for k, j in enumerate(joints) if j in measured.joints
-                                        and consistent(measured, j, P0[k, k])]
-    if seen:
-        rows = [measured.joints.index(joints[k]) for k in seen]
-        H = np.zeros((len(seen), 2 * p))
-        H[np.arange(len(seen)), seen] = 1.0
-        S = H @ P0 @ H.T + measured.cov[np.ix_(rows, rows)]
-        K = np.linalg.solve(S, H @ P0).T  # P0·Hᵀ·S⁻¹ (S symmetric)
-        mean = K @ measured.offsets_nm[rows]
-        cov = P0 - K @ H @ P0
-        cov = 0.5 * (cov + cov.T)
-    return Posterior(tuple(joints), mean, cov, np.sqrt(np.diag(P0)[:p]), measured)
+    mean, cov, expected = np.zeros(2 * p), P0, None
+    if measured is not None:
+        k = len(measured.joints)
+        H = np.zeros((k, 2 * p))  # b̂ of every measured joint on x (a joint outside ``joints``: zero row)
+        for i, j in enumerate(measured.joints):
+            if j in joints:
+                H[i, joints.index(j)] = 1.0
+        noise = np.array(measured.cov, float)
+        if gains is not None:
+            H[:, p:] = gains.response * gains.mean_nm
+            noise = noise + (gains.response * (s2 * gains.std_nm ** 2)) @ gains.response.T
+        expected = np.diag(H @ P0 @ H.T) + np.diag(noise) - np.diag(measured.cov)
+        rows = [i for i, j in enumerate(measured.joints) if j in joints
+                and consistent(measured, j, float(expected[i]))]
+        if rows:
+            Hs = H[rows]
+            S = Hs @ P0 @ Hs.T + noise[np.ix_(rows, rows)]
+            K = np.linalg.solve(S, Hs @ P0).T  # P0·Hᵀ·S⁻¹ (S symmetric)
+            mean = K @ measured.offsets_nm[rows]
+            cov = P0 - K @ Hs @ P0
+            cov = 0.5 * (cov + cov.T)
+    return Posterior(tuple(joints), mean, cov, np.sqrt(np.diag(P0)[:p]), measured, expected)
 
 
 def columns(post: Posterior, calib: Mapping[str, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
@@ -169,8 +225,7 @@ def describe(post: Posterior, asym_std: float) -> str:
         return f"j{j + 1} {m.offsets_nm[i]:+.3f}±{np.sqrt(m.cov[i, i]):.3f}"
 
     found = ", ".join(one(j) for j in post.joints if j in m.joints)
-    beyond = [f"j{j + 1}" for j, sd in zip(post.joints, post.prior_std_nm) if j in m.joints
-              and not consistent(m, j, sd ** 2)]
+    beyond = [f"j{j + 1}" for j in post.joints if j in m.joints and not post.used(j)]
     prior = [f"j{j + 1}" for j in post.joints if j not in decided]
     out = f"measured as one offset per moving joint beside the fit ({found} N·m)"
     if beyond:
@@ -182,4 +237,5 @@ def describe(post: Posterior, asym_std: float) -> str:
     return out
 
 
-__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "measure", "consistent", "Posterior", "posterior", "columns", "describe"]
+__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "measure", "through_gains", "consistent", "ThroughGains",
+           "Posterior", "posterior", "columns", "describe"]
