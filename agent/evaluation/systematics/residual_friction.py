@@ -15,10 +15,10 @@ Var b = σ_a²(μt² + st²), Cov(a, b) = σ_a²·μt), observed through b̂. Wh
 fast sweeps) the posterior is the prior and the term the declared one; where C is small it is the measured
 residual. a matters where a drive-gain calibration's reference run left a_j·Δr_j in the gains
 (``reference_friction``): the same asymmetry acts there, read through the gains (R_j), so the measured b̂ also
-tells a_j and with it the reference run's part. The offsets are read through those gains as well: b̂ ~ N(b +
-Q·diag(μr)·a, C + Q·diag(σ_a²·sr²)·Qᵀ) (``through_gains``); where both runs' friction changed alike the gains take
-back part of b (on test_reference_friction's arm 60 % on joint 2), which read as b̂ ~ N(b, C) gave too small an
-asymmetry and a three-step σ of half the shift (docs/benchmarks.md, session 20).
+tells a_j and with it the reference run's part. The offsets are read through those gains as well:
+b̂ ~ N(b + Q·diag(μr)·a, C + Q·diag(σ_a²·sr²)·Qᵀ) (``through_gains``); where both runs' friction changed alike the
+gains take back part of b (on test_reference_friction's arm 57 % on joint 2, 61 % on joint 3), which read as
+b̂ ~ N(b, C) gave too small an asymmetry and a three-step σ of half the shift (docs/benchmarks.md, session 20).
 
 The shift of θ is S·b + R·diag(μr)·a + R·diag(a)·(Δr − μr) (S: the plain fit's response to a constant torque on
 the joint's rows, ``offsets.offset_sensitivities``; R: through the gains, zero without a calibration). Its second
