@@ -69,9 +69,10 @@ class Measured:
 @dataclass(frozen=True)
 class ThroughGains:
     """How a drive-gain calibration's reference run reaches the measured offsets: the same asymmetry left a_k·Δr_k
-    in its rows, the gains took a share of it, and the tool data read through them move b̂ by Q·(a∘Δr) (``through_gains``).
-    Where both runs' friction changed alike this takes back part of b = a·Δt (hard-coded as b̂ ~ N(b, C) until
-    session 20, the posterior read too small an asymmetry there: tests/test_reference_friction.py)."""
+    in its rows, the gains took a share of it, and the tool data read through them move b̂ by Q·(a∘Δr)
+    (``through_gains``). Where both runs' friction changed alike this takes back part of b = a·Δt (read as
+    b̂ ~ N(b, C) until session 20, the posterior found too small an asymmetry there: tests/test_reference_friction.py).
+    The part of (Δr − μr) is in b̂'s noise and in the term's last columns, their correlation left out."""
 
     response: np.ndarray  # (k, p) Q: b̂ of the measured joints per N·m on each term joint's reference-run rows
     mean_nm: np.ndarray  # (p,) μr, the reference run's Coulomb change as the calibration measured it
@@ -129,8 +130,9 @@ def measure(model: FittedModel) -> Measured | None:
 def through_gains(model: FittedModel, eps: Mapping[int, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
                   ) -> ThroughGains | None:
     """Q (k, p): how the offsets ``measure`` fits move per N·m of constant torque on each of the term's p labels' rows
-    of the calibration's reference run, with that run's change (μr, sr) as the calibration measured it. The gains took ε_jk of it (``three_step_response.reference_offset_shares``),
-    so the tool data on joint j's rows are off by −ε_jk·b_k relatively; the offsets' fit reads that as θ's does
+    of the calibration's reference run, with that run's change (μr, sr) as the calibration measured it. The gains
+    took ε_jk of it (``three_step_response.reference_offset_shares``), so the tool data on joint j's rows are off by
+    −ε_jk·b_k relatively; the offsets' fit reads that as θ's does
     (``reference_friction.reference_columns``): Q = −Σ_j G_j·ε_jᵀ, G_j the offsets' response to a relative gain error
     of joint j. None where the offsets cannot be fitted."""
     try:
