@@ -31,9 +31,8 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      it). The net change of the whole gap is no measure of it: the tool's load raises the load-dependent
      part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
-     prior the measurement is combined with. The asymmetry itself stays DECLARED
-     (``robot.friction_asymmetry_percent``): one run's two-direction average cannot tell a_j·Δ from the
-     payload's torque. One parameter per joint, a_j·Δ_j, of standard deviation σ_a·√(E[Δ_j²]);
+     prior the measurement is combined with. The residual a_j·Δ_j itself is MEASURED (session 19): one offset per
+     moving joint beside θ (``residual_friction``), the declared asymmetry × the measured change its prior;
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load): its effect on θ, less what a
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
@@ -67,7 +66,7 @@ from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
-                                                  reference_friction, three_step_response,
+                                                  reference_friction, residual_friction, three_step_response,
                                                   three_step_scatter, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
@@ -237,14 +236,15 @@ def joint_terms(ctx: Context) -> list[Term]:
 
 
 def friction_terms(ctx: Context) -> list[Term]:
-    """Coulomb direction asymmetry (declared) × the change of the constant friction part between the runs
-    (measured per joint from the legs' gaps, ``systematics.friction``; the declared change is its prior)."""
+    """What a Coulomb direction asymmetry leaves of the friction in the two-direction average: measured as one
+    offset per moving joint beside the fit (``residual_friction``), with the declared asymmetry × the change of the
+    Coulomb part between the runs (measured per joint from the legs' gaps, ``systematics.friction``; the declared
+    change its prior) as the prior."""
     asym = float(ctx.decl.friction_asymmetry_std)
     if asym <= 0:
         return []
     p = ctx.prepared
-    loaded = friction.friction_gaps(p.loaded, p.commands)
-    empty = friction.friction_gaps(p.empty, p.commands)
+    loaded, empty = friction.friction_gaps(p.loaded, p.commands), friction.friction_gaps(p.empty, p.commands)
     pairs = sorted({(d.key.pose, d.moving) for d in ctx.sweeps if d.key.direction == "both"}
                    & set(loaded) & set(empty))
     if not pairs:
@@ -264,7 +264,6 @@ def friction_terms(ctx: Context) -> list[Term]:
         ok = g.joint == d.moving and d.key.direction == "both" and g.joint in tool_joints
         return str(g.joint) if ok else None
 
-    std = np.array([asym * change[j].rms_nm for j in joints])
     ref, all_joints = "", list(joints)
     if ctx.gain_reference is not None:  # the same asymmetry in the calibration's reference run, read through the
         # gains: its change as the calibration measured it, else the declared change of the baseline's constant part;
@@ -277,16 +276,23 @@ def friction_terms(ctx: Context) -> list[Term]:
         for k in extra:
             change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
     labels = [str(j) for j in all_joints]
-    sens = ctx.offset_sens(per_joint, labels)
+    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model), None
+    mu_r = sd_r = np.zeros(len(all_joints))
     if ctx.gain_reference is not None:
+        eps = three_step_response.reference_offset_shares(ctx.sweeps, ctx.groups[ALL], per_joint, labels,
+                                                          ctx.gain_reference, all_joints)
         calib = reference_friction.reference_columns(ctx.prepared.deltas, ctx.kin, ctx.sweeps, ctx.groups[ALL],
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
-                                                     ctx.three_step, sens, all_joints)
-        std, sens, ref = reference_friction.shared_asymmetry(asym, [change[j] for j in all_joints], calib,
-                                                              ctx.gain_reference, all_joints, rel, constant)
+                                                     ctx.three_step, sens, all_joints, eps)
+        mu_r, sd_r, ref = reference_friction.reference_change(ctx.gain_reference, all_joints, rel, constant)
+        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r)
         how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
                    else reference_shares.STAND_IN_NOTE)
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
+    else:
+        calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
+    post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, offs, gains)
+    std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]
@@ -296,8 +302,8 @@ def friction_terms(ctx: Context) -> list[Term]:
         how += ("; " if how else "") + (f"declared ±{100 * rel:.3g} % of the baseline's level where the sweeps' load "
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
-                 f"friction direction asymmetry (declared ±{100 * asym:.3g} %, the data of one run cannot tell it) × "
-                 f"the change of the Coulomb friction part between the runs ({how}){ref} in σ")]
+                 f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
+                 f"{residual_friction.describe(post, asym)}{ref} in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

@@ -14,7 +14,7 @@ sweeps), combines it with the declared prior (``robot.friction_change_percent`` 
 the form used before anything was measured) and stores the posterior in gains.json (``reference_friction``).
 
 A tool run's σ (both solvers) then uses that posterior (``change_rms_nm``; a calibration stored without it keeps the
-declared form), with ONE asymmetry a_j per joint for both runs (``shared_asymmetry``): the reference run's leftover
+declared form), with ONE asymmetry a_j per joint for both runs (``reference_change``, ``residual_friction``): the reference run's leftover
 went into the gains and takes the tool run's alike-signed leftover back out, so the two cancel where both runs
 changed alike, and add where they changed apart.
 """
@@ -143,7 +143,8 @@ def change_rms_nm(reference: Sequence | None, joints: Sequence[int], declared_re
 
 def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequence[DeltaSweep], groups: Sequence,
                       selector, labels: Sequence[str], reference: tuple, general_fit, three_step_theta,
-                      sens: Mapping[str, np.ndarray], joints: Sequence[int] | None = None) -> dict[str, np.ndarray]:
+                      sens: Mapping[str, np.ndarray], joints: Sequence[int] | None = None,
+                      eps: Mapping[int, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """``sens`` ({fit: (4, P)} of constant torques on the tool run's rows) with P more columns: the same torques in
     the calibration's reference run, which every solver reads through the calibrated gains (the tool data off by
     −ε_jk·b_k relatively, ``three_step_response.reference_offset_shares``: the calibration's own response where
@@ -151,12 +152,14 @@ def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequen
     fit's (``ALL``):
     −Σ_j G_j·ε_jᵀ, G_j its response to a relative gain error of joint j (as ``wls.gain_covariance``); the
     three-step's by finite differences (``three_step_response.reference_offset_response``); a pose's own fit gets
-    zeros (the gains are common to the poses, which the pose comparison differences)."""
+    zeros (the gains are common to the poses, which the pose comparison differences). ``eps``: those shares when the
+    caller has them already."""
     from payload_agent.evaluation.systematics import three_step_response
     from payload_agent.solvers.fitted import ALL
 
     out = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
-    eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
+    if eps is None:
+        eps = three_step_response.reference_offset_shares(sweeps, groups, selector, labels, reference, joints)
     if ALL in sens and eps:
         inv, w, theta = general_fit.normal_inverse, general_fit.weights, general_fit.theta
         joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
@@ -176,34 +179,22 @@ def reference_columns(deltas: Mapping[SweepKey, DeltaSweep], kin, sweeps: Sequen
     return out
 
 
-def shared_asymmetry(asym_std: float, tool: Sequence[friction.CoulombChange], calib: Mapping[str, np.ndarray],
-                     reference: Sequence | None, joints: Sequence[int], declared_rel: float,
-                     constant_nm: Mapping[int, float]) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-    """The residual-friction term's (std, sens, note about the reference run) when a calibration's reference run
-    is in play: ONE direction asymmetry a_j per joint acts in both runs, the tool run's change Δt_j and the
-    reference run's Δr_j each as measured (posterior mean μ, std s; ``change_rms_nm`` for the reference run).
-
-    The shift of θ is a_j·(S_j·Δt_j + R_j·Δr_j), S_j the tool run's rows' response, R_j the calibration's
-    (``reference_columns``; zero for a pose's own fit): the two cancel where both runs
-    changed alike (the gains then absorbed the very leftover the tool run has) and add where they changed apart,
-    which two independent parameters cannot say. Parameters, per joint: a_j (std ``asym_std``) along S·μt + R·μr,
-    then a_j·(Δt − μt) along S (std asym·st) and a_j·(Δr − μr) along R (std asym·sr), uncorrelated. For the general
-    fits (R = 0) the variance is asym²·S²·(μt² + st²), the same as one parameter of std asym·rms(Δt).
-    ``calib``: {fit: (4, 2P)}, the tool run's P columns then the reference run's (``reference_columns``)."""
-    p = len(joints)
+def reference_change(reference: Sequence | None, joints: Sequence[int], declared_rel: float,
+                     constant_nm: Mapping[int, float]) -> tuple[np.ndarray, np.ndarray, str]:
+    """(μr, sr, note): per joint of ``joints`` the reference run's change as the calibration measured it (posterior
+    mean and std), else zero mean and the declared size (``change_rms_nm``) as the std. ONE direction asymmetry a_j
+    acts in both runs (``residual_friction``): the reference run's leftover a_j·Δr_j went into the gains and takes the
+    tool run's alike-signed leftover back out, so the two cancel where both runs changed alike and add where they
+    changed apart, which two independent parameters cannot say."""
     rms, note = change_rms_nm(reference, joints, declared_rel, constant_nm)
     found = of_reference(reference)
-    mu_r, sd_r = np.zeros(p), np.array(rms, float)  # declared: zero mean, the declared size as the std
+    mu_r, sd_r = np.zeros(len(joints)), np.array(rms, float)
     for k, j in enumerate(joints):
         c = None if found is None else found.of_joint(j)
         if c is not None:
             mu_r[k], sd_r[k] = c.change.mean_nm, c.change.std_nm
-    mu_t = np.array([c.mean_nm for c in tool], float)
-    sd_t = np.array([c.std_nm for c in tool], float)
-    std = np.concatenate([np.full(p, float(asym_std)), asym_std * sd_t, asym_std * sd_r])
-    sens = {which: np.hstack([A[:, :p] * mu_t + A[:, p:] * mu_r, A[:, :p], A[:, p:]]) for which, A in calib.items()}
-    return std, sens, note + "; one asymmetry per joint in both runs, with the signs of the measured changes"
+    return mu_r, sd_r, note + "; one asymmetry per joint in both runs, with the signs of the measured changes"
 
 
 __all__ = ["JointChange", "ReferenceFriction", "measure", "of_reference", "change_rms_nm", "reference_columns",
-           "shared_asymmetry"]
+           "reference_change"]
