@@ -51,6 +51,37 @@ def identified(tmp_path_factory):
         cell.close()
 
 
+def test_the_noise_estimate_does_not_depend_on_how_long_the_arm_stood_before_a_sweep():
+    """A late move command leaves standing samples at the start of the sweep's file (a loaded host: 137 against
+    the usual 5-25); the baseline's effort noise σ, the verify's variance and motion choice rest on it."""
+    from payload_agent.recording.rundata import SweepData
+    from payload_agent.tools import verify_stats as vs
+    from payload_agent.types import SweepKey
+
+    rng = np.random.default_rng(7)
+    v, a, dt = 0.25, 1.2, 0.008
+    t_ramp = v / a
+    t_end = np.radians(55.0) / v + t_ramp
+
+    def sweep(standing):
+        t = np.arange(0.0, t_end, dt)
+        s = np.where(t < t_ramp, 0.5 * a * t ** 2,
+                     np.where(t > t_end - t_ramp, np.radians(55.0) - 0.5 * a * (t_end - t) ** 2, v * (t - 0.5 * t_ramp)))
+        qdd = np.where(t < t_ramp, a, np.where(t > t_end - t_ramp, -a, 0.0))
+        s = np.concatenate([np.zeros(standing), s])
+        qdd = np.concatenate([np.zeros(standing), qdd])
+        q = np.zeros((len(s), 6))
+        q[:, 1] = -s
+        tau = np.zeros((len(s), 6))
+        tau[:, 1] = 40.0 * np.cos(q[:, 1]) + 8.0 * qdd  # gravity and the ramps' inertial torque
+        effort = tau + rng.normal(0.0, 0.3, tau.shape)
+        return {SweepKey("q", 2, "up", 10.0): SweepData(SweepKey("q", 2, "up", 10.0), np.arange(len(s)) * dt, q,
+                                                        effort, "synthetic")}
+
+    for standing in (5, 140):
+        assert vs.noise_std(sweep(standing))[1] == pytest.approx(0.3, rel=0.1), standing
+
+
 def _mount(mass, cog):
     def mount(cell):
         cell.change_tool(mass, cog)
