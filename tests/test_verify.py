@@ -37,9 +37,10 @@ def identified(tmp_path_factory):
     data = tweak(data, "simulation.payload", {"mass_kg": TRUTH[0], "cog_mm": list(TRUTH[1])})
     data = tweak(data, "simulation.time_scale", 8)  # lighter on a shared host than the YAML's 15
     # the module's ten verifies of the right tool share one stored baseline, each at α = 1 %: with the noise drawn
-    # per tick, a loaded host's late commands gave every run its own draw and some runs a false alarm (about 7 %
-    # of runs predicted, seen 1 in 3 under two busy loops). Noise drawn per motion repeats exactly under any load,
-    # so the verdicts here are the same every run; the false-alarm rate itself is benchmarks/verify_power.py's
+    # per tick, a loaded host's late commands gave every run its own draw, and a false alarm in about 7 % of runs
+    # (predicted from the verify's covariances; under two busy loops it failed more often). Noise drawn per motion
+    # repeats under any load, so every run here gets the same verdicts (largest T 7.6 against 13.3); the
+    # false-alarm rate itself is measured by benchmarks/verify_power.py
     data = tweak(data, "simulation.noise_per_move", True)
     data = tweak(data, "procedure.inertia", False)  # verify is about mass and CoM (the wrist part: test_wrist_*.py)
     data = short_session(data)  # the identifications' procedure is not the subject (conftest.short_session)
