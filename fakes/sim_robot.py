@@ -64,7 +64,7 @@ class SimRobot:
                  noise_nm: float | Sequence[float] = 0.0, seed: int | None = None,
                  payload: PayloadTruth | None = None, stop_decel_rad_s2: float = 3.0,
                  effects: PhysicsEffects | None = None, noise_rest_nm: float | Sequence[float] | None = None,
-                 ripple_seed: int | None = None, session: int = 0):
+                 ripple_seed: int | None = None, session: int = 0, noise_per_move: bool = False):
         """``noise_nm``: each joint's effort noise (standard deviation) while it moves; ``noise_rest_nm``: while
         it stands (None: the same). A real drive's torque fluctuates more in motion (gear mesh, control activity)
         than at rest: measured 2-5x on a UR10e (docs/sources.md, "Effort noise of the simulated UR5e").
@@ -72,7 +72,13 @@ class SimRobot:
         arm (an empty and a loaded run recorded apart) share its gears while their noise differs.
         ``session``: which power-on of this arm it is (``SimulatedCell`` counts them per robot state). A real
         drive's noise does not repeat when the controller restarts; 0 draws what a seeded robot always drew, each
-        later session its own noise (effort, angles, timestamps) from the same seed, on the same arm and gears."""
+        later session its own noise (effort, angles, timestamps) from the same seed, on the same arm and gears.
+        ``noise_per_move``: each commanded motion (``move_joints``, ``follow_path``) draws its noise (effort, angles,
+        timestamps) from generators of its own, seeded by (seed, session, motion number); standing ticks draw from
+        the session's streams. The streams are drawn once per tick, so without it which noise a motion's samples get
+        depends on the tick at which its command arrived: with the clock elastic, on how loaded the host was
+        (tests/test_verify.py's flake under two busy loops). With it, a seeded session's motions repeat their noise
+        exactly however late the commands come; the noise is as white and Gaussian either way, as a real drive's."""
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)
@@ -91,6 +97,9 @@ class SimRobot:
         self._sensor_rng = np.random.default_rng(
             None if seed is None else [int(seed), 10] + ([int(session)] if session else []))
         self._ripple_phases = ripple_phases(seed if ripple_seed is None else ripple_seed)
+        self._seed, self._session = seed, int(session)
+        self.noise_per_move = bool(noise_per_move)
+        self._motion_rngs: tuple[np.random.Generator, np.random.Generator] | None = None
         self._temperature_c = np.full(6, self.effects.temperature_ref_c)
         self._tau_gear = np.zeros(6)  # last tick's torque through the gears (start of the elastic fixed point)
         self._cable_rest: np.ndarray | None = None
@@ -185,9 +194,11 @@ class SimRobot:
         tau = tau_gear
         if fx.ripple.active:
             tau = tau + fx.ripple.torque(q, tau_gear, self._ripple_phases)
-        tau = fx.quantise(tau + self.rng.normal(0.0, 1.0, 6) * self.noise_level_nm(qd))
-        q_rep = q + fx.angle_noise(self._sensor_rng)
-        t_rep = t + fx.jitter(self._sensor_rng, self.tick_s)
+        rng, sensor_rng = (self._motion_rngs if self._path is not None and self._motion_rngs is not None
+                           else (self.rng, self._sensor_rng))
+        tau = fx.quantise(tau + rng.normal(0.0, 1.0, 6) * self.noise_level_nm(qd))
+        q_rep = q + fx.angle_noise(sensor_rng)
+        t_rep = t + fx.jitter(sensor_rng, self.tick_s)
         return SimState(t_rep, q_rep, qd.copy(), qdd.copy(), tau, self._path is not None, self._estop,
                         self._protective, self._servo, self._move_id, t_true=t, q_true=q.copy(),
                         q_link=q_link.copy(), temperature_c=temps)
@@ -244,7 +255,14 @@ class SimRobot:
             self._path = JointPath(self._q_now(), target, self._t, speed_rad_s, accel_rad_s2,
                                    self._max_speed, self._max_accel)
             self._move_id += 1
+            self._start_motion_noise()
             return self._path.t_end - self._t
+
+    def _start_motion_noise(self) -> None:
+        """With ``noise_per_move`` (and a seed): the new motion's own noise generators (caller holds the lock)."""
+        if self.noise_per_move and self._seed is not None:
+            key = [int(self._seed), self._session, self._move_id]
+            self._motion_rngs = (np.random.default_rng(key + [20]), np.random.default_rng(key + [10]))
 
     def _q_now(self) -> np.ndarray:
         """The controller's exact (noise-free) joint angles now (caller holds the lock)."""
@@ -277,6 +295,7 @@ class SimRobot:
                 raise SimRefused("trajectory does not start at the current joint angles")
             self._path = path
             self._move_id += 1
+            self._start_motion_noise()
             return path.t_end - self._t
 
     def stop(self, decel_rad_s2: float | None = None) -> None:

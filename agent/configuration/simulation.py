@@ -102,6 +102,10 @@ class SimulationConfig:
     # the simulated arm's DH lengths against the YAML's kinematics, which the agent uses: each non-zero a and d off
     # by a uniform draw within ± this, seeded by ``seed`` (``fakes.arms.simulated_spec``); 0: exact, as shipped
     dh_length_error_mm: float = 0.0
+    # each commanded motion draws its noise from generators seeded by (seed, session, motion number), so a seeded
+    # session repeats its motions' noise however late a loaded host delivers the commands (``SimRobot``); off: one
+    # stream per tick, as always
+    noise_per_move: bool = False
     # not a YAML key: which session of this simulated robot the cell starts (``session.simulation``), so that a
     # calibration, a stored baseline and the run after them do not draw the same noise
     session: int = 0
@@ -151,7 +155,9 @@ def parse_simulation(node: Node) -> SimulationConfig:
     jitter_ms = node.number("timestamp_jitter_ms", 0.0, min=0, max=100)
     effects = parse_effects(node.child("effects", required=False))
     dh_error_mm = node.number("dh_length_error_mm", 0.0, min=0, max=5)
+    per_move = node.boolean("noise_per_move", False)
     node.reject_unknown(["arm", "payload", "noise_nm", "noise_rest_nm", "friction", "drive_gain_error", "time_scale",
-                         "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects", "dh_length_error_mm"])
+                         "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects", "dh_length_error_mm",
+                         "noise_per_move"])
     return SimulationConfig(arm, payload, noise, coulomb, viscous, load, drift, gain_err, scale, seed, start,
-                            angle_noise, jitter_ms / 1000.0, effects, noise_rest, dh_error_mm)
+                            angle_noise, jitter_ms / 1000.0, effects, noise_rest, dh_error_mm, per_move)
