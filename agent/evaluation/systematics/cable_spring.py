@@ -27,8 +27,9 @@ Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted`
 not zero when κ̂ ≤ 0, and the term is A·M·μ (its outer product in σ), less κ̂'s noise: w·A·M·μμᵀ·MᵀAᵀ with
 w = (1 − 1/μᵀC⁻¹μ)⁺, the positive semi-definite part of μμᵀ − C (``declared_weight``; until session 20 w = 1,
 whose mean held C once, as wide as the cable itself at 20 % sweeps). The posterior's covariance Σ is not added:
-where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found branch's β̂β̂ᵀ + D again (``shares``). Not the default: on an arm without a cable the same term costs the clean
-arm's σ what a cable of about σ_κ would do (docs/benchmarks.md, session 15).
+where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found branch's β̂β̂ᵀ + D again (``shares``).
+Not the default: on an arm without a cable the same term costs the clean arm's σ what a cable of about σ_κ would do
+(docs/benchmarks.md, session 15).
 """
 
 from __future__ import annotations
