@@ -69,8 +69,9 @@ def test_a_cable_the_test_finds_is_its_measured_effect_alone(runs):
 
 
 def test_a_declared_cable_is_its_posterior_means_effect_alone(runs):
-    """Declared (``robot.tool_cable_fitted``), the term is A·M·μ's outer product, μ the posterior mean on κ ≥ 0:
-    μμᵀ + Σ, the rule until session 18, is β̂β̂ᵀ + D again where κ̂ lies well inside κ ≥ 0 (μ ≈ κ̂, Σ ≈ C)."""
+    """Declared (``robot.tool_cable_fitted``), the term is A·M·μ's outer product less κ̂'s noise, w·A·M·μμᵀ·MᵀAᵀ
+    (``cable_spring.declared_weight``), μ the posterior mean on κ ≥ 0: μμᵀ + Σ, the rule until session 18, is
+    β̂β̂ᵀ + D again where κ̂ lies well inside κ ≥ 0 (μ ≈ κ̂, Σ ≈ C)."""
     from dataclasses import replace
 
     declared = replace(systematics.RIGID, tool_cable_fitted=True)
@@ -81,8 +82,35 @@ def test_a_declared_cable_is_its_posterior_means_effect_alone(runs):
         s = cable_spring.fit_spring(model, _labels(model), mount, declared=True)
         AM = _lever_effects(model, s)
         mu = AM @ s.posterior_mean
+        w = cable_spring.declared_weight(s.posterior_mean, s.cov)
+        assert 0.0 < w <= 1.0 and s.weight == w
         scale = float(np.max(np.abs(cov)))
-        assert np.allclose(cov, np.outer(mu, mu), rtol=1e-6, atol=1e-9 * scale)
+        assert np.allclose(cov, w * np.outer(mu, mu), rtol=1e-6, atol=1e-9 * scale)
         assert np.linalg.matrix_rank(cov, tol=1e-6 * scale) == 1
         # the rule before, A·M·(μμᵀ + Σ)·MᵀAᵀ, fails the two asserts above
         assert np.max(np.abs(AM @ s.posterior_cov @ AM.T)) > 1e-3 * scale
+
+
+def test_a_declared_cable_term_leaves_out_the_stiffness_fits_noise():
+    """Over κ̂ ~ N(κ, C), the declared term's mean (a·μ)² holds a·C·a beside (a·κ)² (μ ≈ κ̂ inside κ ≥ 0), which the
+    plain fit's error does not contain (``cable_spring.shares``). With σ_κ of κ's size (the hard arm at 20 % sweeps:
+    σ_κ 10–25 mN·m/rad, a cable of 10–20) that surplus was 1.8 × (a·κ)²; w = (1 − 1/μᵀC⁻¹μ)⁺ takes it down by more
+    than half of a·C·a (w = 1 fails). Where C is small against κ (slow sweeps) the term is as before."""
+    kappa = np.array([0.015, 0.014, 0.015])
+    a = np.array([300.0, 250.0, 150.0])  # one quantity's response to κ (A·M's row)
+    R = np.array([[1.0, 0.3, 0.1], [0.3, 1.0, 0.2], [0.1, 0.2, 1.0]])
+    true = float(a @ kappa) ** 2
+    for sd, slow in ((np.array([0.021, 0.016, 0.012]), False), (np.array([0.004, 0.003, 0.002]), True)):
+        C = R * np.outer(sd, sd)
+        L = np.linalg.cholesky(C)
+        rng = np.random.default_rng(5)
+        before, after = [], []
+        for _ in range(200):
+            mu, _ = cable_spring.posterior(kappa + L @ rng.standard_normal(3), C, draws=4000)
+            before.append(float(a @ mu) ** 2)
+            after.append(cable_spring.declared_weight(mu, C) * before[-1])
+        if slow:
+            assert abs(np.mean(after) / np.mean(before) - 1.0) < 0.03
+        else:
+            assert np.mean(before) - true > 1.5 * true  # the surplus w = 1 leaves
+            assert np.mean(after) < np.mean(before) - 0.5 * float(a @ C @ a)

@@ -24,10 +24,12 @@ session 12).
 
 Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide:
 κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ that is
-not zero when κ̂ ≤ 0, and the term is A·M·μ (its outer product in σ), honest for any cable strength. The
-posterior's covariance Σ is not added: where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found
-branch's β̂β̂ᵀ + D again (``shares``). Not the default: on an arm without a cable the same term costs the clean
-arm's σ what a cable of about σ_κ would do (docs/benchmarks.md, session 15).
+not zero when κ̂ ≤ 0, and the term is A·M·μ (its outer product in σ), less κ̂'s noise: w·A·M·μμᵀ·MᵀAᵀ with
+w = (1 − 1/μᵀC⁻¹μ)⁺, the positive semi-definite part of μμᵀ − C (``declared_weight``; until session 20 w = 1,
+whose mean held C once, as wide as the cable itself at 20 % sweeps). The posterior's covariance Σ is not added:
+where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found branch's β̂β̂ᵀ + D again (``shares``).
+Not the default: on an arm without a cable the same term costs the clean arm's σ what a cable of about σ_κ would do
+(docs/benchmarks.md, session 15).
 """
 
 from __future__ import annotations
@@ -77,10 +79,13 @@ class CableSpring:
 
     @property
     def weight(self) -> float:
-        """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where a cable is declared or the test
-        finds it, else the share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still
-        moves θ: 2–4 σ of mass in the weak-cable ablation's undetected cases). ``shares`` gives D no share."""
-        if self.declared or self.present:
+        """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where the test finds a cable, else the
+        share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ of mass
+        in the weak-cable ablation's undetected cases). ``shares`` gives D no share. Declared, the share of the
+        posterior mean's effect A·M·μ that is not κ̂'s noise, (1 − 1/μᵀC⁻¹μ)⁺ (``declared_weight``)."""
+        if self.declared:
+            return declared_weight(self.posterior_mean, self.cov)
+        if self.present:
             return 1.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
 
@@ -179,6 +184,20 @@ def posterior(kappa: np.ndarray, cov: np.ndarray, draws: int = POSTERIOR_DRAWS) 
     return mean, (d * w[:, None]).T @ d
 
 
+def declared_weight(mean: np.ndarray, cov: np.ndarray) -> float:
+    """w in the declared term w·A·M·μμᵀ·MᵀAᵀ: (1 − 1/u²)⁺, u² = μᵀC⁻¹μ, the positive part of μμᵀ − C in C's metric.
+
+    The error σ has to hold is the cable's own effect ββᵀ (the reported θ̂ is the plain fit's, ``shares``). Where κ̂
+    lies well inside κ ≥ 0, μ ≈ κ̂ and E[μμᵀ] ≈ κκᵀ + C: μμᵀ holds κ̂'s noise C once, which is no part of the error.
+    μμᵀ − C is the unbiased estimate of κκᵀ there but not positive semi-definite; whitened by C it is uuᵀ − I, whose
+    one positive eigenvalue u² − 1 lies along u, so its nearest positive semi-definite matrix is (1 − 1/u²)⁺·μμᵀ.
+    Where C is small against κ (slow sweeps) w ≈ 1 and the term is μμᵀ as before; where σ_κ is of κ's size (hard
+    arm, 20 % sweeps: σ_κ 10–25 mN·m/rad against a cable of 10–20) μμᵀ was 1.75× the cable's true effect on the
+    CoM z at the median over 24 cases, and rms(err/σ) z 0.64 (docs/benchmarks.md, session 20, hard 20 %)."""
+    u2 = float(mean @ np.linalg.solve(cov, mean))
+    return max(1.0 - 1.0 / u2, 0.0) if u2 > 0 else 0.0
+
+
 def moving_arm_joint(group: Group, sweep: DeltaSweep) -> str | None:
     """One nuisance offset per moving arm joint (1–3) over all its sweeps, fitted beside the spring: what the
     two-direction average leaves of that joint's friction, a direction asymmetry times the Coulomb level's change
@@ -266,7 +285,8 @@ def note(spring: CableSpring) -> str:
         mean = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.posterior_mean))
         return (f"a tool cable on the wrist, declared fitted (robot.tool_cable_fitted; a spring relaxed where the "
                 f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result at the stiffness "
-                f"the data give on κ ≥ 0 (posterior mean {mean} mN·m/rad), in σ")
+                f"the data give on κ ≥ 0 (posterior mean {mean} mN·m/rad), {spring.weight:.2f} × of it (the share "
+                "that is not the fit's noise), in σ")
     if spring.present:
         return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; found: "
                 f"{test}): its effect on the result as measured, in σ")
@@ -275,5 +295,5 @@ def note(spring: CableSpring) -> str:
             "the data show beyond noise), in σ")
 
 
-__all__ = ["note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution", "posterior",
+__all__ = ["note", "shares", "declared_weight", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution", "posterior",
            "fit_spring", "effect"]
