@@ -68,11 +68,10 @@ def test_a_cable_the_test_finds_is_its_measured_effect_alone(runs):
     assert "found" in cable_spring.note(s) and "uncertainty" not in cable_spring.note(s)
 
 
-def test_a_declared_cable_moves_the_result_by_its_posterior_mean_and_keeps_its_spread(runs):
-    """Declared (``robot.tool_cable_fitted``), θ̂ loses the posterior mean's effect A·M·μ (``Term.shift``) and σ holds
-    the posterior covariance's A·M·Σ·MᵀAᵀ (full rank where the levers are), μ, Σ on κ ≥ 0: the reported θ̂'s error
-    is e + A·M·(κ − μ) with e independent of κ̂. Until session 21 θ̂ stayed the plain fit's and σ held
-    w·A·M·μμᵀ·MᵀAᵀ, rank one (fails there)."""
+def test_a_declared_cable_moves_the_result_by_its_fitted_effect_and_keeps_its_noise(runs):
+    """Declared (``robot.tool_cable_fitted``), θ̂ loses the unconstrained κ̂'s effect A·M·κ̂ (``Term.shift``) and σ holds
+    its noise A·M·C·MᵀAᵀ (full rank where the levers are): the reported θ̂'s error is e + A·M·(κ − κ̂) with e
+    independent of κ̂. Until session 21 θ̂ stayed the plain fit's and σ held w·A·M·μμᵀ·MᵀAᵀ, rank one (fails there)."""
     from dataclasses import replace
 
     declared = replace(systematics.RIGID, tool_cable_fitted=True)
@@ -82,8 +81,8 @@ def test_a_declared_cable_moves_the_result_by_its_posterior_mean_and_keeps_its_s
         syst = systematics.evaluate(prep, kin, declared, terms=[systematics.wrist_terms], model=model)
         s = cable_spring.fit_spring(model, _labels(model), mount, declared=True)
         AM = _lever_effects(model, s)
-        cov, spread = syst.covariance(), AM @ s.posterior_cov @ AM.T
+        cov, spread = syst.covariance(), AM @ s.cov @ AM.T
         scale = float(np.max(np.abs(spread)))
         assert np.allclose(cov, spread, rtol=1e-6, atol=1e-9 * scale)
         assert np.linalg.matrix_rank(cov, tol=1e-6 * scale) == len(s.joints) > 1
-        assert np.allclose(syst.shift(), AM @ s.posterior_mean, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(AM))))
+        assert np.allclose(syst.shift(), AM @ s.estimate, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(AM))))
