@@ -39,7 +39,7 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      data tell it given the scatter's size (posterior mean and covariance, ``systematics.gain_scatter``);
    - tool cable / wrist torques: where the loaded run's start is known, a spring on the wrist relaxed there,
      tested and, when present, its measured effect on θ in σ (``cable_spring``; where ``robot.tool_cable_fitted``
-     declares one, its effect at the stiffness's posterior mean on κ ≥ 0 taken off θ̂, the posterior's spread in σ);
+     declares one, the fitted spring's effect taken off θ̂ and that estimate's noise in σ);
      else one constant per (pose, wrist joint) beside a nuisance gain column per still (joint, angle) of
      joints 1–3, their measured effect shrunk likewise (``systematics.wrist``); a strong one fails the
      gate's cable check instead;
@@ -335,7 +335,7 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
                                     declared=ctx.decl.tool_cable_fitted)
     except (DataError, np.linalg.LinAlgError):
         return []
-    t = None if s is None else cable_spring.term(s, sens)  # declared: its posterior mean's effect off θ̂
+    t = None if s is None else cable_spring.term(s, sens)  # declared: the fitted κ̂'s effect off θ̂
     return [] if t is None else [t]
 
 

@@ -22,18 +22,18 @@ reported θ̂ is the plain fit's, whose error is independent of κ̂, and E[β̂
 by 2–4 σ of mass the same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md,
 session 12).
 
-Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide and
-the cable's effect is taken out of θ̂ instead of being carried in σ (session 21). A spring that resists pushes θ̂
-one way in every run (+4.3 to +5.1 g of mass on the benchmark's realistic+cable arm, +5.5 of the hard arm's +7.4 g
-at 10 %; 23–24 of 24 cases positive), so a σ that holds ββᵀ covers a bias as if it were noise. The reported θ̂ is
-θ̂_plain − A·M·κ̂ with κ̂ the unconstrained fit (``term``: ``Term.shift``), the posterior mean of κ under a flat prior
-on all of κ (posterior N(κ̂, C)), and σ holds D = A·M·C·MᵀAᵀ. Its error is e + A·M·(κ − κ̂), e the plain fit's,
-independent of κ̂ (``shares``: with the cable's and the arm joints' offset columns beside Y in one weighted fit,
-Cov(θ̂_plain, κ̂) = 0), so its covariance is P + D whatever κ: the fit with the spring's columns fitted
-(Frisch–Waugh). The physics' κ ≥ 0 is not used there: the posterior mean under a flat prior on κ ≥ 0 (κ̂'s normal
-truncated to the cone) lies inside the cone whatever κ̂, so wherever σ_κ is of κ's size it over-corrects by about
-σ_κ per joint: measured −3.0 ± 0.9 g on hard 20 % and −2.7 ± 0.6 g on realistic+cable's default procedure (23 and 21
-of 24 negative; docs/benchmarks.md, session 21), against +2.2 ± 1.4 g and −1.1 ± 0.7 g for κ̂ (the hard arm's +1.9 g without its
+Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide and the
+cable's effect is taken out of θ̂ instead of being carried in σ (session 21). A spring that resists pushes θ̂ one
+way in every run (+4.3 to +5.1 g of mass on the benchmark's realistic+cable arm, +5.5 of the hard arm's +7.4 g at
+10 %; 23–24 of 24 cases positive), so a σ that holds ββᵀ covers a bias as if it were noise. The reported θ̂ is θ̂_plain
+− A·M·κ̂ with κ̂ the unconstrained fit (``term``: ``Term.shift``), the posterior mean of κ under a flat prior on all
+of κ (posterior N(κ̂, C)), and σ holds D = A·M·C·MᵀAᵀ. Its error is e + A·M·(κ − κ̂), e the plain fit's, independent
+of κ̂ (``shares``: with the cable's and the arm joints' offset columns beside Y in one weighted fit, Cov(θ̂_plain,
+κ̂) = 0), so its covariance is P + D whatever κ: the fit with the spring's columns fitted (Frisch–Waugh). The
+physics' κ ≥ 0 is not used there: the posterior mean under a flat prior on κ ≥ 0 (κ̂'s normal truncated to the cone)
+lies inside the cone whatever κ̂, so wherever σ_κ is of κ's size it over-corrects, by up to about σ_κ per joint: measured
+−3.0 ± 0.9 g on hard 20 % and −2.7 ± 0.6 g on realistic+cable's default procedure (20 and 21 of 24 negative;
+docs/benchmarks.md, session 21), against +2.2 ± 1.4 g and −1.1 ± 0.7 g for κ̂ (the hard arm's +1.9 g without its
 cable is not the cable's). Not the default: on an arm without a cable the correction costs D (docs/benchmarks.md,
 session 15 for the term before).
 """
