@@ -106,6 +106,16 @@ def test_the_reported_sigma_draws_follow_the_runs_own_wrist_rule():
         assert np.median(plan_m) == pytest.approx(1000 * np.sqrt(base[0, 0]))
 
 
+def _spring_case():
+    """(rng, θ, the other terms' covariance, AM, C) of a 2 kg tool and a random spring fit, seeded."""
+    rng = np.random.default_rng(7)
+    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
+    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
+    AM = rng.standard_normal((4, 3)) * 1e-3
+    G = rng.standard_normal((3, 3))
+    return rng, theta, base, AM, G @ G.T + 0.5 * np.eye(3)
+
+
 def test_the_cable_springs_draws_follow_the_runs_own_rule():
     """Where the run knows where the tool was mounted it fits a spring on the wrist (``systematics.cable_spring``):
     the plan's draws of that term (``spring_model``) against the run's own presence test, projection and weight
@@ -114,12 +124,7 @@ def test_the_cable_springs_draws_follow_the_runs_own_rule():
     from payload_agent.evaluation.systematics import cable_spring
     from payload_agent.solvers.wls import cog_with_covariance
 
-    rng = np.random.default_rng(7)
-    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
-    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
-    AM = rng.standard_normal((4, 3)) * 1e-3
-    G = rng.standard_normal((3, 3))
-    C = G @ G.T + 0.5 * np.eye(3)
+    rng, theta, base, AM, C = _spring_case()
     plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.spring_model(AM, C), theta)
     critical, null_mean = cable_spring.null_distribution(C)
     L = np.linalg.cholesky(C)
@@ -156,12 +161,7 @@ def test_a_declared_cable_is_the_same_term_in_every_draw_as_the_run_reports():
     from payload_agent.evaluation.systematics import cable_spring
     from payload_agent.solvers.wls import cog_with_covariance
 
-    rng = np.random.default_rng(7)
-    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
-    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
-    AM = rng.standard_normal((4, 3)) * 1e-3
-    G = rng.standard_normal((3, 3))
-    C = G @ G.T + 0.5 * np.eye(3)
+    rng, theta, base, AM, C = _spring_case()
     plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.spring_model(AM, C, declared=True), theta)
     critical, null_mean = cable_spring.null_distribution(C)
     for kappa in (np.zeros(3), np.linalg.cholesky(C) @ rng.standard_normal(3)):
