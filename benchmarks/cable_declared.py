@@ -3,8 +3,8 @@
 Not a test: it prints numbers. Each case of the accuracy benchmark (same arm, payload, procedure and calibration:
 ``sigma_budget.analysed_case``) is analysed twice by the agent's own analysis (``remedies.comp_estimate``) on the
 same recorded data: undeclared, where the cable spring's presence test weights its term ((T − E₀T)⁺/T below the
-test's quantile), and declared, where the term is the stiffness' posterior on κ ≥ 0
-(``systematics.cable_spring.posterior``). Per scenario it prints rms(err/σ) of the mass and each CoM axis and the
+test's quantile), and declared, where the fitted spring's effect comes off the result and its noise goes into σ
+(``systematics.cable_spring.term``, session 21). Per scenario it prints rms(err/σ) of the mass and each CoM axis and the
 95 % coverage of the mass interval and the CoM ellipsoid, both ways. On an arm with a cable the declared term
 should bring the rms to 1; on one without, what it costs is the price of declaring a cable that is not there.
 

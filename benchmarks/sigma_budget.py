@@ -108,8 +108,10 @@ def budget(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, so
         theta = np.array([plain.mass_kg, *(plain.mass_kg * np.asarray(plain.cog_m))])
         noise = noise_iid = np.asarray(plain.covariance)
         parts["gains j2, j3"] = np.asarray(with_gains.covariance) - noise
-    for term in systematics.evaluate(prepared, kin, decl, gain_std, model=model, gain_reference=cal.reference).terms:
+    syst = systematics.evaluate(prepared, kin, decl, gain_std, model=model, gain_reference=cal.reference)
+    for term in syst.terms:
         parts[term.name] = term.covariance(key)
+    theta = theta - syst.shift(key)  # what the run reports: a declared cable's effect off θ̂ (``Term.shift``)
     i, unit, _ = QUANTITIES[quantity]
     truth = np.array([mass, *(np.asarray(cog) / 1000.0)])
     est = np.array([theta[0], *(np.asarray(theta[1:4]) / theta[0])])

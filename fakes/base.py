@@ -175,5 +175,4 @@ def sim_robot_kwargs(config: "Config") -> dict[str, Any]:
         friction=FrictionParams(np.array(sim.coulomb_nm), np.array(sim.viscous_nm_s_rad), np.array(sim.load_ratio)),
         noise_nm=np.array(sim.noise_nm),
         noise_rest_nm=None if sim.noise_rest_nm is None else np.array(sim.noise_rest_nm), seed=sim.seed, payload=None, effects=effects_from_simulation(sim),
-        **({"session": sim.session} if sim.session else {}),
-        **({"noise_per_move": True} if sim.noise_per_move else {}))
+        **({"session": sim.session} if sim.session else {}), noise_per_move=sim.noise_per_move)

@@ -78,7 +78,9 @@ class SimRobot:
         the session's streams. The streams are drawn once per tick, so without it which noise a motion's samples get
         depends on the tick at which its command arrived: with the clock elastic, on how loaded the host was
         (tests/test_verify.py's flake under two busy loops). With it, a seeded session's motions repeat their noise
-        exactly however late the commands come; the noise is as white and Gaussian either way, as a real drive's."""
+        exactly however late the commands come; the noise is as white and Gaussian either way, as a real drive's.
+        A robot YAML turns it on unless ``simulation.noise_per_move: false``; built directly, as the accuracy
+        benchmark's arms are, a SimRobot draws per tick, so their kept cases keep their draws."""
         self.spec = spec
         self.physics = ArmPhysics(spec, payload)
         self.tick_s = float(tick_s)

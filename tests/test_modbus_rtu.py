@@ -142,6 +142,11 @@ def test_identification_over_rtu(tmp_path):
     # refused 2 of about 16 CI runs on the poses' agreement (3.01 and 3.18 against 3), likely from it: an effect
     # of the shortened procedure, not of the RTU path, so here the arm's friction does not grow with the load
     data = tweak(data, "simulation.friction.load_ratio", 0.0)
+    # It refused once more after that (session 20, 3.003 against 3). Over 21 seeds of this set-up the poses'
+    # mass z had rms 0.98 (largest 2.08) and the CoM's 0.80-1.16: the gate is calibrated here, and each CI run
+    # drew new noise (drawn per tick, so a late command shifts it), so its α-tail came up now and then. With the
+    # noise drawn per motion from the YAML's seed the run repeats however the host schedules it.
+    data = tweak(data, "simulation.noise_per_move", True)
     data = tweak(data, "procedure.name", "j2_pair")  # 2 sweeps a run: the RTU path is under test, not the procedure
     data = tweak(data, "simulation.noise_nm", 0.5)
     data = tweak(data, "simulation.noise_rest_nm", 0.5)  # one level, moving or standing

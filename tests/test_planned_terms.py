@@ -1,10 +1,12 @@
 """The data-sized terms predicted before a run (agent/evaluation/planned_terms.py): their expectations are what a
 run's own rule gives on average, checked against that rule applied to random draws."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from payload_agent.evaluation import planned_terms
+from payload_agent.evaluation import planned_terms, systematics
 from payload_agent.evaluation.systematics import friction
 
 
@@ -104,6 +106,16 @@ def test_the_reported_sigma_draws_follow_the_runs_own_wrist_rule():
         assert np.median(plan_m) == pytest.approx(1000 * np.sqrt(base[0, 0]))
 
 
+def _spring_case():
+    """(rng, θ, the other terms' covariance, AM, C) of a 2 kg tool and a random spring fit, seeded."""
+    rng = np.random.default_rng(7)
+    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
+    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
+    AM = rng.standard_normal((4, 3)) * 1e-3
+    G = rng.standard_normal((3, 3))
+    return rng, theta, base, AM, G @ G.T + 0.5 * np.eye(3)
+
+
 def test_the_cable_springs_draws_follow_the_runs_own_rule():
     """Where the run knows where the tool was mounted it fits a spring on the wrist (``systematics.cable_spring``):
     the plan's draws of that term (``spring_model``) against the run's own presence test, projection and weight
@@ -112,12 +124,7 @@ def test_the_cable_springs_draws_follow_the_runs_own_rule():
     from payload_agent.evaluation.systematics import cable_spring
     from payload_agent.solvers.wls import cog_with_covariance
 
-    rng = np.random.default_rng(7)
-    theta = np.array([2.0, 2.0 * 0.04, -2.0 * 0.025, 2.0 * 0.07])
-    base = np.diag([3e-6, 1e-7, 1e-7, 2e-7])
-    AM = rng.standard_normal((4, 3)) * 1e-3
-    G = rng.standard_normal((3, 3))
-    C = G @ G.T + 0.5 * np.eye(3)
+    rng, theta, base, AM, C = _spring_case()
     plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.spring_model(AM, C), theta)
     critical, null_mean = cable_spring.null_distribution(C)
     L = np.linalg.cholesky(C)
@@ -144,6 +151,28 @@ def test_the_cable_springs_draws_follow_the_runs_own_rule():
                                                                           abs=0.04)
         for p in (0.8, 0.9, 0.95):
             assert np.quantile(plan, p) == pytest.approx(np.quantile(run, p), rel=0.08)
+
+
+def test_a_declared_cable_is_the_same_term_in_every_draw_as_the_run_reports():
+    """Where the robot YAML declares a cable the run takes AM·κ̂ off θ̂ and its σ holds D = AM·C·AMᵀ whatever κ̂
+    (``cable_spring.term``, session 21): the plan's draws (``spring_model(declared=True)``) are that σ in every draw,
+    the run's term on any κ̂ the same covariance; ``design`` reads the declaration (``cable_declared``). Before, the
+    plan drew the presence test's rule for a declared cable too (fails there: no ``declared``)."""
+    from payload_agent.evaluation.systematics import cable_spring
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    rng, theta, base, AM, C = _spring_case()
+    plan_m, plan_c = planned_terms.reported_sigma_draws(base, planned_terms.spring_model(AM, C, declared=True), theta)
+    critical, null_mean = cable_spring.null_distribution(C)
+    for kappa in (np.zeros(3), np.linalg.cholesky(C) @ rng.standard_normal(3)):
+        s = cable_spring.CableSpring((3, 4, 5), np.eye(3), cable_spring.project(kappa, C), C,
+                                     cable_spring.statistic(kappa, C), critical, null_mean, kappa, declared=True)
+        cov = base + cable_spring.term(s, {"all": AM}).covariance("all")
+        _, cov_c = cog_with_covariance(theta, cov)
+        assert np.allclose(plan_m, 1000 * np.sqrt(cov[0, 0]), rtol=1e-9)
+        assert np.allclose(plan_c, 1000 * np.sqrt(np.max(np.diag(cov_c))), rtol=1e-9)
+    assert planned_terms.cable_declared(None) is False
+    assert planned_terms.cable_declared(dataclasses.replace(systematics.RIGID, tool_cable_fitted=True)) is True
 
 
 def test_the_plans_spring_covariance_is_the_runs_fit_on_the_same_rows():

@@ -249,6 +249,8 @@ def cruise_window(t: np.ndarray, angle: np.ndarray, command: SweepCommand | None
     r1 = r1 - guard if r1 < len(ok) else r1
     covered = abs(xs[r1 - 1] - xs[r0]) if r1 > r0 else 0.0
     if r1 - r0 < MIN_SAMPLES or covered < MIN_VERIFIED_FRACTION * (hi - lo):
+        if ok.all():  # every sample turns at the cruise speed: what is missing is samples
+            raise DataError(_hole_message(where, command.joint, angle, lo, hi, covered))
         worst = int(np.argmax(dev / limit))
         raise DataError(
             f"{where}: joint {command.joint + 1} does not turn at constant speed over the planned interval "
@@ -260,6 +262,19 @@ def cruise_window(t: np.ndarray, angle: np.ndarray, command: SweepCommand | None
     seg = xs[r0:r1]
     return Window(a + r0, a + r1, cruise, float(seg.min()), float(seg.max()), (lo, hi), w,
                   float(np.nanmedian(se)))
+
+
+def _hole_message(where: str, joint: int, angle: np.ndarray, lo: float, hi: float, covered: float) -> str:
+    """A sweep whose samples all turn at the cruise speed but cover too little of the planned interval: the
+    stream left a hole there (a stall of the sample stream shorter than the watchdog's limit)."""
+    edges = np.concatenate(([lo], np.sort(angle[(angle > lo) & (angle < hi)]), [hi]))
+    i = int(np.argmax(np.diff(edges)))
+    a, b = sorted((edges[i], edges[i + 1]), key=lambda v: abs(v - angle[0]))  # in the sweep's direction
+    return (f"{where}: joint {joint + 1} has no samples from {math.degrees(a):.2f}° to {math.degrees(b):.2f}° of "
+            f"the planned constant-speed interval {math.degrees(lo):.2f}°–{math.degrees(hi):.2f}°: only "
+            f"{math.degrees(covered):.2f}° of it are recorded (need {100 * MIN_VERIFIED_FRACTION:.0f} %). The sample "
+            "stream stalled for less than the watchdog's limit (safety.max_stream_gap_ms); redo the sweep "
+            "(--retry-sweeps)")
 
 
 @functools.lru_cache(maxsize=DATA_WINDOW_CACHE)

@@ -103,9 +103,9 @@ class SimulationConfig:
     # by a uniform draw within ± this, seeded by ``seed`` (``fakes.arms.simulated_spec``); 0: exact, as shipped
     dh_length_error_mm: float = 0.0
     # each commanded motion draws its noise from generators seeded by (seed, session, motion number), so a seeded
-    # session repeats its motions' noise however late a loaded host delivers the commands (``SimRobot``); off: one
-    # stream per tick, as always
-    noise_per_move: bool = False
+    # session repeats its motions' noise however late a loaded host delivers the commands (``SimRobot``); the
+    # default. Off: one stream per tick, whose draws a motion gets depend on the tick its command arrived at
+    noise_per_move: bool = True
     # not a YAML key: which session of this simulated robot the cell starts (``session.simulation``), so that a
     # calibration, a stored baseline and the run after them do not draw the same noise
     session: int = 0
@@ -155,7 +155,7 @@ def parse_simulation(node: Node) -> SimulationConfig:
     jitter_ms = node.number("timestamp_jitter_ms", 0.0, min=0, max=100)
     effects = parse_effects(node.child("effects", required=False))
     dh_error_mm = node.number("dh_length_error_mm", 0.0, min=0, max=5)
-    per_move = node.boolean("noise_per_move", False)
+    per_move = node.boolean("noise_per_move", True)
     node.reject_unknown(["arm", "payload", "noise_nm", "noise_rest_nm", "friction", "drive_gain_error", "time_scale",
                          "seed", "start_deg", "angle_noise_rad", "timestamp_jitter_ms", "effects", "dh_length_error_mm",
                          "noise_per_move"])

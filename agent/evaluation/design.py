@@ -53,7 +53,7 @@ from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
 from payload_agent.evaluation.planned_baseline import SharedBaseline, reusing_run_mount
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
-                                                    reported_sigma_draws, wrist_model)
+                                                    reported_sigma_draws, wrist_model, cable_declared)
 from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
 
 
@@ -239,7 +239,7 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
         swept = {m.sweep.joint - 1 for m in plan.sweeps}
         rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
     wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel,
-                        plan.moves[-1].target_rad if mount_rad is None else mount_rad)
+                        plan.moves[-1].target_rad if mount_rad is None else mount_rad, cable_declared(noise.joints))
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
     terms["baseline"] = np.zeros((4, 4))

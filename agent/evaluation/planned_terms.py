@@ -8,7 +8,9 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
   starts where the run's own empty run ended, the plan's last pose, and the tool goes on there) fits a tool
   cable's spring relaxed there (``systematics.cable_spring``): stiffnesses κ̂ (covariance C) move θ by AM·κ; the
   run projects κ̂ onto κ ≥ 0, tests its presence and puts β̂β̂ᵀ + D into σ where it finds a cable, w·β̂β̂ᵀ below the
-  test (``cable_spring.shares``). Without a recorded mount it fits
+  test (``cable_spring.shares``); where the robot YAML declares a cable (``robot.tool_cable_fitted``) the run takes
+  AM·κ̂ off θ̂ and σ holds D = AM·C·AMᵀ in every run (``cable_spring.term``), and so does the plan. Without a recorded
+  mount it fits
   free offsets b̂ (one per pose and wrist joint, ``systematics.wrist_terms``), β̂ = A·b̂, D = A·C·Aᵀ, shrunk by
   s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D; with no wrist torque its expectation is D·E[(χ²_r − r)⁺]/r
   (z's direction is uniform and independent of |z|²). Both with β̂'s true spread (``SPREAD_RATIO``: below), C
@@ -145,11 +147,15 @@ def offset_model(D: np.ndarray, ratio: float = SPREAD_RATIO) -> WristModel:
     return WristModel(D, False, a, (z * np.sqrt(ratio * lam)) @ vec.T, np.zeros(DRAWS))
 
 
-def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO) -> WristModel:
-    """The cable spring's term of a run whose stiffnesses κ̂ (covariance C) move θ by AM·κ, drawn."""
+def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, declared: bool = False) -> WristModel:
+    """The cable spring's term of a run whose stiffnesses κ̂ (covariance C) move θ by AM·κ, drawn. ``declared``
+    (``robot.tool_cable_fitted``): the run's σ holds the correction's noise D = AM·C·AMᵀ, the same in every run."""
     from scipy.optimize import nnls
 
     from payload_agent.evaluation.systematics import cable_spring
+
+    if declared:
+        return WristModel(AM @ C @ AM.T, True, np.zeros(DRAWS), np.zeros((DRAWS, 4)), np.ones(DRAWS))
 
     R = np.linalg.cholesky(np.linalg.inv(C)).T  # RᵀR = C⁻¹, as the run whitens
     u = np.sqrt(ratio) * _normal_draws()[:, :len(C)]  # R·κ̂
@@ -171,15 +177,21 @@ def _normal_draws() -> np.ndarray:
 
 def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
                 theta: np.ndarray, gain_rel_std: Sequence[float] | None,
-                mount_rad: Sequence[float] | None = None) -> WristModel:
+                mount_rad: Sequence[float] | None = None, declared: bool = False) -> WristModel:
     """The wrist term of a run of the planned sweeps on an arm without wrist torques: the tool cable's spring
-    relaxed at ``mount_rad`` (where the loaded run starts, as the run records it), else the free offsets."""
+    relaxed at ``mount_rad`` (where the loaded run starts, as the run records it; ``declared``: the robot YAML
+    declares a cable, ``cable_declared``), else the free offsets."""
     if mount_rad is None:
         return offset_model(wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std))
     spring = spring_covariance(sweeps, groups, w, inflation, theta, gain_rel_std, mount_rad)
     if spring is None:  # no wrist joint with a lever: the run has no wrist term
         return offset_model(np.zeros((4, 4)))
-    return spring_model(*spring)
+    return spring_model(*spring, declared=declared)
+
+
+def cable_declared(joints) -> bool:
+    """Whether the robot's declarations (``JointSystematicsConfig`` or None) say a tool cable is fitted."""
+    return bool(getattr(joints, "tool_cable_fitted", False))
 
 
 def spring_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
@@ -344,6 +356,6 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
     return None
 
 
-__all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model",
+__all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model", "cable_declared",
            "spring_covariance", "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]

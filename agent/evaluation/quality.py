@@ -208,7 +208,7 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
         try:
             f = _pose_fit(model.fit(pose), model.groups_of(pose), row_pose == pose, dY, eps, gain_std,
                           None if absorb is None else (lambda theta, p=pose: absorb(theta, p)))
-            theta = f["theta"]
+            theta = f["theta"] = f["theta"] - (0.0 if systematics is None else systematics.shift(pose))  # Term.shift
             if not theta[0] > 0:
                 raise DataError(f"mass {theta[0]:.4f} kg is not positive")
             J = _output_jacobian(theta)

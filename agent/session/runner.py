@@ -110,8 +110,8 @@ class Session:
                 if i > 0:
                     _prepare_tool(phase, mounted, cell, mode, opts, ui, changing)
                 phase_runner.run_phase(phase, phase_plan, resume=mode.resumed)
-                if phase == "empty":  # checked while the tool is still off: a bad sweep is redone now
-                    _check_empty_run(config, plan, recorder, phase_runner, opts.retry_sweeps, out)
+                if phase in ("empty", "loaded"):  # checked while the robot and the tool are as recorded
+                    _check_segmentation(config, phase, phase_plan, recorder, phase_runner, opts.retry_sweeps, out)
             if phase_runner.progress is not None:
                 phase_runner.progress.close()
             driver.stop_stream()
@@ -339,25 +339,28 @@ def _make_progress(ui: OperatorUI, opts: RunOptions, config: Config, plan: Plan,
     return Progress(stream, plan, durations, enabled=True, phases=phases, time_scale=scale)
 
 
-def _check_empty_run(config: Config, plan: Plan, recorder: RunRecorder, phase_runner: PhaseRunner, retries: int,
-                     out) -> None:
-    """Segment the empty run right after it is recorded, before the operator mounts the tool. A sweep
-    without a verified constant-speed window is redone now (within ``--retry-sweeps``), not found after
-    the loaded run; past the budget the session stops here, before any loaded motion."""
-    every = {m.sweep.name for m in plan.moves if m.sweep is not None}
+def _check_segmentation(config: Config, phase: str, plan: Plan, recorder: RunRecorder, phase_runner: PhaseRunner,
+                        retries: int, out) -> None:
+    """Segment a phase right after it is recorded. A sweep without a verified constant-speed window (a stream
+    that stalled for less than the watchdog's limit leaves a hole) is redone now, within ``--retry-sweeps``:
+    the empty run's before the operator mounts the tool, the loaded run's while the tool is still on, not found
+    by the analysis after the session. Past the budget the session stops here, the data kept."""
+    recorded = {m.recorded_name for m in plan.moves if m.recorded_name is not None}
     for attempt in range(retries + 1):
-        _, failed = segment_phase(recorder.run_dir, "empty")
+        _, failed = segment_phase(recorder.run_dir, phase)
         if not failed:
             return
         problems = "\n  - ".join(failed.values())
-        recorder.set_aside("empty", failed)  # not complete: `run --resume` records them again
+        recorder.set_aside(phase, failed)  # not complete: `run --resume` records them again
         if attempt == retries:
-            raise DataError(f"the empty-flange run cannot be segmented, so no loaded run was started:\n  - {problems}"
-                            f"\nData kept in {recorder.run_dir}. Pass --retry-sweeps N to redo such sweeps at once, "
-                            "or look at the sweeps in the report")
-        out(f"  [empty] {', '.join(sorted(failed))} cannot be segmented; redoing before the tool is mounted "
+            after = "so no loaded run was started" if phase == "empty" else "so it was not analysed"
+            raise DataError(f"the {'empty-flange' if phase == 'empty' else 'loaded'} run cannot be segmented, "
+                            f"{after}:\n  - {problems}\nData kept in {recorder.run_dir}. Pass --retry-sweeps N to "
+                            "redo such sweeps at once, or look at the sweeps in the report")
+        when = "before the tool is mounted" if phase == "empty" else "with the tool still on"
+        out(f"  [{phase}] {', '.join(sorted(failed))} cannot be segmented; redoing {when} "
             f"({retries - attempt - 1} retries left):\n  - {problems}")
-        phase_runner.run_phase("empty", remaining_plan(config, plan, every - set(failed)), resume=True)
+        phase_runner.run_phase(phase, remaining_plan(config, plan, recorded - set(failed)), resume=True)
 
 
 def _prepare_tool(phase: str, mounted: bool, cell, mode: Mode, opts: RunOptions, ui: OperatorUI,

@@ -38,8 +38,8 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
      data tell it given the scatter's size (posterior mean and covariance, ``systematics.gain_scatter``);
    - tool cable / wrist torques: where the loaded run's start is known, a spring on the wrist relaxed there,
-     tested and, when present, its measured effect on θ with that effect's uncertainty (``cable_spring``; where
-     ``robot.tool_cable_fitted`` declares one, its effect for every stiffness κ ≥ 0 the data allow);
+     tested and, when present, its measured effect on θ in σ (``cable_spring``; where ``robot.tool_cable_fitted``
+     declares one, the fitted spring's effect taken off θ̂ and that estimate's noise in σ);
      else one constant per (pose, wrist joint) beside a nuisance gain column per still (joint, angle) of
      joints 1–3, their measured effect shrunk likewise (``systematics.wrist``); a strong one fails the
      gate's cable check instead;
@@ -335,11 +335,8 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
                                     declared=ctx.decl.tool_cable_fitted)
     except (DataError, np.linalg.LinAlgError):
         return []
-    if s is None or s.weight <= 0:
-        return []
-    a, b = cable_spring.shares(s.weight, s.present or s.declared)  # below the test: w·β̂β̂ᵀ, not w·(β̂β̂ᵀ + D)
-    std = np.r_[np.sqrt(a), np.full(len(s.joints), np.sqrt(b))]
-    return [Term("tool cable", std, cable_spring.effect(s, sens), cable_spring.note(s))]
+    t = None if s is None else cable_spring.term(s, sens)  # declared: the fitted κ̂'s effect off θ̂
+    return [] if t is None else [t]
 
 
 def gain_scatter_terms(ctx: Context) -> list[Term]:

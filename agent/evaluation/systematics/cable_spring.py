@@ -22,14 +22,20 @@ reported θ̂ is the plain fit's, whose error is independent of κ̂, and E[β̂
 by 2–4 σ of mass the same way, which a term that is zero below the test leaves uncovered (docs/benchmarks.md,
 session 12).
 
-Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide:
-κ's posterior given κ̂ ~ N(κ, C) under a flat prior on κ ≥ 0 (the physics: a spring resists) has a mean μ that is
-not zero when κ̂ ≤ 0, and the term is A·M·μ (its outer product in σ), less κ̂'s noise: w·A·M·μμᵀ·MᵀAᵀ with
-w = (1 − 1/μᵀC⁻¹μ)⁺, the positive semi-definite part of μμᵀ − C (``declared_weight``; until session 20 w = 1,
-whose mean held C once, as wide as the cable itself at 20 % sweeps). The posterior's covariance Σ is not added:
-where κ̂ lies well inside κ ≥ 0, μ ≈ κ̂ and Σ ≈ C, so μμᵀ + Σ is the found branch's β̂β̂ᵀ + D again (``shares``).
-Not the default: on an arm without a cable the same term costs the clean arm's σ what a cable of about σ_κ would do
-(docs/benchmarks.md, session 15).
+Where the robot YAML declares that a cable is fitted (``robot.tool_cable_fitted``), the test does not decide and the
+cable's effect is taken out of θ̂ instead of being carried in σ (session 21). A spring that resists pushes θ̂ one
+way in every run (+4.3 to +5.1 g of mass on the benchmark's realistic+cable arm, +5.5 of the hard arm's +7.4 g at
+10 %; 23–24 of 24 cases positive), so a σ that holds ββᵀ covers a bias as if it were noise. The reported θ̂ is θ̂_plain
+− A·M·κ̂ with κ̂ the unconstrained fit (``term``: ``Term.shift``), the posterior mean of κ under a flat prior on all
+of κ (posterior N(κ̂, C)), and σ holds D = A·M·C·MᵀAᵀ. Its error is e + A·M·(κ − κ̂), e the plain fit's, independent
+of κ̂ (``shares``: with the cable's and the arm joints' offset columns beside Y in one weighted fit, Cov(θ̂_plain,
+κ̂) = 0), so its covariance is P + D whatever κ: the fit with the spring's columns fitted (Frisch–Waugh). The
+physics' κ ≥ 0 is not used there: the posterior mean under a flat prior on κ ≥ 0 (κ̂'s normal truncated to the cone)
+lies inside the cone whatever κ̂, so wherever σ_κ is of κ's size it over-corrects, by up to about σ_κ per joint: measured
+−3.0 ± 0.9 g on hard 20 % and −2.7 ± 0.6 g on realistic+cable's default procedure (20 and 21 of 24 negative;
+docs/benchmarks.md, session 21), against +2.2 ± 1.4 g and −1.1 ± 0.7 g for κ̂ (the hard arm's +1.9 g without its
+cable is not the cable's). Not the default: on an arm without a cable the correction costs D (docs/benchmarks.md,
+session 15 for the term before).
 """
 
 from __future__ import annotations
@@ -41,8 +47,8 @@ from typing import Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.errors import DataError
 from payload_agent.evaluation.systematics import gain_scatter, offsets, wrist
+from payload_agent.evaluation.systematics.terms import Term
 from payload_agent.solvers.fitted import ALL, FittedModel
 from payload_agent.solvers.wls import Group, fit
 
@@ -50,7 +56,6 @@ ALPHA = 0.05  # false-alarm rate of the presence test on an arm without a cable
 # a wrist joint that stands within this of where the tool was mounted in every pose feels no spring torque
 MIN_LEVER_RAD = math.radians(1.0)
 DRAWS = 4000  # draws of the chi-bar-squared null distribution (fixed seed: the same data give the same answer)
-POSTERIOR_DRAWS = 20000  # importance-sampling draws of κ's posterior on κ ≥ 0 (fixed seed)
 
 
 @dataclass(frozen=True)
@@ -65,13 +70,7 @@ class CableSpring:
     critical: float  # the 1 − ALPHA quantile of T under κ = 0
     null_mean: float  # E[T] under κ = 0
     estimate: np.ndarray | None = None  # (p,) the unconstrained κ̂
-    # declared fitted (``robot.tool_cable_fitted``): κ's posterior mean and covariance on κ ≥ 0 (``posterior``)
-    posterior_mean: np.ndarray | None = None
-    posterior_cov: np.ndarray | None = None
-
-    @property
-    def declared(self) -> bool:
-        return self.posterior_mean is not None
+    declared: bool = False  # ``robot.tool_cable_fitted``: κ̂'s effect comes off θ̂ (``term``)
 
     @property
     def present(self) -> bool:
@@ -81,11 +80,9 @@ class CableSpring:
     def weight(self) -> float:
         """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where the test finds a cable, else the
         share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ of mass
-        in the weak-cable ablation's undetected cases). ``shares`` gives D no share. Declared, the share of the
-        posterior mean's effect A·M·μ that is not κ̂'s noise, (1 − 1/μᵀC⁻¹μ)⁺ (``declared_weight``)."""
-        if self.declared:
-            return declared_weight(self.posterior_mean, self.cov)
-        if self.present:
+        in the weak-cable ablation's undetected cases). ``shares`` gives D no share. Declared: 1, the whole of κ̂'s
+        effect, taken off θ̂ rather than put in σ (``term``)."""
+        if self.declared or self.present:
             return 1.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
 
@@ -165,39 +162,6 @@ def null_distribution(cov: np.ndarray, alpha: float = ALPHA, draws: int = DRAWS)
     return float(np.quantile(t, 1.0 - alpha)), float(np.mean(t))
 
 
-def posterior(kappa: np.ndarray, cov: np.ndarray, draws: int = POSTERIOR_DRAWS) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, covariance) of κ given κ̂ ~ N(κ, C) and a flat prior on κ ≥ 0: N(κ̂, C) truncated to the cone.
-    Drawn by importance sampling from N(κ*, C), κ* the projection (``project``), with a fixed seed: the target
-    over the proposal is exp((κ − κ*)ᵀC⁻¹(κ̂ − κ*)) up to a constant, at most 1 on the cone (κ̂ − κ* lies in
-    the polar cone), so no draw dominates; about 2⁻ᵖ of the draws or more land on the cone."""
-    center = project(kappa, cov)
-    L = np.linalg.cholesky(cov)
-    x = center + np.random.default_rng(20261127).standard_normal((draws, len(kappa))) @ L.T
-    x = x[np.all(x >= 0.0, axis=1)]
-    if len(x) < 100:
-        raise DataError(f"the cable stiffness posterior: only {len(x)} of {draws} draws on κ ≥ 0")
-    log_w = (x - center) @ np.linalg.solve(cov, kappa - center)
-    w = np.exp(log_w - log_w.max())
-    w /= w.sum()
-    mean = w @ x
-    d = x - mean
-    return mean, (d * w[:, None]).T @ d
-
-
-def declared_weight(mean: np.ndarray, cov: np.ndarray) -> float:
-    """w in the declared term w·A·M·μμᵀ·MᵀAᵀ: (1 − 1/u²)⁺, u² = μᵀC⁻¹μ, the positive part of μμᵀ − C in C's metric.
-
-    The error σ has to hold is the cable's own effect ββᵀ (the reported θ̂ is the plain fit's, ``shares``). Where κ̂
-    lies well inside κ ≥ 0, μ ≈ κ̂ and E[μμᵀ] ≈ κκᵀ + C: μμᵀ holds κ̂'s noise C once, which is no part of the error.
-    μμᵀ − C is the unbiased estimate of κκᵀ there but not positive semi-definite; whitened by C it is uuᵀ − I, whose
-    one positive eigenvalue u² − 1 lies along u, so its nearest positive semi-definite matrix is (1 − 1/u²)⁺·μμᵀ.
-    Where C is small against κ (slow sweeps) w ≈ 1 and the term is μμᵀ as before; where σ_κ is of κ's size (hard
-    arm, 20 % sweeps: σ_κ 10–25 mN·m/rad against a cable of 10–20) μμᵀ was 1.75× the cable's true effect on the
-    CoM z at the median over 24 cases, and rms(err/σ) z 0.64 (docs/benchmarks.md, session 20, hard 20 %)."""
-    u2 = float(mean @ np.linalg.solve(cov, mean))
-    return max(1.0 - 1.0 / u2, 0.0) if u2 > 0 else 0.0
-
-
 def moving_arm_joint(group: Group, sweep: DeltaSweep) -> str | None:
     """One nuisance offset per moving arm joint (1–3) over all its sweeps, fitted beside the spring: what the
     two-direction average leaves of that joint's friction, a direction asymmetry times the Coulomb level's change
@@ -215,7 +179,7 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
     torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
     absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever.
-    ``declared``: the robot YAML says a cable is fitted, so the term is κ's posterior on κ ≥ 0 (``posterior``).
+    ``declared``: the robot YAML says a cable is fitted, so κ̂'s effect comes off θ̂ (``term``).
     ``arm_offsets``: the nuisance offsets of the moving arm joints' rows fitted with it (``moving_arm_joint``; None:
     none, the fit before session 18)."""
     sweeps, groups = list(model.sweeps), list(model.groups)
@@ -237,21 +201,18 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     p = len(joints)
     kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
     order = [names.index(lab) for lab in labels]
-    mean, post = posterior(kappa, cov) if declared else (None, None)
     return CableSpring(joints, M_all[order], project(kappa, cov), cov, statistic(kappa, cov),
-                       *null_distribution(cov, alpha), kappa, mean, post)
+                       *null_distribution(cov, alpha), kappa, declared)
 
 
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{fit: (4, 1 + p)}: the spring's measured effect A·M·κ* and its uncertainty A·M·chol(C) side by side
     (``sens``: {fit: (4, k)} of the offsets' labels): unit-σ columns whose sum of squares is β̂β̂ᵀ + D; where a
-    cable is declared, the posterior's A·M·μ and A·M·Σ^½ (sum of squares E[ββᵀ | κ̂]). ``shares`` weights them:
-    the run's σ takes the first column (the uncertainty columns have share 0; they stay for what reads D)."""
-    if spring.declared:
-        vals, vecs = np.linalg.eigh(spring.posterior_cov)
-        mean, L = spring.posterior_mean, vecs * np.sqrt(np.clip(vals, 0.0, None))
-    else:
-        mean, L = spring.stiffness_nm_per_rad, np.linalg.cholesky(spring.cov)
+    cable is declared, A·M·κ̂ of the unconstrained κ̂ first. ``term`` weights them: undeclared, the run's σ takes
+    the first column (``shares``: the uncertainty columns have share 0; they stay for what reads D); declared, θ̂
+    loses the first and σ takes the others."""
+    mean = spring.estimate if spring.declared else spring.stiffness_nm_per_rad
+    L = np.linalg.cholesky(spring.cov)
     out = {}
     for which, A in sens.items():
         AM = A @ spring.levers
@@ -261,32 +222,47 @@ def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.nda
 
 def shares(weight, found):
     """(a, b): the shares of the measured effect β̂β̂ᵀ and of its uncertainty D that a run puts into σ, a·β̂β̂ᵀ + b·D
-    (numbers, or arrays of the plan's draws: ``planned_terms``). a = 1 where the presence test finds a cable or the
-    YAML declares one (``weight`` is then 1; declared, β̂ is the posterior mean's effect A·M·μ), else
-    w = (T − E₀[T])⁺/T; b = 0 in every branch.
+    (numbers, or arrays of the plan's draws: ``planned_terms``) where the YAML declares no cable. a = 1 where the
+    presence test finds a cable, else w = (T − E₀[T])⁺/T; b = 0 in both branches (declared: ``term``).
 
     Why no D: the estimate σ describes is the plain fit's (``Systematics.apply`` adds covariance and leaves θ̂ as
     fitted), and its error is e + β with e independent of β̂. With the cable columns Z beside Y,
     κ̂ = (ZᵀW·M_Y·Z)⁻¹ZᵀW·M_Y·y and M_Y·Y = 0, so with W the inverse noise covariance
     Cov(θ̂_plain, κ̂) = (YᵀWY)⁻¹Yᵀ·M_YᵀWZ(…) = 0 (docs/sources.md, Hausman). So D = Cov(β̂) is no part of the
     error, and β̂β̂ᵀ, whose mean is ββᵀ + D, already holds D once. β̂β̂ᵀ + D (the found branch until session 18) held
-    it twice, and so did the declared μμᵀ + Σ wherever κ̂ lies well inside κ ≥ 0 (μ ≈ κ̂, Σ ≈ C there); w·D below
-    the test likewise (session 17). D would belong in σ only if θ̂ were the fit with the spring fitted, θ̂_plain −
-    β̂, whose error is e + β − β̂ (covariance P + D, no β̂β̂ᵀ); the run does not report that fit."""
+    it twice; w·D below the test likewise (session 17). D belongs in σ only where θ̂ is the fit with the spring
+    fitted, θ̂_plain − A·M·κ̂, whose error is e + β − A·M·κ̂ (covariance P + D, no β̂β̂ᵀ): the declared branch
+    (``term``). The arm joints' offsets and the gain nuisance columns beside the
+    spring (``fit_spring``) are more columns of the same kind: the argument holds with M_Y for all of them."""
     w = np.asarray(weight, float)
     return w, np.zeros_like(w)
 
 
-def note(spring: CableSpring) -> str:
-    """The result's note on the cable term, in the words of the branch that made it (``shares``)."""
+def term(spring: CableSpring, sens: dict[str, np.ndarray]) -> Term | None:
+    """The run's tool-cable term (``systematics.wrist_terms``). Declared: θ̂ of every fit loses κ̂'s effect A·M·κ̂
+    (``Term.shift``) and σ holds its noise D = A·M·C·MᵀAᵀ (module docstring). Else a·β̂β̂ᵀ in σ (``shares``); None
+    where that share is 0."""
+    cols, p = effect(spring, sens), len(spring.joints)
+    if spring.declared:
+        return Term("tool cable", np.r_[0.0, np.ones(p)], cols, note(spring, cols[ALL][0, 0]),
+                    {which: c[:, 0] for which, c in cols.items()})
+    if spring.weight <= 0:
+        return None
+    a, b = shares(spring.weight, spring.present)
+    return Term("tool cable", np.r_[np.sqrt(a), np.full(p, np.sqrt(b))], cols, note(spring))
+
+
+def note(spring: CableSpring, mass_shift_kg: float = 0.0) -> str:
+    """The result's note on the cable term, in the words of the branch that made it (``term``, ``shares``)."""
     stiff = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.stiffness_nm_per_rad))
     test = f"test statistic {spring.statistic:.1f} {'>' if spring.present else '≤'} {spring.critical:.1f}"
     if spring.declared:
-        mean = ", ".join(f"j{j + 1} {1000 * k:.0f}" for j, k in zip(spring.joints, spring.posterior_mean))
+        fitted = ", ".join(f"j{j + 1} {1000 * k:+.0f}±{1000 * math.sqrt(v):.0f}"
+                           for j, k, v in zip(spring.joints, spring.estimate, np.diag(spring.cov)))
         return (f"a tool cable on the wrist, declared fitted (robot.tool_cable_fitted; a spring relaxed where the "
-                f"tool was mounted, {stiff} mN·m/rad as fitted, {test}): its effect on the result at the stiffness "
-                f"the data give on κ ≥ 0 (posterior mean {mean} mN·m/rad), {spring.weight:.2f} × of it (the share "
-                "that is not the fit's noise), in σ")
+                f"tool was mounted, {test}): its effect removed from the result at the stiffness's posterior mean "
+                f"under a flat prior on κ, not restricted to κ ≥ 0 (the spring fitted beside θ: {fitted} mN·m/rad; "
+                f"the mass {-1000 * mass_shift_kg:+.1f} g by it), that estimate's noise in σ")
     if spring.present:
         return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; found: "
                 f"{test}): its effect on the result as measured, in σ")
@@ -295,5 +271,5 @@ def note(spring: CableSpring) -> str:
             "the data show beyond noise), in σ")
 
 
-__all__ = ["note", "shares", "declared_weight", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution", "posterior",
-           "fit_spring", "effect"]
+__all__ = ["term", "note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics",
+           "statistic", "null_distribution", "fit_spring", "effect"]

@@ -15,12 +15,16 @@ from payload_agent.solvers.results import Estimate
 
 @dataclass(frozen=True)
 class Term:
-    """One systematic error source: P parameters' standard deviations and θ's response to each."""
+    """One systematic error source: P parameters' standard deviations and θ's response to each, and where the data
+    estimate the error itself (a declared tool cable: ``cable_spring.term``), that estimate, removed from θ̂."""
 
     name: str
     std: np.ndarray  # (P,)
     sens: Mapping[str, np.ndarray]  # ALL or a pose -> (4, P) ∂θ/∂p (θ = [m, m·c] of that fit)
     note: str
+    # ALL or a pose -> (4,) the error's estimate in θ of that fit, subtracted from the fit's θ̂ (σ then holds only
+    # the estimate's own uncertainty); none: θ̂ as fitted
+    shift: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def covariance(self, which: str = ALL) -> np.ndarray:
         A = self.sens.get(which)
@@ -39,6 +43,10 @@ class Systematics:
     def covariance(self, which: str = ALL) -> np.ndarray:
         return sum((t.covariance(which) for t in self.terms), np.zeros((4, 4)))
 
+    def shift(self, which: str = ALL) -> np.ndarray:
+        """(4,) what the terms' estimates of their own errors take off θ̂ of fit ``which`` (``Term.shift``)."""
+        return sum((np.asarray(t.shift[which], float) for t in self.terms if which in t.shift), np.zeros(4))
+
     def sensitivities(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """(A, σ): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it)."""
         if not self.terms:
@@ -53,7 +61,7 @@ class Systematics:
             return est
         cov = np.asarray(est.covariance, float).copy()
         cov[:4, :4] += self.covariance(which)
-        out = compliance.with_covariance(est, cov)
+        out = compliance.with_covariance(shifted(est, self.shift(which)), cov)
         missing = [t.name for t in self.terms if which not in t.sens]
         lost = [f"the {' and '.join(missing)} term could not be propagated to {which} (not solvable on the shifted "
                 "data); its σ leaves it out"] if missing else []
@@ -62,3 +70,11 @@ class Systematics:
 
     def describe(self) -> str:
         return " + ".join(t.name for t in self.terms)
+
+
+def shifted(est: Estimate, shift: np.ndarray) -> Estimate:
+    """``est`` with ``shift`` (Δ[m, m·c]) taken off its mass and first moments; its covariance as it was."""
+    if not np.any(shift):
+        return est
+    theta = np.array([est.mass_kg, *(est.mass_kg * np.asarray(est.cog_m))]) - shift
+    return replace(est, mass_kg=float(theta[0]), cog_m=tuple(float(v) for v in theta[1:] / theta[0]))
