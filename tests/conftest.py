@@ -11,6 +11,11 @@ from pathlib import Path
 # the xdist workers and in the CLI subprocesses (they inherit it); a value already set is kept.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# The simulated arms use MuJoCo's inverse dynamics only and never render: without an OpenGL context MuJoCo's import
+# skips GLFW (0.5 s instead of 0.65-1.0 s of wall, 0.08 s less CPU, measured quiet), in every process that imports
+# it: the workers and each simulated controller's and CLI run's subprocess (about 100 in a `make test`). Set before
+# anything imports mujoco; a value already set is kept.
+os.environ.setdefault("MUJOCO_GL", "disable")
 
 import pytest
 import yaml
@@ -111,24 +116,25 @@ def ec66_sim():
 # `--dist loadfile` a worker takes the next file while its last two tests still run, so a long file collected
 # late leaves the other worker idle at the end. xdist would order files by their number of tests (which puts
 # the few-but-long session files last); `make test` passes --no-loadscope-reorder so this order stands.
-# Every file over 10 s of worker time, slowest first (one `make test`-like run with per-test times, 2026-11-27,
-# session 20, at load 9-12 beside other benchmarks: calibration_shares 105 s, modbus_rtu 96, noise_scatter 93,
-# driver_conformance 93, cli_session 87, workflow 84, length_response 82, cable_spring 74, plan_target 67, ...
-# decoders_canopen 10; the 56 files left, alphabetical, are 9.6 s at most). The two workers then ended 3 s apart.
-SLOWEST_FIRST = ("test_calibration_shares.py", "test_modbus_rtu.py", "test_noise_scatter.py", "test_driver_conformance.py",
-                 "test_cli_session.py", "test_workflow.py", "test_length_response.py", "test_cable_spring.py",
-                 "test_plan_target.py", "test_three_step_scatter.py", "test_report_inertia.py", "test_ur_driver.py",
-                 "test_report.py", "test_reference_friction.py", "test_friction_split.py", "test_ur_end_to_end.py",
-                 "test_verify.py", "test_end_to_end.py", "test_canopen_driver.py", "test_stored_candidate.py",
-                 "test_shared_baseline.py",
-                 "test_wrist_chance.py", "test_systematics.py", "test_calibration_zeros.py", "test_plan_quarter.py",
-                 "test_session_collision.py", "test_segmentation_speeds.py", "test_architecture.py",
-                 "test_plan_loop.py", "test_ur_payload_inertia.py", "test_general_solver.py",
-                 "test_planned_terms.py", "test_opcua_server.py", "test_minimal_driver.py", "test_physics_design.py",
-                 "test_physics_config_and_remedies.py", "test_durability.py", "test_quality.py",
-                 "test_elite_driver.py", "test_elite_fake.py", "test_analysis_core.py", "test_ur_script_restart.py",
-                 "test_calibration.py", "test_run_format.py", "test_empty_run_check.py", "test_ur_fake.py",
-                 "test_modbus_driver.py", "test_canopen_end_to_end.py", "test_decoders_canopen.py")
+# Every file over 10 s of worker time, slowest first (a `make test`-like run with per-test times, 2026-11-28, session
+# 21, at load 9-17 beside other helpers' benchmarks: driver_conformance 137 s, cli_session 120 (92 after its two
+# calibrate tests were cut), ur_driver 69, cable_spring 67, workflow 66, plan_target 58, shared_baseline 58, ...
+# decoders_modbus 10; the files left, alphabetical, are under 10 s). The two workers then ended 2 s apart.
+SLOWEST_FIRST = ("test_driver_conformance.py", "test_cli_session.py", "test_ur_driver.py", "test_cable_spring.py",
+                 "test_workflow.py", "test_plan_target.py", "test_shared_baseline.py", "test_report_inertia.py",
+                 "test_length_response.py", "test_modbus_rtu.py", "test_noise_scatter.py", "test_report.py",
+                 "test_three_step_scatter.py", "test_calibration_shares.py", "test_friction_split.py",
+                 "test_plan_quarter.py", "test_run_format.py", "test_calibration_zeros.py", "test_verify.py",
+                 "test_ur_end_to_end.py", "test_calibration.py", "test_minimal_driver.py",
+                 "test_segmentation_speeds.py", "test_session_collision.py", "test_canopen_driver.py",
+                 "test_reference_friction.py", "test_opcua_server.py", "test_physics_config_and_remedies.py",
+                 "test_quality.py", "test_planned_terms.py", "test_architecture.py", "test_stored_candidate.py",
+                 "test_systematics.py", "test_end_to_end.py", "test_durability.py", "test_analysis_core.py",
+                 "test_empty_run_check.py", "test_ur_script_restart.py", "test_ur_payload_inertia.py",
+                 "test_ur_fake.py", "test_elite_fake.py", "test_physics_design.py", "test_api.py",
+                 "test_canopen_end_to_end.py", "test_plan_loop.py", "test_elite_driver.py", "test_modbus_driver.py",
+                 "test_three_step_noise.py", "test_target_advice.py", "test_bidirectional.py",
+                 "test_decoders_modbus.py")
 
 
 def pytest_collection_modifyitems(session, config, items):

@@ -83,6 +83,27 @@ def test_centripetal_batch_equals_per_sample(kin, moving):
     assert np.abs(full - (kin.payload_regressors(q, joints) + reference)).max() <= TOL
 
 
+@pytest.mark.parametrize("moving", [0, 1, 4])
+def test_newton_euler_first_moments_equal_gravity_plus_centripetal(kin, moving):
+    """``payload_regressor(..., inertia=False)`` (what every PTP fit builds its rows from) is the gravity and
+    centripetal rows written independently above, for one joint turning at constant speed (the joints before
+    it stand still: the recursion skips them), and the first four columns of the full regressor when every
+    joint moves and accelerates."""
+    q, speed = _angles(5), -0.6
+    qd = np.zeros_like(q)
+    qd[:, moving] = speed
+    W = R.payload_regressor(kin, q, qd, np.zeros_like(q), inertia=False)
+    assert W.shape == (N, 6, 4)
+    expected = kin.payload_regressors(q, range(6)) + np.stack(
+        [_reference_centripetal(kin, qi, range(6), moving, speed) for qi in q])
+    assert np.abs(W - expected).max() <= TOL
+    rng = np.random.default_rng(6)
+    qd, qdd = rng.normal(0.0, 1.0, (N, 6)), rng.normal(0.0, 2.0, (N, 6))
+    full = R.payload_regressor(kin, q, qd, qdd)
+    assert full.shape == (N, 6, 10) and np.abs(full[:, :, 4:]).max() > 1e-3
+    assert np.abs(R.payload_regressor(kin, q, qd, qdd, inertia=False) - full[:, :, :4]).max() <= TOL
+
+
 def test_shapes_and_bad_input(kin):
     assert kin.payload_regressors(np.zeros((0, 6)), range(6)).shape == (0, 6, 4)
     assert kin.payload_regressor(np.zeros(6), range(6)).shape == (6, 4)

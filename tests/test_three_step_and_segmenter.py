@@ -80,3 +80,29 @@ def test_three_step_with_noise_is_close(fast_cfg):
     assert abs(est.mass_kg - TRUTH.mass_kg) < 0.03
     assert np.max(np.abs(np.array(est.cog_m) - TRUTH.cog_m)) < 0.005
     assert all(0.2 < r < 1.0 for r in est.residual_rms_nm.values()), est.residual_rms_nm
+
+
+def test_a_window_found_from_the_data_is_kept_by_the_samples_content(fast_cfg):
+    """Without a command the window is searched in the data, once per content (``segmenter._window_from_bytes``):
+    equal samples in other arrays (a copy, an effort with noise added) get the window computed the first time, the
+    same as computed afresh; samples changed in place (the joint stalled mid-sweep) get their own."""
+    import dataclasses
+
+    from payload_agent.analysis import segmenter
+    from payload_agent.recording.rundata import SweepData
+
+    _, _, _, loaded = _runs(fast_cfg, FrictionParams(), 0.3, seed=4)
+    sweep = loaded[next(k for k in loaded if k.direction == "up")]
+    j = sweep.key.joint - 1
+    first = window_of(sweep)
+    assert first == segmenter._window_from_data(sweep.t, sweep.q[:, j], sweep.source)
+    hits = segmenter._window_from_bytes.cache_info().hits
+    noisy = dataclasses.replace(sweep, effort_nm=sweep.effort_nm + 1.0)
+    copied = SweepData(sweep.key, sweep.t.copy(), sweep.q.copy(), sweep.effort_nm, sweep.source)
+    assert window_of(noisy) == first and window_of(copied) == first
+    assert segmenter._window_from_bytes.cache_info().hits == hits + 2
+    middle = (first.start + first.stop) // 2
+    copied.q[middle:, j] = copied.q[middle, j]  # in place: the joint stops half-way through its cruise
+    stalled = window_of(copied)
+    assert stalled != first and stalled.stop <= middle + 1
+    assert stalled == segmenter._window_from_data(copied.t, copied.q[:, j], copied.source)

@@ -24,6 +24,7 @@ velocity, less a guard of half a fit window at each end.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
@@ -45,6 +46,7 @@ MARGIN_RAMP_FRACTION = 0.25  # margin beyond the planned ramps: this fraction of
 MARGIN_MIN_RAD = math.radians(0.2)  # ... plus this much
 MIN_VERIFIED_FRACTION = 0.5  # of the planned interval's travel that must pass the data check
 START_TOLERANCE_RAD = math.radians(1.0)  # recorded start vs the plan's start of the sweep
+DATA_WINDOW_CACHE = 256  # windows found without a command, kept by content (a few MB at most)
 
 
 @dataclass(frozen=True)
@@ -219,7 +221,7 @@ def cruise_window(t: np.ndarray, angle: np.ndarray, command: SweepCommand | None
     if len(t) < MIN_SAMPLES:
         raise DataError(f"{where}: only {len(t)} samples recorded; cannot find a constant-speed window")
     if command is None:
-        return _window_from_data(t, angle, where)
+        return _window_from_bytes(t.tobytes(), angle.tobytes(), where)
     lo, hi = command.cruise_interval()
     start = command.start_rad[command.joint]
     if abs(angle[0] - start) > START_TOLERANCE_RAD:
@@ -273,6 +275,14 @@ def _hole_message(where: str, joint: int, angle: np.ndarray, lo: float, hi: floa
             f"{math.degrees(covered):.2f}° of it are recorded (need {100 * MIN_VERIFIED_FRACTION:.0f} %). The sample "
             "stream stalled for less than the watchdog's limit (safety.max_stream_gap_ms); redo the sweep "
             "(--retry-sweeps)")
+
+
+@functools.lru_cache(maxsize=DATA_WINDOW_CACHE)
+def _window_from_bytes(t: bytes, angle: bytes, where: str) -> Window:
+    """``_window_from_data`` keyed by the samples' content: the window depends on the times and the moving joint's
+    angles only, and a run's sweeps are cut again for every subtraction (each analysis's terms and fits, a plan's
+    candidates, a loop over noise draws added to the same efforts). The same bytes give the same window, bit for bit."""
+    return _window_from_data(np.frombuffer(t), np.frombuffer(angle), where)
 
 
 def _window_from_data(t: np.ndarray, angle: np.ndarray, where: str) -> Window:

@@ -34,7 +34,7 @@ def _payload_torque(d: DeltaSweep, kin: Kinematics, theta: np.ndarray) -> np.nda
     """(n, 6): the payload θ's torque on every joint along the sweep (gravity and the centripetal part)."""
     qd = np.zeros_like(d.q)
     qd[:, d.moving] = d.speed_rad_s
-    return payload_regressor(kin, d.q, qd, np.zeros_like(d.q))[:, :, :4] @ theta
+    return payload_regressor(kin, d.q, qd, np.zeros_like(d.q), inertia=False) @ theta
 
 
 def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Sequence[float], fit: Fit,

@@ -77,7 +77,7 @@ def build_groups(sweeps: list[DeltaSweep], kin: Kinematics,
     for d in sweeps:
         qd = np.zeros_like(d.q)
         qd[:, d.moving] = d.speed_rad_s
-        Y = payload_regressor(kin, d.q, qd, np.zeros_like(d.q))[:, list(joints), :4]  # (n, len(joints), 4)
+        Y = payload_regressor(kin, d.q, qd, np.zeros_like(d.q), inertia=False)[:, list(joints)]  # (n, len(joints), 4)
         for c, j in enumerate(joints):
             Yj = Y[:, c, :]
             if np.max(np.abs(Yj)) < ZERO_ROW_TOL:

@@ -46,7 +46,7 @@ def chain_frames(kin: Kinematics, q: np.ndarray) -> list[np.ndarray]:
 
 
 def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                      g: float = GRAVITY_M_S2) -> np.ndarray:
+                      g: float = GRAVITY_M_S2, inertia: bool = True) -> np.ndarray:
     """W with τ_payload[k, j] = W[k, j, :] · θ for every sample k and joint j: shape (n, 6, 10).
 
     Forward Newton–Euler recursion in the base frame (joint i turns about z of DH frame
@@ -54,6 +54,9 @@ def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.nd
         f = m·a' + ω̇ × (m c) + ω × (ω × (m c)),   a' = a_flange − g⃗_gravity
         n = I_O·ω̇ + ω × (I_O·ω) + (m c) × a'
     in flange axes, and τ_j = z_j · (R n + (p − o_j) × R f).
+
+    ``inertia=False`` gives only the first four columns, (n, 6, 4) (the general solver's model and every
+    fit of a PTP run): the same numbers without the inertia columns' cost.
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
     n_s, n_j = q.shape
@@ -65,31 +68,32 @@ def payload_regressor(kin: Kinematics, q: np.ndarray, qd: np.ndarray, qdd: np.nd
     acc = np.zeros((n_s, 3))
     for i in range(n_j):
         zi = z[:, i]
-        w_new = w + qd[:, i:i + 1] * zi
-        wd = wd + qdd[:, i:i + 1] * zi + np.cross(w, qd[:, i:i + 1] * zi)
-        w = w_new
-        r = o[:, i + 1] - o[:, i]
-        acc = acc + np.cross(wd, r) + np.cross(w, np.cross(w, r))
+        turning, speeding = bool(np.any(qd[:, i])), bool(np.any(qdd[:, i]))  # a still joint adds nothing to ω, ω̇
+        if turning or speeding:
+            w_i = qd[:, i:i + 1] * zi
+            wd = wd + qdd[:, i:i + 1] * zi + _cross(w, w_i)
+            w = w + w_i
+        if turning or speeding or np.any(w) or np.any(wd):  # before the first moving joint the links stand still
+            r = o[:, i + 1] - o[:, i]
+            acc = acc + _cross(wd, r) + _cross(w, _cross(w, r))
     R = frames[-1][:, :3, :3]
     Rt = np.transpose(R, (0, 2, 1))
     w_f = np.einsum("nij,nj->ni", Rt, w)
     wd_f = np.einsum("nij,nj->ni", Rt, wd)
     a_f = np.einsum("nij,nj->ni", Rt, acc + np.array([0.0, 0.0, g]))
     Sw, Swd, Sa = _skew(w_f), _skew(wd_f), _skew(a_f)
-    Yf = np.zeros((n_s, 3, 10))
+    cols = 10 if inertia else 4
+    Yf = np.zeros((n_s, 3, cols))
     Yf[:, :, 0] = a_f
     Yf[:, :, 1:4] = Swd + Sw @ Sw
-    Yn = np.zeros((n_s, 3, 10))
+    Yn = np.zeros((n_s, 3, cols))
     Yn[:, :, 1:4] = -Sa
-    Yn[:, :, 4:10] = _inertia_map(wd_f) + Sw @ _inertia_map(w_f)
-    Yf_b = R @ Yf
-    Yn_b = R @ Yn
+    if inertia:
+        Yn[:, :, 4:10] = _inertia_map(wd_f) + Sw @ _inertia_map(w_f)
     p = o[:, -1]
-    W = np.zeros((n_s, n_j, 10))
-    for j in range(n_j):
-        lever = np.cross(z[:, j], p - o[:, j])  # z·(r × F) = (z × r)·F
-        W[:, j] = np.einsum("ni,nik->nk", z[:, j], Yn_b) + np.einsum("ni,nik->nk", lever, Yf_b)
-    return W
+    levers = _cross(z.reshape(-1, 3), (p[:, None, :] - o[:, :n_j]).reshape(-1, 3)).reshape(n_s, n_j, 3)  # z × r
+    # z·(R n) + (z × r)·(R f), every joint at once: (n, 6, 3) @ (n, 3, cols)
+    return (z @ R) @ Yn + (levers @ R) @ Yf
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

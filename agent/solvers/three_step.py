@@ -62,7 +62,7 @@ def _find(deltas: dict[SweepKey, DeltaSweep], pose: str, joint: int,
 
 def _lever_terms(kin: Kinematics, q: np.ndarray, joint_index: int) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) per sample with Δτ_j = m·A + m·B·c: A from the flange position, B from its rotation."""
-    rows = payload_regressor(kin, q, np.zeros_like(q), np.zeros_like(q))[:, joint_index, :4]
+    rows = payload_regressor(kin, q, np.zeros_like(q), np.zeros_like(q), inertia=False)[:, joint_index]
     return rows[:, 0], rows[:, 1:]
 
 
