@@ -7,6 +7,7 @@ friction of each joint. Protocol front ends never touch MuJoCo directly; they re
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -118,9 +119,17 @@ class FrictionParams:
         return self.scale * np.asarray(factor) * (coulomb + self.viscous_nm_s_rad * qd)
 
 
-def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+def _mujoco():
+    """MuJoCo, imported for inverse dynamics only: the simulated arms never render, and without an OpenGL context
+    its import skips GLFW (0.5 s instead of 0.65-1.0 s per simulated controller's process; a value set is kept)."""
+    os.environ.setdefault("MUJOCO_GL", "disable")
     import mujoco
 
+    return mujoco
+
+
+def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+    mujoco = _mujoco()
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(R).flatten())
     return quat
@@ -169,9 +178,7 @@ class ArmPhysics:
     """Inverse dynamics of the arm and its current payload (not thread-safe; SimRobot locks)."""
 
     def __init__(self, spec: ArmSpec, payload: PayloadTruth | None = None):
-        import mujoco
-
-        self._mj = mujoco
+        mujoco = self._mj = _mujoco()
         self.spec = spec
         self.model = mujoco.MjModel.from_xml_string(build_mjcf(spec))
         self.data = mujoco.MjData(self.model)

@@ -11,11 +11,6 @@ from pathlib import Path
 # the xdist workers and in the CLI subprocesses (they inherit it); a value already set is kept.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
-# The simulated arms use MuJoCo's inverse dynamics only and never render: without an OpenGL context MuJoCo's import
-# skips GLFW (0.5 s instead of 0.65-1.0 s of wall, 0.08 s less CPU, measured quiet), in every process that imports
-# it: the workers and each simulated controller's and CLI run's subprocess (about 100 in a `make test`). Set before
-# anything imports mujoco; a value already set is kept.
-os.environ.setdefault("MUJOCO_GL", "disable")
 
 import pytest
 import yaml
