@@ -30,6 +30,29 @@ pytest.importorskip("mujoco")
 BROKEN = "p-j2-up"  # the first sweep of j2_pair (conftest.short_session)
 
 
+def _run_with_first_attempt_altered(config, monkeypatch, phase, alter):
+    """A session whose first recording of ``BROKEN`` in ``phase`` keeps ``alter(sample, first sample)`` of each
+    sample (None: the sample never arrives); (outcome, the lines the operator was shown)."""
+    state: dict[str, object] = {}
+    real_sink = RunRecorder.sink
+
+    def sink(self, sample):
+        entry = self._entry
+        if entry is not None and self._phase == phase and entry["name"] == BROKEN and not state.get("done"):
+            sample = alter(sample, state.setdefault("first", sample))
+            if sample is None:
+                return
+        elif "first" in state:
+            state["done"] = True
+        real_sink(self, sample)
+
+    monkeypatch.setattr(RunRecorder, "sink", sink)
+    said: list[str] = []
+    outcome = run_identification(config, RunOptions(assume_yes=True, report=False, retry_sweeps=1),
+                                 OperatorUI(out=said.append, progress=False))
+    return outcome, said
+
+
 def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_repeats_the_live_result(
         sim_ec66_data, monkeypatch, tmp_path, capsys):
     data = tweak(sim_ec66_data, "robot.name", "empty-check")
@@ -42,22 +65,10 @@ def test_a_broken_empty_sweep_is_redone_before_the_tool_is_mounted_and_solve_rep
         tuple(nominal * scale), (1, 2), tuple(scale), (0.0, 0.002, 0.002, 0.0, 0.0, 0.0), 3.0, (0.0, 0.02, 0.08),
         config.robot.name, config.effort.unit, calibration_fingerprint(config), "runs/reference",
         "2026-11-20T10:00:00+00:00"))
-    frozen: dict[str, object] = {}
-    real_sink = RunRecorder.sink
+    def frozen(sample, first):  # the first attempt of this sweep records one angle throughout
+        return type(sample)(sample.t_ctrl, sample.t_recv, first.q, sample.effort)
 
-    def sink(self, sample):
-        entry = self._entry
-        if entry is not None and self._phase == "empty" and entry["name"] == BROKEN and not frozen.get("done"):
-            frozen.setdefault("q", sample.q)  # the first attempt of this sweep records one angle throughout
-            sample = type(sample)(sample.t_ctrl, sample.t_recv, frozen["q"], sample.effort)
-        elif frozen.get("q") is not None:
-            frozen["done"] = True
-        real_sink(self, sample)
-
-    monkeypatch.setattr(RunRecorder, "sink", sink)
-    said: list[str] = []
-    outcome = run_identification(config, RunOptions(assume_yes=True, report=False, retry_sweeps=1),
-                                         OperatorUI(out=said.append, progress=False))
+    outcome, said = _run_with_first_attempt_altered(config, monkeypatch, "empty", frozen)
     redo = next(i for i, line in enumerate(said) if "cannot be segmented; redoing before the tool is mounted" in line)
     mount = next(i for i, line in enumerate(said) if "tool mounted" in line)
     assert BROKEN in said[redo] and redo < mount
@@ -98,23 +109,10 @@ def test_a_loaded_sweep_with_a_hole_is_redone_while_the_tool_is_on(sim_ec66_data
     data = tweak(data, "storage", {"state_dir": str(tmp_path / "state"), "runs_dir": str(tmp_path / "runs")})
     data = tweak(data, "simulation.payload", {"mass_kg": 1.3, "cog_mm": [-20.0, 30.0, 55.0]})
     config = parse_config(short_session(data), "loaded-check.yaml")
-    state: dict[str, object] = {}
-    real_sink = RunRecorder.sink
+    def stalled(sample, first):  # the stalled stream: nothing arrives from 15° of travel until the sweep has ended
+        return None if abs(np.degrees(sample.q[1] - first.q[1])) >= 15.0 else sample
 
-    def sink(self, sample):
-        entry = self._entry
-        if entry is not None and self._phase == "loaded" and entry["name"] == BROKEN and not state.get("done"):
-            start = state.setdefault("start", sample.q[1])
-            if abs(np.degrees(sample.q[1] - start)) >= 15.0:
-                return  # the stalled stream: nothing arrives until the sweep has ended
-        elif state.get("start") is not None:
-            state["done"] = True
-        real_sink(self, sample)
-
-    monkeypatch.setattr(RunRecorder, "sink", sink)
-    said: list[str] = []
-    outcome = run_identification(config, RunOptions(assume_yes=True, report=False, retry_sweeps=1),
-                                 OperatorUI(out=said.append, progress=False))
+    outcome, said = _run_with_first_attempt_altered(config, monkeypatch, "loaded", stalled)
     redo = next(line for line in said if "cannot be segmented; redoing with the tool still on" in line)
     assert BROKEN in redo and "has no samples from" in redo
     loaded = load_manifest(outcome.run_dir)["phases"]["loaded"]
