@@ -111,7 +111,7 @@ class Session:
                     _prepare_tool(phase, mounted, cell, mode, opts, ui, changing)
                 phase_runner.run_phase(phase, phase_plan, resume=mode.resumed)
                 if phase in ("empty", "loaded"):  # checked while the robot and the tool are as recorded
-                    _check_segmentation(config, phase, phase_plan, recorder, phase_runner, opts.retry_sweeps, out)
+                    _check_segmentation(config, phase, plan, recorder, phase_runner, opts.retry_sweeps, out)
             if phase_runner.progress is not None:
                 phase_runner.progress.close()
             driver.stop_stream()
@@ -344,7 +344,8 @@ def _check_segmentation(config: Config, phase: str, plan: Plan, recorder: RunRec
     """Segment a phase right after it is recorded. A sweep without a verified constant-speed window (a stream
     that stalled for less than the watchdog's limit leaves a hole) is redone now, within ``--retry-sweeps``:
     the empty run's before the operator mounts the tool, the loaded run's while the tool is still on, not found
-    by the analysis after the session. Past the budget the session stops here, the data kept."""
+    by the analysis after the session. Past the budget the session stops here, the data kept. ``plan`` is the
+    whole plan, not a resumed phase's rest: a sweep recorded by an earlier session can be the one redone."""
     recorded = {m.recorded_name for m in plan.moves if m.recorded_name is not None}
     for attempt in range(retries + 1):
         _, failed = segment_phase(recorder.run_dir, phase)
