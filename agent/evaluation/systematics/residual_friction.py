@@ -201,24 +201,34 @@ def posterior(asym_std: float, tool: Sequence[friction.CoulombChange], joints: S
 
 
 def columns(post: Posterior, calib: Mapping[str, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
-            ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """(std, sens) of the term: the shift's second moment given the data as unit-σ columns, L·μ, L·P^½ (L = [S,
-    R·diag(μr)]) and R_j with std √E[a_j²]·sr_j. ``calib``: {fit: (4, 2p)}, the tool run's columns S then the
-    reference run's R (``reference_friction.reference_columns``; R zero without a calibration)."""
+            ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """(std, sens, shift) of the term: the shift's posterior mean L·μ (L = [S, R·diag(μr)]), taken off θ̂ of each fit
+    (``Term.shift``), and what stays uncertain of it given the data as unit-σ columns, L·P^½, and R_j with std
+    √E[a_j²]·sr_j. ``calib``: {fit: (4, 2p)}, the tool run's columns S then the reference run's R
+    (``reference_friction.reference_columns``; R zero without a calibration).
+
+    Why the mean comes off θ̂ rather than into σ (until session 22 σ held L·(μμᵀ + P)·Lᵀ beside the plain θ̂): the
+    plain fit's error is e + L·x with e independent of b̂ (the offsets are fitted beside θ on the same rows and
+    weights, as the cable's spring, ``cable_spring.shares``), so given b̂ it is e + L·μ + L·(x − μ): L·μ is known, and
+    left in θ̂ it is a push of one sign wherever the draws of a and Δt happen to lean one way (realistic+asymmetry,
+    24 payloads: +1.7 g mean, all of it linear in a_j·Δt_j, docs/benchmarks.md session 22). Where the data cannot
+    tell (C large against the prior, or an offset ``consistent`` rejects) μ is the prior's 0 and nothing moves."""
     p = len(post.joints)
     vals, vecs = np.linalg.eigh(post.cov)
     root = vecs * np.sqrt(np.clip(vals, 0.0, None))
     keep = vals > 1e-12 * max(float(vals.max()), 1e-300)
-    sens = {}
+    sens, shift = {}, {}
     for which, A in calib.items():
         L = np.hstack([A[:, :p], A[:, p:] * ref_mean_nm])
-        sens[which] = np.hstack([(L @ post.mean)[:, None], L @ root[:, keep], A[:, p:]])
-    std = np.concatenate([[1.0], np.ones(int(keep.sum())), np.sqrt(post.a_second_moment()) * ref_std_nm])
-    return std, sens
+        shift[which] = L @ post.mean
+        sens[which] = np.hstack([L @ root[:, keep], A[:, p:]])
+    std = np.concatenate([np.ones(int(keep.sum())), np.sqrt(post.a_second_moment()) * ref_std_nm])
+    return std, sens, shift
 
 
-def describe(post: Posterior, asym_std: float) -> str:
-    """What the data decided and where the declared asymmetry stays the prior, for the result's note."""
+def describe(post: Posterior, asym_std: float, mass_shift_kg: float = 0.0) -> str:
+    """What the data decided and where the declared asymmetry stays the prior, for the result's note;
+    ``mass_shift_kg`` what the posterior mean took off the mass (``columns``)."""
     m = post.measured
     if m is None:
         return (f"declared asymmetry ±{100 * asym_std:.3g} % alone (the offsets beside the fit could not be "
@@ -232,7 +242,8 @@ def describe(post: Posterior, asym_std: float) -> str:
     found = ", ".join(one(j) for j in post.joints if j in m.joints)
     beyond = [f"j{j + 1}" for j in post.joints if j in m.joints and not post.used(j)]
     prior = [f"j{j + 1}" for j in post.joints if j not in decided]
-    out = f"measured as one offset per moving joint beside the fit ({found} N·m)"
+    out = (f"measured as one offset per moving joint beside the fit ({found} N·m), its posterior mean removed from "
+           f"the result (the mass {-1000 * mass_shift_kg:+.1f} g by it), what stays uncertain of it")
     if beyond:
         out += (f"; {', '.join(beyond)} beyond what the declared asymmetry × the change allows (another torque on "
                 "those rows), not used")
