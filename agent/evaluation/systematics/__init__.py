@@ -32,7 +32,7 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
      prior the measurement is combined with. The residual a_j·Δ_j itself is MEASURED (session 19): one offset per
-     moving joint beside θ (``residual_friction``), the declared asymmetry × the measured change its prior;
+     moving joint beside θ (``residual_friction``, the declared form its prior), its mean taken off θ̂ (session 22);
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load): its effect on θ, less what a
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the

@@ -21,10 +21,13 @@ gains take back part of b (on test_reference_friction's arm 57 % on joint 2, 61 
 b̂ ~ N(b, C) gave too small an asymmetry and a three-step σ of half the shift (docs/benchmarks.md, session 20).
 
 The shift of θ is S·b + R·diag(μr)·a + R·diag(a)·(Δr − μr) (S: the plain fit's response to a constant torque on
-the joint's rows, ``offsets.offset_sensitivities``; R: through the gains, zero without a calibration). Its second
-moment given the data, what the term puts into σ (``columns``): L·(μμᵀ + P)·Lᵀ with L = [S, R·diag(μr)] and the
-posterior (μ, P) of x, plus R_j²·E[a_j²]·sr_j². Without a measurement (C → ∞) it is σ_a²·[(S·μt + R·μr)² + S²·st² +
-R²·sr²] per joint, the declared term of sessions 13–18 (``reference_friction.shared_asymmetry``).
+the joint's rows, ``offsets.offset_sensitivities``; R: through the gains, zero without a calibration). Given the data
+its mean L·μ (L = [S, R·diag(μr)], (μ, P) the posterior of x) comes off θ̂ (``Term.shift``, since session 22), and σ
+holds what stays uncertain (``columns``): L·P·Lᵀ plus R_j²·E[a_j²]·sr_j². Until session 22 θ̂ kept the shift and σ held
+its second moment L·(μμᵀ + P)·Lᵀ: right on average, but the one-signed push of a sample whose draws of a and Δt lean
+one way stayed in every result (realistic+asymmetry, 24 payloads: +1.7 g mean, docs/benchmarks.md session 22).
+Without a measurement (C → ∞) μ = 0 and the term is σ_a²·[(S·μt + R·μr)² + S²·st² + R²·sr²] per joint, the declared
+term of sessions 13–18 (``reference_friction.shared_asymmetry``).
 
 What the offsets also take up: any slowly varying torque on the moving joint's rows that is not the payload's,
 e.g. the load-dependent part of gear ripple once per output turn, whose projection on a constant is part of b̂. Where
