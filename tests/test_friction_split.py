@@ -117,16 +117,13 @@ def test_no_change_measured_keeps_the_residual_friction_term_far_below_the_decla
         assert change.rms_nm < 0.5 * change.prior_std_nm, (j, change)
 
 
-def test_the_residual_friction_term_takes_the_measured_asymmetry_off_the_result(runs, monkeypatch):
+def test_the_residual_friction_term_measures_the_asymmetry_the_agent_was_not_told(runs, monkeypatch):
     """The same arm, payload, noise seed and friction drop, with and without a Coulomb direction asymmetry on joint
     2 (a = 0.12; the agent declares only its spread, σ_a = 8.7 %): the asymmetry leaves a·ΔC in the two-direction
-    average and moves the plain fit's mass by grams. The term measures that residual as one offset per moving joint
-    beside the fit (``residual_friction``) and takes its posterior mean off the result (``Term.shift``; until session
-    22 it only widened σ, and the reported mass kept the whole push, of one sign wherever the draws lean one way):
-    the reported mass is the symmetric arm's to within a fraction of the push, and σ still covers what is left.
-    Without the asymmetry the measured residual is near zero, nothing moves, and the term's mass σ is a fraction of
-    the declared form's (asymmetry × the measured Coulomb change, what the term was until session 19; here with the
-    measurement switched off)."""
+    average and moves the mass. The term measures that residual as one offset per moving joint beside the fit
+    (``residual_friction``): the effect of its measured mean, sign included, is the shift. Without the asymmetry the
+    measured residual is near zero and the term's mass σ a fraction of the declared form's (asymmetry × the measured
+    Coulomb change, what the term was until session 19; here with the measurement switched off)."""
     from payload_agent.evaluation.systematics import residual_friction
     from payload_agent.solvers import general
 
@@ -145,29 +142,30 @@ def test_the_residual_friction_term_takes_the_measured_asymmetry_off_the_result(
         robot.set_friction_scale(1.0 - DROP)
         loaded, _ = record_plan(robot, plan)
         prepared = systematics.prepare(loaded, empty, joints)
-        syst = systematics.evaluate(prepared, kin, joints)
-        reported = syst.apply(general.solve(prepared.deltas, kin))
+
+        def term():
+            return next(t for t in systematics.evaluate(prepared, kin, joints).terms if t.name == "residual friction")
+
+        fric = term()
         with monkeypatch.context() as m:  # the declared form: no measured offsets, the prior alone
             m.setattr(residual_friction, "measure", lambda model: None)
-            declared = next(t for t in systematics.evaluate(prepared, kin, joints).terms
-                            if t.name == "residual friction")
-        fric = next(t for t in syst.terms if t.name == "residual friction")
-        return general.fit_model(prepared.deltas, kin).fit().theta[:4], reported, fric, declared
+            declared = term()
+        return general.fit_model(prepared.deltas, kin).fit().theta[:4], fric, declared
 
     def sigma_g(term):
         return 1000.0 * float(np.sqrt(term.covariance(ALL)[0, 0]))
 
-    theta_sym, reported_sym, fric_sym, declared_sym = analysed(0.0)
-    theta_asym, reported, fric, declared = analysed(a)
-    push_g = 1000.0 * (theta_asym[0] - theta_sym[0])
-    assert abs(push_g) > 3.0, push_g  # grams on a 3 kg tool
+    theta_sym, fric_sym, declared_sym = analysed(0.0)
+    theta_asym, fric, declared = analysed(a)
+    shift_g = 1000.0 * (theta_asym[0] - theta_sym[0])
+    assert abs(shift_g) > 3.0, shift_g  # grams on a 3 kg tool
     assert "j2 " in fric.note and "viscous" not in fric.note, fric.note  # the Coulomb part's change
     assert "measured as one offset per moving joint" in fric.note, fric.note
-    left_g = 1000.0 * (reported.mass_kg - theta_sym[0])  # what the asymmetry still moves in the reported mass
-    assert abs(left_g) < 0.15 * abs(push_g), (left_g, push_g)
-    assert abs(left_g) < 2.0 * sigma_g(fric), (left_g, sigma_g(fric))
-    # no asymmetry: nothing measured, nothing moved, and σ far below the declared form's on the same data
-    assert abs(1000.0 * (reported_sym.mass_kg - theta_sym[0])) < 0.15 * abs(push_g)
+    predicted_g = 1000.0 * fric.std[0] * fric.sens[ALL][0, 0]  # the measured mean's effect, with its sign
+    assert abs(predicted_g - shift_g) < 0.15 * abs(shift_g), (predicted_g, shift_g)
+    assert sigma_g(fric) > 0.9 * abs(shift_g), (sigma_g(fric), shift_g)
+    # no asymmetry: nothing measured, and σ far below the declared form's on the same data
+    assert abs(1000.0 * fric_sym.std[0] * fric_sym.sens[ALL][0, 0]) < 0.15 * abs(shift_g)
     assert sigma_g(fric_sym) < 0.5 * sigma_g(declared_sym), (sigma_g(fric_sym), sigma_g(declared_sym))
     assert "measured as one offset" not in declared_sym.note
 

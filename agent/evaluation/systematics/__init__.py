@@ -32,7 +32,7 @@ module is what ``payload-agent run`` / ``solve`` (``evaluation.analyse``), ``cal
      part, which is symmetric and cancels, and can hide a Coulomb drop. Where the sweeps' load torque varies too little to split
      the two, the declared change (``robot.friction_change_percent`` of the baseline's level) is the
      prior the measurement is combined with. The residual a_j·Δ_j itself is MEASURED (session 19): one offset per
-     moving joint beside θ (``residual_friction``, the declared form its prior), its mean taken off θ̂ (session 22);
+     moving joint beside θ (``residual_friction``), the declared asymmetry × the measured change its prior;
    - torque-gain scatter: a still joint's measured payload torque off by a relative error that differs
      from one standing angle to the next (gear ripple growing with load): its effect on θ, less what a
      drive-gain calibration at the same angles absorbed (``gain_reference``), each cluster's error as the
@@ -292,7 +292,7 @@ def friction_terms(ctx: Context) -> list[Term]:
     else:
         calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
     post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, offs, gains)
-    std, sens, shift = residual_friction.columns(post, calib, mu_r, sd_r)
+    std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]
@@ -303,7 +303,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
-                 f"{residual_friction.describe(post, asym, shift.get(ALL, [0.0])[0])}{ref} in σ", shift)]
+                 f"{residual_friction.describe(post, asym)}{ref} in σ")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

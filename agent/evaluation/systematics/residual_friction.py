@@ -21,13 +21,10 @@ gains take back part of b (on test_reference_friction's arm 57 % on joint 2, 61 
 b̂ ~ N(b, C) gave too small an asymmetry and a three-step σ of half the shift (docs/benchmarks.md, session 20).
 
 The shift of θ is S·b + R·diag(μr)·a + R·diag(a)·(Δr − μr) (S: the plain fit's response to a constant torque on
-the joint's rows, ``offsets.offset_sensitivities``; R: through the gains, zero without a calibration). Given the data
-its mean L·μ (L = [S, R·diag(μr)], (μ, P) the posterior of x) comes off θ̂ (``Term.shift``, since session 22), and σ
-holds what stays uncertain (``columns``): L·P·Lᵀ plus R_j²·E[a_j²]·sr_j². Until session 22 θ̂ kept the shift and σ held
-its second moment L·(μμᵀ + P)·Lᵀ: right on average, but the one-signed push of a sample whose draws of a and Δt lean
-one way stayed in every result (realistic+asymmetry, 24 payloads: +1.7 g mean, docs/benchmarks.md session 22).
-Without a measurement (C → ∞) μ = 0 and the term is σ_a²·[(S·μt + R·μr)² + S²·st² + R²·sr²] per joint, the declared
-term of sessions 13–18 (``reference_friction.shared_asymmetry``).
+the joint's rows, ``offsets.offset_sensitivities``; R: through the gains, zero without a calibration). Its second
+moment given the data, what the term puts into σ (``columns``): L·(μμᵀ + P)·Lᵀ with L = [S, R·diag(μr)] and the
+posterior (μ, P) of x, plus R_j²·E[a_j²]·sr_j². Without a measurement (C → ∞) it is σ_a²·[(S·μt + R·μr)² + S²·st² +
+R²·sr²] per joint, the declared term of sessions 13–18 (``reference_friction.shared_asymmetry``).
 
 What the offsets also take up: any slowly varying torque on the moving joint's rows that is not the payload's,
 e.g. the load-dependent part of gear ripple once per output turn, whose projection on a constant is part of b̂. Where
@@ -204,34 +201,24 @@ def posterior(asym_std: float, tool: Sequence[friction.CoulombChange], joints: S
 
 
 def columns(post: Posterior, calib: Mapping[str, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
-            ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """(std, sens, shift) of the term: the shift's posterior mean L·μ (L = [S, R·diag(μr)]), taken off θ̂ of each fit
-    (``Term.shift``), and what stays uncertain of it given the data as unit-σ columns, L·P^½, and R_j with std
-    √E[a_j²]·sr_j. ``calib``: {fit: (4, 2p)}, the tool run's columns S then the reference run's R
-    (``reference_friction.reference_columns``; R zero without a calibration).
-
-    Why the mean comes off θ̂ rather than into σ (until session 22 σ held L·(μμᵀ + P)·Lᵀ beside the plain θ̂): the
-    plain fit's error is e + L·x with e independent of b̂ (the offsets are fitted beside θ on the same rows and
-    weights, as the cable's spring, ``cable_spring.shares``), so given b̂ it is e + L·μ + L·(x − μ): L·μ is known, and
-    left in θ̂ it is a push of one sign wherever the draws of a and Δt happen to lean one way (realistic+asymmetry,
-    24 payloads: +1.7 g mean, all of it linear in a_j·Δt_j, docs/benchmarks.md session 22). Where the data cannot
-    tell (C large against the prior, or an offset ``consistent`` rejects) μ is the prior's 0 and nothing moves."""
+            ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """(std, sens) of the term: the shift's second moment given the data as unit-σ columns, L·μ, L·P^½ (L = [S,
+    R·diag(μr)]) and R_j with std √E[a_j²]·sr_j. ``calib``: {fit: (4, 2p)}, the tool run's columns S then the
+    reference run's R (``reference_friction.reference_columns``; R zero without a calibration)."""
     p = len(post.joints)
     vals, vecs = np.linalg.eigh(post.cov)
     root = vecs * np.sqrt(np.clip(vals, 0.0, None))
     keep = vals > 1e-12 * max(float(vals.max()), 1e-300)
-    sens, shift = {}, {}
+    sens = {}
     for which, A in calib.items():
         L = np.hstack([A[:, :p], A[:, p:] * ref_mean_nm])
-        shift[which] = L @ post.mean
-        sens[which] = np.hstack([L @ root[:, keep], A[:, p:]])
-    std = np.concatenate([np.ones(int(keep.sum())), np.sqrt(post.a_second_moment()) * ref_std_nm])
-    return std, sens, shift
+        sens[which] = np.hstack([(L @ post.mean)[:, None], L @ root[:, keep], A[:, p:]])
+    std = np.concatenate([[1.0], np.ones(int(keep.sum())), np.sqrt(post.a_second_moment()) * ref_std_nm])
+    return std, sens
 
 
-def describe(post: Posterior, asym_std: float, mass_shift_kg: float = 0.0) -> str:
-    """What the data decided and where the declared asymmetry stays the prior, for the result's note;
-    ``mass_shift_kg`` what the posterior mean took off the mass (``columns``)."""
+def describe(post: Posterior, asym_std: float) -> str:
+    """What the data decided and where the declared asymmetry stays the prior, for the result's note."""
     m = post.measured
     if m is None:
         return (f"declared asymmetry ±{100 * asym_std:.3g} % alone (the offsets beside the fit could not be "
@@ -245,8 +232,7 @@ def describe(post: Posterior, asym_std: float, mass_shift_kg: float = 0.0) -> st
     found = ", ".join(one(j) for j in post.joints if j in m.joints)
     beyond = [f"j{j + 1}" for j in post.joints if j in m.joints and not post.used(j)]
     prior = [f"j{j + 1}" for j in post.joints if j not in decided]
-    out = (f"measured as one offset per moving joint beside the fit ({found} N·m), its posterior mean removed from "
-           f"the result (the mass {-1000 * mass_shift_kg:+.1f} g by it), what stays uncertain of it")
+    out = f"measured as one offset per moving joint beside the fit ({found} N·m)"
     if beyond:
         out += (f"; {', '.join(beyond)} beyond what the declared asymmetry × the change allows (another torque on "
                 "those rows), not used")
