@@ -158,7 +158,7 @@ def _verify_connected(config: Config, opts: VerifyOptions, state: RobotState, dr
         cand = verify_plan.choose(config, start_q, baseline, sigma, theta0, S0, opts.mass_limit_percent,
                                   opts.cog_limit_mm, from_rest=from_rest)
         out(f"Expected: {_expected_name(entry)}; baseline of {stored.recorded_utc}, effort noise "
-            f"[{', '.join(f'{s:.3f}' for s in sigma[1:])}] N·m (joints 2-6)")
+            + sigma.describe())
         out(f"Verify motion: {cand.describe()}")
         if not cand.limits.meets(opts.mass_limit_percent, opts.cog_limit_mm):
             out(f"Note: no verify motion within the baseline's sweeps reaches {opts.mass_limit_percent:g} % / "

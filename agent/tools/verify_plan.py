@@ -143,7 +143,7 @@ def robot_time_s(plan: Plan, start_q: np.ndarray) -> float:
     return total
 
 
-def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepData], sigma: np.ndarray,
+def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepData], sigma: vs.EffortNoise,
            theta0: np.ndarray, S0: np.ndarray, mass_limit_percent: float, cog_limit_mm: float,
            max_motion_s: float = MAX_MOTION_S, from_rest: bool = False) -> Candidate:
     """The shortest verify motion whose predicted limits meet the targets; when none within ``max_motion_s``

@@ -8,7 +8,8 @@ window is cut into angle bins; in each bin, per loaded joint j, the measured pay
 
 (the two directions averaged: every friction term odd in velocity cancels, as in the identification),
 with variance σ_j²/4 · (1/n_vu + 1/n_bu + 1/n_vd + 1/n_bd), σ_j the effort noise measured on the
-baseline itself (residual of a cubic in the sweep angle, per sweep and joint, pooled).
+baseline itself (residual of a cubic in the sweep angle, per sweep and joint, pooled apart for a joint
+that sweeps and one that stands: ``EffortNoise``).
 
 Model: Δτ = Y(q)·θ, θ = [m, m·cx, m·cy, m·cz] (``solvers.regressor.regressors``: static gravity plus the
 centripetal load of the constant-speed sweep). With the expected tool θ₀ the residual r = Δτ − Y·θ₀ is
@@ -75,15 +76,41 @@ def cruise_window(start_rad: float, end_rad: float, speed_rad_s: float, accel_ra
     return Window(lo, hi)
 
 
-def noise_std(baseline: Mapping[SweepKey, SweepData]) -> np.ndarray:
-    """Per-joint effort noise σ (N·m) of the baseline: residual of a cubic in the moving joint's angle,
-    over the middle 80 % of every sweep's angle range, pooled with the fit's degrees of freedom.
+@dataclass(frozen=True)
+class EffortNoise:
+    """Per-joint effort noise σ (N·m) of the baseline, apart for a joint while it sweeps and while it stands.
+
+    A drive is noisier in motion than holding still (the UR's 2-5×, docs/sources.md "Effort noise of the
+    simulated UR5e"); one σ pooled over both weighted a verify bin of the sweeping joint as if quieter than it
+    is and the standing joints' bins, which carry the payload's torque too, as if noisier (sim-ur5e joint 2:
+    1.53 N·m pooled against 2.11 sweeping and 0.46 standing; issue 22, session 22)."""
+
+    moving: np.ndarray  # (6,) each joint's σ in the sweeps that turn it
+    standing: np.ndarray  # (6,) ... in the sweeps of the other joints
+
+    def for_sweep(self, joint0: int) -> np.ndarray:
+        """(6,) σ of every joint during a sweep of 0-based joint ``joint0``."""
+        out = self.standing.copy()
+        out[joint0] = self.moving[joint0]
+        return out
+
+    def describe(self) -> str:
+        return (f"sweeping [{', '.join(f'{s:.3f}' for s in self.moving[1:])}], standing "
+                f"[{', '.join(f'{s:.3f}' for s in self.standing[1:])}] N·m (joints 2-6)")
+
+
+def noise_std(baseline: Mapping[SweepKey, SweepData], apart: bool = True) -> EffortNoise:
+    """The baseline's effort noise (``EffortNoise``): residual of a cubic in the moving joint's angle, over the
+    middle 80 % of every sweep's angle range, pooled with the fit's degrees of freedom over the sweeps where a
+    joint moves, and apart over those where it stands. A joint that never did one of the two takes the other.
+    ``apart`` False: one σ per joint over all sweeps, as before session 22 (``benchmarks.verify_power``'s
+    comparison).
 
     The range, not the samples' percentiles: a sweep's file also holds the samples of the arm standing at
     its ends before and after the move, as many as the command came late (a loaded host: 137 in one sweep
     against a usual 5-25), and percentiles of those put the acceleration ramp, whose inertial torque no cubic
     follows, inside the fit (σ of joint 2 measured 0.80 N·m instead of 0.30 on the simulated EC66)."""
-    ss, dof = np.zeros(6), 0
+    ss, dof = np.zeros((2, 6)), np.zeros((2, 6))  # row 0: the joint sweeps, row 1: it stands
     for key, sweep in baseline.items():
         x = sweep.q[:, key.joint - 1]
         lo, hi = x.min() + 0.1 * np.ptp(x), x.max() - 0.1 * np.ptp(x)
@@ -93,11 +120,19 @@ def noise_std(baseline: Mapping[SweepKey, SweepData]) -> np.ndarray:
         xs = x[inside]
         A = np.vander((xs - xs.mean()) / max(np.ptp(xs), 1e-9), 4)
         coef, *_ = np.linalg.lstsq(A, sweep.effort_nm[inside], rcond=None)
-        ss += ((sweep.effort_nm[inside] - A @ coef) ** 2).sum(axis=0)
-        dof += int(inside.sum()) - 4
-    if dof <= 0:
+        moving = np.arange(6) == key.joint - 1
+        ss[np.where(moving, 0, 1), np.arange(6)] += ((sweep.effort_nm[inside] - A @ coef) ** 2).sum(axis=0)
+        dof[np.where(moving, 0, 1), np.arange(6)] += int(inside.sum()) - 4
+    if not dof.any():
         raise DataError("the stored baseline has too few samples to measure the effort noise")
-    return np.sqrt(ss / dof)
+    if not apart:
+        pooled = np.sqrt(ss.sum(axis=0) / dof.sum(axis=0))
+        return EffortNoise(pooled, pooled.copy())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma = np.sqrt(ss / dof)
+    moving = np.where(dof[0] > 0, sigma[0], sigma[1])
+    standing = np.where(dof[1] > 0, sigma[1], moving)
+    return EffortNoise(moving, standing)
 
 
 @dataclass
@@ -123,7 +158,7 @@ def _bin_stats(x: np.ndarray, values: np.ndarray, edges: np.ndarray) -> tuple[np
 
 
 def make_bins(windows: Mapping[tuple[str, int], Window], baseline: Mapping[SweepKey, SweepData],
-              sigma: np.ndarray, speed_rad_s: float,
+              sigma: EffortNoise, speed_rad_s: float,
               verify: Mapping[SweepKey, SweepData] | None = None) -> Bins:
     """Bins of every (pose, joint) in ``windows``; without ``verify``, the baseline's samples stand in for
     the verify run's (a prediction: Δτ = 0, the variance the real run will have)."""
@@ -154,7 +189,7 @@ def make_bins(windows: Mapping[tuple[str, int], Window], baseline: Mapping[Sweep
         inv = 1 / nvu + 1 / nbu + 1 / nvd + 1 / nbd
         qs.append(0.5 * (qu + qd)[ok])
         dts.append(dt[ok])
-        vs.append((0.25 * inv[:, None] * sigma[cols][None, :] ** 2)[ok])
+        vs.append((0.25 * inv[:, None] * sigma.for_sweep(j)[cols][None, :] ** 2)[ok])
         mv.append(np.full(ok.sum(), j))
         sp.append(np.full(ok.sum(), speed_rad_s))
     if not qs:
