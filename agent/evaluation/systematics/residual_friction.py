@@ -30,7 +30,10 @@ What the offsets also take up: any slowly varying torque on the moving joint's r
 e.g. the load-dependent part of gear ripple once per output turn, whose projection on a constant is part of b̂. Where
 that makes b̂_j larger than the friction residual can be (``consistent``: the prior predictive), the joint's offset is
 not used and the declared form decides there; a smaller share rides along in the term as if it were friction
-(docs/benchmarks.md, session 19).
+(docs/benchmarks.md, session 19). That share is why the posterior mean of the shift stays in σ rather than coming off
+θ̂: on the hard arm with no asymmetry at all b̂ of joint 2 is 0.10–0.12 N·m (5 σ, within ``consistent``), the ripple's
+projection on a constant, which moves θ far less than S·b̂; taken off θ̂ (tried in session 22) it moved the hard arm's
+general mass by up to 8 g, rms error 4.2 → 5.4 g over 24 cases (docs/benchmarks.md, session 22).
 """
 
 from __future__ import annotations
