@@ -35,7 +35,11 @@ lies inside the cone whatever κ̂, so wherever σ_κ is of κ's size it over-co
 −3.0 ± 0.9 g on hard 20 % and −2.7 ± 0.6 g on realistic+cable's default procedure (20 and 21 of 24 negative;
 docs/benchmarks.md, session 21), against +2.2 ± 1.4 g and −1.1 ± 0.7 g for κ̂ (the hard arm's +1.9 g without its
 cable is not the cable's). Not the default: on an arm without a cable the correction costs D (docs/benchmarks.md,
-session 15 for the term before).
+session 15 for the term before). D's drive-gain part is not independent of θ̂_plain's: a wrist drive's gain error
+moves both, so σ holds the corrected estimate's response to each gain in place of the plain fit's
+(``corrected_columns``, session 22). Not in C, measured (session 22, not modelled): the still wrist's
+load-dependent gear ripple, a gain error per (pose, wrist joint) (``gain_scatter``), moves κ̂ by more than C at 1 %
+sweeps on the hard arm.
 """
 
 from __future__ import annotations
