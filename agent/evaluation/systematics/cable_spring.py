@@ -275,7 +275,8 @@ def corrected_columns(AM: np.ndarray, C_noise: np.ndarray, kappa_gains: Sequence
     θ̂_plain's (``shares``)."""
     a = np.column_stack(plain_gains) if len(plain_gains) else np.zeros((4, 0))
     k = AM @ np.column_stack(kappa_gains) if len(kappa_gains) else np.zeros((4, 0))
-    return (np.hstack([AM @ np.linalg.cholesky(C_noise), a - k, a]),
+    lam, vec = np.linalg.eigh(0.5 * (C_noise + C_noise.T))  # a square root that rounding cannot make fail
+    return (np.hstack([AM @ (vec * np.sqrt(np.maximum(lam, 0.0))), a - k, a]),
             np.r_[np.ones(len(C_noise) + a.shape[1]), -np.ones(a.shape[1])])
 
 
@@ -335,5 +336,6 @@ def note(spring: CableSpring, mass_shift_kg: float = 0.0) -> str:
             "the data show beyond noise), in σ")
 
 
-__all__ = ["term", "corrected_columns", "declared_columns", "plain_gain_directions", "note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics",
-           "statistic", "null_distribution", "fit_spring", "effect"]
+__all__ = ["term", "corrected_columns", "declared_columns", "plain_gain_directions", "note", "shares", "ALPHA",
+           "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution",
+           "fit_spring", "effect"]
