@@ -197,3 +197,34 @@ def test_the_plans_spring_covariance_is_the_runs_fit_on_the_same_rows():
     assert np.all(np.abs(ratio - 1.0) < 0.05), ratio
     corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))  # noqa: E731
     assert np.max(np.abs(corr(C) - corr(run.cov))) < 0.02, (corr(C), corr(run.cov))
+
+
+def test_the_plans_declared_cable_term_is_the_runs_on_the_same_rows():
+    """Where a cable is declared the run's σ holds κ̂'s noise through AM and, per drive gain, the corrected result's
+    response in place of the plain fit's (``cable_spring.term``, session 22); the plan predicts the same
+    (``declared_spring_covariance``). Handed an offline simulated run's rows, weights and gain uncertainties (2 % on
+    the wrist), with the run's own robust-to-white σ ratio as its inflation, the plan's term is the run's to 5 % on
+    the mass and each first moment (measured within 1 %). The rule before, AM·C·AMᵀ with C's gain part taken as
+    independent of the plain fit's, is 0.59–1.99 × the run's term on these rows (fails)."""
+    from test_cable_spring import _record, _spring
+
+    from payload_agent.evaluation.systematics import cable_spring, offsets
+    from payload_agent.solvers import general
+    from payload_agent.solvers.fitted import ALL
+
+    kin, loaded, empty, mount = _record(None)
+    prep, plain, _ = _spring(kin, loaded, empty, mount)
+    gain = np.array([0.0, 0.0, 0.0, 0.02, 0.02, 0.02])
+    model = general.fit_model(prep.deltas, kin, gain)
+    labels = sorted({offsets.wrist_joint(g, d) for g in model.groups for d in model.sweeps if d.key.name == g.sweep}
+                    - {None})
+    run = cable_spring.fit_spring(model, labels, mount, declared=True)
+    res = model.fit(ALL)
+    sens = offsets.offset_sensitivities(list(model.sweeps), model.groups_of(ALL), res.weights, res.normal_inverse,
+                                        offsets.wrist_joint)
+    run_cov = cable_spring.term(run, {ALL: np.column_stack([sens[lab] for lab in labels])}, model).covariance(ALL)
+    inflation = float(np.sqrt(np.mean(np.diag(res.cov[:4, :4]) / np.diag(res.normal_inverse[:4, :4]))))
+    plan_cov = planned_terms.declared_spring_covariance(model.sweeps, model.groups_of(ALL), res.weights, inflation,
+                                                        res.theta[:4], gain, mount)
+    assert run.gain_directions and np.all(np.diag(run_cov) > 0)
+    assert np.allclose(np.diag(plan_cov), np.diag(run_cov), rtol=0.05), (np.diag(plan_cov), np.diag(run_cov))

@@ -9,7 +9,8 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
   cable's spring relaxed there (``systematics.cable_spring``): stiffnesses κ̂ (covariance C) move θ by AM·κ; the
   run projects κ̂ onto κ ≥ 0, tests its presence and puts β̂β̂ᵀ + D into σ where it finds a cable, w·β̂β̂ᵀ below the
   test (``cable_spring.shares``); where the robot YAML declares a cable (``robot.tool_cable_fitted``) the run takes
-  AM·κ̂ off θ̂ and σ holds D = AM·C·AMᵀ in every run (``cable_spring.term``), and so does the plan. Without a recorded
+  AM·κ̂ off θ̂ and σ holds κ̂'s noise through AM and the drive gains' response of the corrected θ̂ in every run
+  (``cable_spring.term``), and so does the plan (``planned_spring.declared_spring_covariance``). Without a recorded
   mount it fits
   free offsets b̂ (one per pose and wrist joint, ``systematics.wrist_terms``), β̂ = A·b̂, D = A·C·Aᵀ, shrunk by
   s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D; with no wrist torque its expectation is D·E[(χ²_r − r)⁺]/r
@@ -43,6 +44,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.evaluation.planned_spring import declared_spring_covariance, spring_covariance
 from payload_agent.solvers import wls
 
 
@@ -155,7 +157,7 @@ def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, dec
     from payload_agent.evaluation.systematics import cable_spring
 
     if declared:
-        return WristModel(AM @ C @ AM.T, True, np.zeros(DRAWS), np.zeros((DRAWS, 4)), np.ones(DRAWS))
+        return declared_model(AM @ C @ AM.T)
 
     R = np.linalg.cholesky(np.linalg.inv(C)).T  # RᵀR = C⁻¹, as the run whitens
     u = np.sqrt(ratio) * _normal_draws()[:, :len(C)]  # R·κ̂
@@ -167,6 +169,12 @@ def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, dec
         kappa[i] = nnls(R, u[i])[0]
     a, b = cable_spring.shares(weight, T > critical)  # the run's own rule: a·β̂β̂ᵀ + b·D
     return WristModel(AM @ C @ AM.T, True, a, kappa @ AM.T, b)
+
+
+def declared_model(D: np.ndarray) -> WristModel:
+    """A declared cable's term (``robot.tool_cable_fitted``): the run's σ holds the correction's own covariance ``D``
+    (``declared_spring_covariance``) whatever κ̂, the same in every draw."""
+    return WristModel(D, True, np.zeros(DRAWS), np.zeros((DRAWS, 4)), np.ones(DRAWS))
 
 
 def _normal_draws() -> np.ndarray:
@@ -183,39 +191,18 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     declares a cable, ``cable_declared``), else the free offsets."""
     if mount_rad is None:
         return offset_model(wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std))
+    if declared:
+        D = declared_spring_covariance(sweeps, groups, w, inflation, theta, gain_rel_std, mount_rad)
+        return offset_model(np.zeros((4, 4))) if D is None else declared_model(D)
     spring = spring_covariance(sweeps, groups, w, inflation, theta, gain_rel_std, mount_rad)
     if spring is None:  # no wrist joint with a lever: the run has no wrist term
         return offset_model(np.zeros((4, 4)))
-    return spring_model(*spring, declared=declared)
+    return spring_model(*spring)
 
 
 def cable_declared(joints) -> bool:
     """Whether the robot's declarations (``JointSystematicsConfig`` or None) say a tool cable is fitted."""
     return bool(getattr(joints, "tool_cable_fitted", False))
-
-
-def spring_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
-                      theta: np.ndarray, gain_rel_std: Sequence[float] | None, mount_rad: Sequence[float]
-                      ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(AM, C) of the cable spring a run of these rows fits (``cable_spring.fit_spring``, no gain scatter found): C
-    the κ block of the fit beside θ and one nuisance offset per moving arm joint (``cable_spring.moving_arm_joint``),
-    its noise the rows' white noise × ``inflation`` plus the drive gains' part, and AM the map of κ onto θ through
-    the plain fit's wrist-offset sensitivities; None when no wrist joint has a lever."""
-    from payload_agent.evaluation.systematics import cable_spring, offsets, wrist
-
-    sweeps, groups = list(sweeps), list(groups)
-    aug, names = wrist.columns(sweeps, groups, theta, nuisance_gains=False)  # the run's, no scatter found
-    M, joints = cable_spring.levers(sweeps, groups, names, mount_rad) if names else (None, ())
-    if not joints:
-        return None
-    k, p = len(names), len(joints)
-    spring = [dataclasses.replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M])) for g in aug]
-    spring, arm = offsets.augment(sweeps, spring, cable_spring.moving_arm_joint)  # as the run fits it (``fit_spring``)
-    cov = _augmented_covariance(spring, w, theta, p + len(arm), inflation, gain_rel_std)
-    Y = np.vstack([g.Y for g in groups])
-    sens = offsets.offset_sensitivities(sweeps, groups, w, np.linalg.pinv((Y * w[:, None]).T @ Y), offsets.wrist_joint)
-    AM = np.column_stack([sens.get(lab, np.zeros(4)) for lab in names]) @ M
-    return AM, cov[4:4 + p, 4:4 + p]
 
 
 def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray, noise_cov: np.ndarray | None = None,

@@ -218,8 +218,8 @@ def evaluate(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, primary: Estim
             if f["S"] is not None:
                 cov = cov + length_std ** 2 * f["S"].T @ f["S"]
             if systematics is not None:
-                f["A"], f["A_std"] = systematics.sensitivities(pose)
-                cov = cov + (f["A"] * f["A_std"] ** 2) @ f["A"].T
+                f["A"], f["A_var"] = systematics.sensitivities(pose)
+                cov = cov + (f["A"] * f["A_var"]) @ f["A"].T
             var = np.diag(J @ cov @ J.T)
         except (DataError, np.linalg.LinAlgError) as exc:
             q["reasons"].append(f"pose {pose} alone: not solvable ({exc})")
@@ -336,7 +336,7 @@ def _difference_std(fa: dict[str, Any], fb: dict[str, Any], gain_std: np.ndarray
                     length_std: float) -> np.ndarray:
     """Standard deviation of o_a − o_b, o = [m, cx, cy, cz] of two poses' own fits.
 
-    Systematic terms (``A``: ∂θ/∂p of each pose's fit, ``A_std``: σ_p, the same parameters in
+    Systematic terms (``A``: ∂θ/∂p of each pose's fit, ``A_var``: σ_p² signed, the same parameters in
     both) are differenced like the gains.
 
     Noise: independent (different sweeps), J_a·Σ_a·J_aᵀ + J_b·Σ_b·J_bᵀ. Drive gains and DH lengths:
@@ -353,7 +353,7 @@ def _difference_std(fa: dict[str, Any], fb: dict[str, Any], gain_std: np.ndarray
         cov = cov + length_std ** 2 * D @ D.T
     if fa.get("A") is not None and fb.get("A") is not None:  # systematic terms: the same parameters in both
         D = Ja @ fa["A"] - Jb @ fb["A"]
-        cov = cov + (D * fa["A_std"] ** 2) @ D.T
+        cov = cov + (D * fa["A_var"]) @ D.T
     return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 

@@ -226,9 +226,10 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
         inflation=float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300)))))
 
 
-def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
-                    gain_rel_std: Iterable[float]) -> np.ndarray:
-    """Covariance of θ from independent relative drive-gain uncertainties (one per joint).
+def gain_directions(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
+                    gain_rel_std: Iterable[float]) -> dict[int, np.ndarray]:
+    """{joint j: σ_j·∂θ/∂ε_j}: the fit's response to one standard uncertainty of each drive gain (joints with a
+    declared uncertainty and rows only).
 
     A relative gain error ε_j multiplies every measured Δτ on joint j by (1 + ε_j), so
     ∂θ/∂ε_j = (YᵀWY)⁻¹·YᵀW·y_j with y_j the measured torques of joint j (0 elsewhere);
@@ -237,16 +238,20 @@ def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.n
     std = np.asarray(list(gain_rel_std), float)
     pred = Y @ theta
     joint_of_row = np.repeat([g.joint for g in groups], [len(g.y) for g in groups])
-    cov = np.zeros((len(theta), len(theta)))
+    out = {}
     for j, sj in enumerate(std):
-        if sj <= 0:
-            continue
         rows = joint_of_row == j
-        if not rows.any():
-            continue
-        dth = inv @ (Y[rows].T @ (w[rows] * pred[rows]))
-        cov += sj ** 2 * np.outer(dth, dth)
-    return cov
+        if sj > 0 and rows.any():
+            out[j] = sj * (inv @ (Y[rows].T @ (w[rows] * pred[rows])))
+    return out
+
+
+def gain_covariance(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
+                    gain_rel_std: Iterable[float]) -> np.ndarray:
+    """Covariance of θ from independent relative drive-gain uncertainties (one per joint): Σ_j of the outer
+    products of ``gain_directions``."""
+    return sum((np.outer(d, d) for d in gain_directions(groups, Y, w, inv, theta, gain_rel_std).values()),
+               np.zeros((len(theta), len(theta))))
 
 
 def cog_with_covariance(theta: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

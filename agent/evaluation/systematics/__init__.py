@@ -335,7 +335,7 @@ def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) 
                                     declared=ctx.decl.tool_cable_fitted)
     except (DataError, np.linalg.LinAlgError):
         return []
-    t = None if s is None else cable_spring.term(s, sens)  # declared: the fitted κ̂'s effect off θ̂
+    t = None if s is None else cable_spring.term(s, sens, ctx.model)  # declared: the fitted κ̂'s effect off θ̂
     return [] if t is None else [t]
 
 

@@ -35,7 +35,11 @@ lies inside the cone whatever κ̂, so wherever σ_κ is of κ's size it over-co
 −3.0 ± 0.9 g on hard 20 % and −2.7 ± 0.6 g on realistic+cable's default procedure (20 and 21 of 24 negative;
 docs/benchmarks.md, session 21), against +2.2 ± 1.4 g and −1.1 ± 0.7 g for κ̂ (the hard arm's +1.9 g without its
 cable is not the cable's). Not the default: on an arm without a cable the correction costs D (docs/benchmarks.md,
-session 15 for the term before).
+session 15 for the term before). D's drive-gain part is not independent of θ̂_plain's: a wrist drive's gain error
+moves both, so σ holds the corrected estimate's response to each gain in place of the plain fit's
+(``corrected_columns``, session 22). Not in C, measured (session 22, not modelled): the still wrist's
+load-dependent gear ripple, a gain error per (pose, wrist joint) (``gain_scatter``), moves κ̂ by more than C at 1 %
+sweeps on the hard arm.
 """
 
 from __future__ import annotations
@@ -50,7 +54,7 @@ from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.evaluation.systematics import gain_scatter, offsets, wrist
 from payload_agent.evaluation.systematics.terms import Term
 from payload_agent.solvers.fitted import ALL, FittedModel
-from payload_agent.solvers.wls import Group, fit
+from payload_agent.solvers.wls import Group, fit, gain_directions
 
 ALPHA = 0.05  # false-alarm rate of the presence test on an arm without a cable
 # a wrist joint that stands within this of where the tool was mounted in every pose feels no spring torque
@@ -71,6 +75,9 @@ class CableSpring:
     null_mean: float  # E[T] under κ = 0
     estimate: np.ndarray | None = None  # (p,) the unconstrained κ̂
     declared: bool = False  # ``robot.tool_cable_fitted``: κ̂'s effect comes off θ̂ (``term``)
+    # {joint: (p,) σ_j·∂κ̂/∂ε_j}: κ̂'s response to each drive gain's standard uncertainty, the part of ``cov`` the
+    # gains make (``cov`` = the noise's + Σ_j of their outer products); the same gain errors move θ̂_plain (``term``)
+    gain_directions: dict[int, np.ndarray] | None = None
 
     @property
     def present(self) -> bool:
@@ -194,15 +201,18 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     spring = [replace(g, Y=np.hstack([g.Y[:, :4], g.Y[:, 4:4 + k] @ M_all, g.Y[:, 4 + k:]])) for g in aug]
     if arm_offsets is not None:
         spring, _ = offsets.augment(sweeps, spring, arm_offsets)
-    gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
     res = model.cached(("cable spring", tuple(np.round(np.asarray(mount_rad, float), 9)), nuisance,
                         gain_reference is not None and nuisance, getattr(arm_offsets, "__name__", None)),
-                       lambda: fit(spring, gain))
+                       lambda: fit(spring))
     p = len(joints)
-    kappa, cov = res.theta[4:4 + p], res.cov[4:4 + p, 4:4 + p]
+    gains = {} if model.gain_rel_std is None else {
+        j: d[4:4 + p] for j, d in gain_directions(spring, np.vstack([g.Y for g in spring]), res.weights,
+                                                  res.normal_inverse, res.theta, model.gain_rel_std).items()}
+    kappa = res.theta[4:4 + p]
+    cov = res.cov[4:4 + p, 4:4 + p] + sum((np.outer(d, d) for d in gains.values()), np.zeros((p, p)))
     order = [names.index(lab) for lab in labels]
     return CableSpring(joints, M_all[order], project(kappa, cov), cov, statistic(kappa, cov),
-                       *null_distribution(cov, alpha), kappa, declared)
+                       *null_distribution(cov, alpha), kappa, declared, gains)
 
 
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -238,14 +248,70 @@ def shares(weight, found):
     return w, np.zeros_like(w)
 
 
-def term(spring: CableSpring, sens: dict[str, np.ndarray]) -> Term | None:
+def plain_gain_directions(model: FittedModel, fits) -> dict[str, dict[int, np.ndarray]]:
+    """{fit: {joint j: (4,) σ_j·∂θ̂/∂ε_j}}: each plain fit's response to each drive gain's standard uncertainty, the
+    part of the estimate's covariance the gains make (``FittedModel.cov_params``, the quality gate's ``G``). A fit
+    that is not the model's (the three-step solver's) gets zeros: its gain response is its own, which the
+    correction does not reach, so the term gives it A·M·C·MᵀAᵀ as before."""
+    out = {}
+    for which in (ALL, *(f for f in fits if f in model.poses)):
+        res, groups = model.fit(which), list(model.groups_of(which))
+        out[which] = {j: d[:4] for j, d in gain_directions(groups, np.vstack([g.Y for g in groups]), res.weights,
+                                                           res.normal_inverse, res.theta,
+                                                           model.gain_rel_std).items()}
+    return {which: out.get(which, {j: np.zeros(4) for j in out[ALL]}) for which in fits}
+
+
+def corrected_columns(AM: np.ndarray, C_noise: np.ndarray, kappa_gains: Sequence[np.ndarray],
+                      plain_gains: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """((4, p + 2·J) columns, signs): what a declared cable's correction θ̂_plain − AM·κ̂ adds to the plain fit's
+    covariance: κ̂'s noise AM·chol(C_noise) (sign +), and per drive gain j the corrected θ̂'s response
+    u_j = a_j − AM·k_j (+) beside the plain fit's a_j (−), which the estimate's covariance already holds (k_j, a_j:
+    κ̂'s and θ̂_plain's response to one standard uncertainty of gain j).
+
+    Why: a gain error of a wrist joint scales that joint's payload torque, which moves θ̂_plain and κ̂ together, so
+    the corrected θ̂ moves by their difference; taking a_ja_jᵀ and AM·k_jk_jᵀ·AMᵀ as independent gave 0.53 × that
+    variance where the two move θ̂ the same way (tests/test_cable_spring.py) and 4 × where they cancel
+    (docs/benchmarks.md, session 22). The noise part is independent of θ̂_plain's (``shares``; under the run's
+    noise maps the cross term is 0–6 % of σ, session 22)."""
+    a = np.column_stack(plain_gains) if len(plain_gains) else np.zeros((4, 0))
+    k = AM @ np.column_stack(kappa_gains) if len(kappa_gains) else np.zeros((4, 0))
+    lam, vec = np.linalg.eigh(0.5 * (C_noise + C_noise.T))  # a square root that rounding cannot make fail
+    return (np.hstack([AM @ (vec * np.sqrt(np.maximum(lam, 0.0))), a - k, a]),
+            np.r_[np.ones(len(C_noise) + a.shape[1]), -np.ones(a.shape[1])])
+
+
+def declared_columns(spring: CableSpring, sens: dict[str, np.ndarray],
+                     plain_gains: dict[str, dict[int, np.ndarray]]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """({fit: (4, 1 + p + 2·J)}, signs): a declared cable's shift A·M·κ̂ (σ 0) and ``corrected_columns`` for each
+    fit, over the drive gains both the spring fit and every plain fit respond to."""
+    p = len(spring.joints)
+    gains = sorted(set(spring.gain_directions or {}) & set.intersection(*(set(g) for g in plain_gains.values())))
+    k = [spring.gain_directions[j] for j in gains]
+    C_noise = spring.cov - sum((np.outer(v, v) for v in k), np.zeros((p, p)))
+    out = {}
+    for which, A in sens.items():
+        AM = A @ spring.levers
+        cols, sign = corrected_columns(AM, C_noise, k, [plain_gains[which][j] for j in gains])
+        out[which] = np.hstack([(AM @ spring.estimate)[:, None], cols])
+    return out, np.r_[1.0, sign]
+
+
+def term(spring: CableSpring, sens: dict[str, np.ndarray], model: FittedModel | None = None) -> Term | None:
     """The run's tool-cable term (``systematics.wrist_terms``). Declared: θ̂ of every fit loses κ̂'s effect A·M·κ̂
-    (``Term.shift``) and σ holds its noise D = A·M·C·MᵀAᵀ (module docstring). Else a·β̂β̂ᵀ in σ (``shares``); None
-    where that share is 0."""
-    cols, p = effect(spring, sens), len(spring.joints)
+    (``Term.shift``) and σ holds the corrected θ̂'s part beyond the plain fit's: κ̂'s noise A·M·C_noise·MᵀAᵀ and
+    the drive gains' response replaced by the corrected fit's (``declared_columns``; without ``model``, whose
+    plain fits' gain responses that needs: D = A·M·C·MᵀAᵀ). Else a·β̂β̂ᵀ in σ (``shares``); None where that share
+    is 0."""
+    p = len(spring.joints)
     if spring.declared:
-        return Term("tool cable", np.r_[0.0, np.ones(p)], cols, note(spring, cols[ALL][0, 0]),
-                    {which: c[:, 0] for which, c in cols.items()})
+        if model is not None and model.gain_rel_std is not None and spring.gain_directions:
+            cols, sign = declared_columns(spring, sens, plain_gain_directions(model, sens))
+        else:
+            cols, sign = effect(spring, sens), None
+        return Term("tool cable", np.r_[0.0, np.ones(cols[ALL].shape[1] - 1)], cols, note(spring, cols[ALL][0, 0]),
+                    {which: c[:, 0] for which, c in cols.items()}, sign)
+    cols = effect(spring, sens)
     if spring.weight <= 0:
         return None
     a, b = shares(spring.weight, spring.present)
@@ -271,5 +337,6 @@ def note(spring: CableSpring, mass_shift_kg: float = 0.0) -> str:
             "the data show beyond noise), in σ")
 
 
-__all__ = ["term", "note", "shares", "ALPHA", "CableSpring", "levers", "moving_arm_joint", "project", "statistics",
-           "statistic", "null_distribution", "fit_spring", "effect"]
+__all__ = ["term", "corrected_columns", "declared_columns", "plain_gain_directions", "note", "shares", "ALPHA",
+           "CableSpring", "levers", "moving_arm_joint", "project", "statistics", "statistic", "null_distribution",
+           "fit_spring", "effect"]

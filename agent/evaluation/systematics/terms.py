@@ -25,12 +25,20 @@ class Term:
     # ALL or a pose -> (4,) the error's estimate in θ of that fit, subtracted from the fit's θ̂ (σ then holds only
     # the estimate's own uncertainty); none: θ̂ as fitted
     shift: Mapping[str, np.ndarray] = field(default_factory=dict)
+    # (P,) +1, or −1 for a parameter whose variance another part of σ already holds through a response this term
+    # replaces (a declared cable's correction changes how the drive gains move θ̂: ``cable_spring.term``); none: all +1
+    sign: np.ndarray | None = None
+
+    @property
+    def variances(self) -> np.ndarray:
+        """(P,) each parameter's variance, signed (``sign``)."""
+        return self.std ** 2 if self.sign is None else self.std ** 2 * self.sign
 
     def covariance(self, which: str = ALL) -> np.ndarray:
         A = self.sens.get(which)
         if A is None:
             return np.zeros((4, 4))
-        return (A * self.std ** 2) @ A.T
+        return (A * self.variances) @ A.T
 
 
 @dataclass
@@ -48,11 +56,12 @@ class Systematics:
         return sum((np.asarray(t.shift[which], float) for t in self.terms if which in t.shift), np.zeros(4))
 
     def sensitivities(self, which: str) -> tuple[np.ndarray, np.ndarray]:
-        """(A, σ): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it)."""
+        """(A, v): all terms' ∂θ/∂p of one fit side by side (zeros where a term does not reach it) and the
+        parameters' signed variances (``Term.variances``): the covariance is (A·v)·Aᵀ."""
         if not self.terms:
             return np.zeros((4, 0)), np.zeros(0)
         blocks = [t.sens.get(which, np.zeros((4, len(t.std)))) for t in self.terms]
-        return np.hstack(blocks), np.concatenate([t.std for t in self.terms])
+        return np.hstack(blocks), np.concatenate([t.variances for t in self.terms])
 
     def apply(self, est: Estimate, which: str = ALL) -> Estimate:
         """``est`` with every term in its covariance and notes: a general fit on the prepared deltas (``which``
