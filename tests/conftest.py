@@ -37,6 +37,24 @@ def stall_probe():
     probe.close()
 
 
+@pytest.fixture(scope="session")
+def chromium():
+    """One headless Chromium for the report's screenshot tests in this process (tests/headless_chromium.py),
+    started when a test first asks. Without it those tests skip, except where a browser is required (.ci/run
+    sets PAYLOAD_AGENT_REQUIRE_BROWSER=1 after installing it): there a missing browser fails."""
+    from headless_chromium import HeadlessChromium, chromium_path
+
+    path = chromium_path()
+    if path is None:
+        if os.environ.get("PAYLOAD_AGENT_REQUIRE_BROWSER"):
+            pytest.fail("Chromium is required (PAYLOAD_AGENT_REQUIRE_BROWSER is set) but not installed: "
+                        ".ci/run could not install the Debian package 'chromium' (apt unreachable?)")
+        pytest.skip("Chromium is not installed (apt-get install chromium); .ci/run installs it")
+    browser = HeadlessChromium(path)
+    yield browser
+    browser.close()
+
+
 @pytest.fixture
 def sim_ec66_data():
     """The simulated EC66 config as a dict, to be tweaked per test; without the inertia part (its wrist moves
