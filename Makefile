@@ -18,11 +18,14 @@ $(VENV)/.installed: pyproject.toml
 sim: $(VENV)/.installed
 	$(VENV)/bin/payload-agent run --robot configs/sim-ec66.yaml --yes
 
-# two workers (pytest-xdist): each has its own state folder (tests/conftest.py), simulated controllers bind
+# pytest-xdist workers: each has its own state folder (tests/conftest.py), simulated controllers bind
 # ephemeral ports or a free 127.0.0.x, so the files run side by side; a file stays on one worker, in its own
 # order (its module-scoped simulators and CLI runs are built once, as in a serial run). Files go out slowest
 # first (tests/conftest.py SLOWEST_FIRST): --no-loadscope-reorder keeps xdist from sorting them by test count
-TEST_WORKERS ?= 2
+# Three workers on two cores: with two, a quiet 2-core machine was 30 % idle (session 21: 140 % of CPU), the
+# workers waiting for simulated controllers' real-time motion, their processes' start and the browser; a third
+# fills those waits (session 22, docs/benchmarks.md). TEST_WORKERS=2 make test keeps the old way.
+TEST_WORKERS ?= 3
 # A worker that dies in native code can leave xdist's controller waiting for ever (seen once, session 17): the
 # suite is ended after 30 min (about 6x its time on a loaded 2-core machine) so that it fails, saying so, not hangs
 test: $(VENV)/.installed browser

@@ -113,10 +113,15 @@ class FrictionParams:
         self.asymmetry = np.broadcast_to(np.asarray(self.asymmetry, float), (6,)).copy()
 
     def torque(self, qd: np.ndarray, tau_rigid: np.ndarray, factor: np.ndarray | float = 1.0) -> np.ndarray:
+        # every simulated tick asks: a symmetric Coulomb level (d·(1 + 0·d) is d) and an overall gain of 1 skip
+        # their products, which leave every value as it is
         direction = np.tanh(qd / self.smoothing_rad_s)
-        coulomb = (direction * (1.0 + self.asymmetry * direction) * self.coulomb_nm
-                   + direction * self.load_ratio * np.abs(tau_rigid))
-        return self.scale * np.asarray(factor) * (coulomb + self.viscous_nm_s_rad * qd)
+        level = direction if not self.asymmetry.any() else direction * (1.0 + self.asymmetry * direction)
+        coulomb = level * self.coulomb_nm + direction * self.load_ratio * np.abs(tau_rigid)
+        total = coulomb + self.viscous_nm_s_rad * qd
+        if self.scale == 1.0 and isinstance(factor, float) and factor == 1.0:
+            return total
+        return self.scale * np.asarray(factor) * total
 
 
 def _mujoco():

@@ -93,6 +93,7 @@ class SimRobot:
         self.noise_nm = np.broadcast_to(np.asarray(noise_nm, float), (6,)).copy()
         self.noise_rest_nm = (self.noise_nm.copy() if noise_rest_nm is None
                               else np.broadcast_to(np.asarray(noise_rest_nm, float), (6,)).copy())
+        self._noise_flat = bool(np.array_equal(self.noise_nm, self.noise_rest_nm))
         self.rng = np.random.default_rng(seed if seed is None or not session else [int(seed), 20, int(session)])
         # angle noise and timestamp jitter draw from their own stream: switching them on leaves the
         # effort noise of a seeded robot unchanged
@@ -184,10 +185,10 @@ class SimRobot:
         temps = self.temperatures_c()
         factor = fx.friction_factor(temps) if fx.friction_per_c else 1.0
         cable = fx.tool_cable.active and self.physics.payload is not None
-        q_zero = q - np.asarray(fx.zero_offset_rad)
+        q_zero = q - fx.zero_offset
         tau_gear = self._tau_gear
         for _ in range(2 if fx.elastic else 1):  # link angle = motor angle − τ/k: a fixed point, 2 passes
-            q_link = q_zero - fx.compliance_rad_per_nm * tau_gear
+            q_link = q_zero - fx.compliance_rad_per_nm * tau_gear if fx.elastic else q_zero  # (rigid: − 0·τ)
             load = self.physics.rigid_torque(q_link, qd, qdd)
             if cable:
                 load = load + fx.tool_cable.torque(q_link, self._cable_rest_for(q_link))
@@ -209,6 +210,8 @@ class SimRobot:
         """Each joint's effort noise σ at joint speeds ``qd``: the at-rest level standing, the in-motion level
         from ``NOISE_RAMP_RAD_S`` on, linear between (one random draw per tick either way, so a seeded robot
         without an at-rest level draws exactly as before)."""
+        if self._noise_flat:  # no at-rest level: rest + 0·ramp is rest (asked every tick)
+            return self.noise_rest_nm.copy()
         ramp = np.minimum(np.abs(np.asarray(qd, float)) / NOISE_RAMP_RAD_S, 1.0)
         return self.noise_rest_nm + (self.noise_nm - self.noise_rest_nm) * ramp
 

@@ -4,7 +4,7 @@ import os
 import tempfile
 from pathlib import Path
 
-# One BLAS thread per process: `make test`'s two workers already fill two cores, and OpenBLAS's own threads (one
+# One BLAS thread per process: `make test`'s workers already fill two cores, and OpenBLAS's own threads (one
 # per core by default, spinning while they wait) only compete with them and with the simulated controllers'
 # clocks. Measured on the numeric files (test_systematics, test_stream_gaps, test_segmentation_speeds), load
 # 4-6: 14.6-15.4 s of CPU with the default, 11.6 s with one thread. Set before numpy loads OpenBLAS here, in
@@ -35,6 +35,24 @@ def stall_probe():
     probe = StallProbe().start()
     yield probe
     probe.close()
+
+
+@pytest.fixture(scope="session")
+def chromium():
+    """One headless Chromium for the report's screenshot tests in this process (tests/headless_chromium.py),
+    started when a test first asks. Without it those tests skip, except where a browser is required (.ci/run
+    sets PAYLOAD_AGENT_REQUIRE_BROWSER=1 after installing it): there a missing browser fails."""
+    from headless_chromium import HeadlessChromium, chromium_path
+
+    path = chromium_path()
+    if path is None:
+        if os.environ.get("PAYLOAD_AGENT_REQUIRE_BROWSER"):
+            pytest.fail("Chromium is required (PAYLOAD_AGENT_REQUIRE_BROWSER is set) but not installed: "
+                        ".ci/run could not install the Debian package 'chromium' (apt unreachable?)")
+        pytest.skip("Chromium is not installed (apt-get install chromium); .ci/run installs it")
+    browser = HeadlessChromium(path)
+    yield browser
+    browser.close()
 
 
 @pytest.fixture
@@ -114,7 +132,8 @@ def ec66_sim():
 # Every file over 10 s of worker time, slowest first (a `make test`-like run with per-test times, 2026-11-28, session
 # 21, at load 9-17 beside other helpers' benchmarks: driver_conformance 137 s, cli_session 120 (92 after its two
 # calibrate tests were cut), ur_driver 69, cable_spring 67, workflow 66, plan_target 58, shared_baseline 58, ...
-# decoders_modbus 10; the files left, alphabetical, are under 10 s). The two workers then ended 2 s apart.
+# decoders_modbus 10; the files left, alphabetical, are under 10 s). The two workers then ended 2 s apart; three
+# (session 22, the same order, load 7-13) ended within 1 s of each other.
 SLOWEST_FIRST = ("test_driver_conformance.py", "test_cli_session.py", "test_ur_driver.py", "test_cable_spring.py",
                  "test_workflow.py", "test_plan_target.py", "test_shared_baseline.py", "test_report_inertia.py",
                  "test_length_response.py", "test_modbus_rtu.py", "test_noise_scatter.py", "test_report.py",

@@ -7,11 +7,7 @@ import base64
 import html
 import json
 import math
-import os
 import re
-import shutil
-import subprocess
-import tempfile
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -37,7 +33,6 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 TRUTH = (2.0, (40.0, -25.0, 70.0))  # kg, mm
 ARM = np.array([6.0, 1.2, 0.4, 0.6])  # a fake "arm gravity" θ: the empty flange is not free of load
 DT = 0.03  # 33 Hz samples: enough for the segmenter, few regressor evaluations
-CHROMIUM = Path("/usr/bin/chromium")
 
 
 def _profile(q0: np.ndarray, q1: np.ndarray, v: float, a: float) -> np.ndarray:
@@ -295,29 +290,11 @@ def test_report_errors(run_dir, cfg, tmp_path):
         write_report(tmp_path / "nothing", cfg)
 
 
-def _chromium_or_fail():
-    """Chromium for the screenshot tests. Without it the tests skip, except where a browser is required
-    (.ci/run sets PAYLOAD_AGENT_REQUIRE_BROWSER=1 after installing it): there a missing browser fails."""
-    path = shutil.which("chromium") or shutil.which("chromium-browser") or (str(CHROMIUM) if CHROMIUM.exists()
-                                                                             else None)
-    if path is None:
-        if os.environ.get("PAYLOAD_AGENT_REQUIRE_BROWSER"):
-            pytest.fail("Chromium is required (PAYLOAD_AGENT_REQUIRE_BROWSER is set) but not installed: "
-                        ".ci/run could not install the Debian package 'chromium' (apt unreachable?)")
-        pytest.skip("Chromium is not installed (apt-get install chromium); .ci/run installs it")
-    return path
-
-
-def _screenshot(html: Path, shot: Path, height: int = 2400) -> np.ndarray:
+def _screenshot(chromium, html: Path, shot: Path, height: int = 2400) -> np.ndarray:
+    """The page as a 1200 x ``height`` window shows it, in the session's headless Chromium (conftest)."""
     from matplotlib.image import imread
 
-    browser = _chromium_or_fail()
-    with tempfile.TemporaryDirectory() as profile:
-        proc = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                               "--no-first-run", "--disable-background-networking", "--disable-component-update",
-                               "--disable-sync", f"--user-data-dir={profile}", f"--screenshot={shot}",
-                               f"--window-size=1200,{height}", html.as_uri()], capture_output=True, timeout=120)
-    assert shot.exists(), f"chromium wrote no screenshot: {proc.stderr.decode(errors='replace')[-2000:]}"
+    shot.write_bytes(chromium.screenshot(html.as_uri(), 1200, height))
     img = imread(shot)[..., :3]
     assert img.shape[:2] == (height, 1200)
     return (img * 255).astype(int).reshape(-1, 3)
@@ -333,17 +310,18 @@ def _has(px: np.ndarray, rgb: tuple[int, int, int], tol: int = 12) -> bool:
     return bool(np.any(np.all(np.abs(px - rgb) < tol, axis=1)))
 
 
-def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, stopped_report, tmp_path):
+def test_failed_and_stopped_reports_render_in_headless_chromium(failed_report, stopped_report, chromium,
+                                                                tmp_path):
     for page in (failed_report[0] / "sub" / "r.html", stopped_report[0] / "report.html"):
-        px = _screenshot(page, tmp_path / f"{page.parent.name}.png")
+        px = _screenshot(chromium, page, tmp_path / f"{page.parent.name}.png")
         assert _n_colours(px) > 200, f"{page}: the page did not render"
         assert _has(px, (0xc0, 0x39, 0x2b)), f"{page}: no red FAILED badge / stop box"
         assert _has(px, (0x1f, 0x5f, 0xa8)), f"{page}: the recorded traces are not drawn"
 
 
-def test_report_renders_in_headless_chromium(report_with_history, tmp_path):
+def test_report_renders_in_headless_chromium(report_with_history, chromium, tmp_path):
     out, _ = report_with_history
-    px = _screenshot(out, tmp_path / "shot.png")
+    px = _screenshot(chromium, out, tmp_path / "shot.png")
     assert _n_colours(px) > 200, "the screenshot is nearly uniform: the page did not render"
     # the plots are drawn: the model's orange, the loaded sweep's blue and the empty flange's down leg (its own
     # colour now, not the up leg's grey) appear on the page

@@ -104,9 +104,9 @@ def test_a_result_without_the_inertia_part_has_no_inertia_section(cfg, base_run,
     assert "<h2>Inertia</h2>" not in write_report(run, cfg).read_text(encoding="utf-8")
 
 
-def test_the_inertia_sections_render_in_headless_chromium(given, refused, tmp_path):
-    px = _screenshot(given[0], tmp_path / "given.png")
+def test_the_inertia_sections_render_in_headless_chromium(given, refused, chromium, tmp_path):
+    px = _screenshot(chromium, given[0], tmp_path / "given.png")
     assert _n_colours(px) > 200, "the page did not render"
     assert not _has(px, (0xc0, 0x39, 0x2b)), "a red box on a run whose checks passed and whose inertia was given"
-    px = _screenshot(refused[0], tmp_path / "refused.png")
+    px = _screenshot(chromium, refused[0], tmp_path / "refused.png")
     assert _has(px, (0xc0, 0x39, 0x2b)), "the refused inertia's red box is not drawn"
