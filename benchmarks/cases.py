@@ -96,7 +96,7 @@ def plans(proc: Procedure):
 
 def motion_time_s(plan) -> float:
     """Robot time of one run without the approach move (the design's own count)."""
-    from payload_agent.evaluation.design import robot_time_s
+    from payload_agent.motion.planner import robot_time_s
 
     return robot_time_s(plan)
 

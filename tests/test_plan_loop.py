@@ -113,3 +113,54 @@ def test_a_session_whose_loaded_run_cannot_start_where_the_empty_run_ends_is_ref
     assert any(line.startswith("Safety gate: SAFE") for line in said)  # the first run alone would have passed
     runs = tmp_path / "runs"
     assert not runs.exists() or not any(runs.iterdir()), "a run folder was opened for a session that never moved"
+
+
+def test_the_next_session_leaves_our_own_resting_pose_at_travel_speed_and_only_from_there(sim_ec66_data, tmp_path):
+    """A session that starts where our own last completed motion left the arm (the record in the state folder,
+    matching the live angles) makes its first move at travel speed, says so, and the gate approves it; once the
+    arm was moved by someone else, the next session approaches slowly again (issue 22 item 3, as `verify` does
+    since issue 23)."""
+    import math
+    import time
+
+    from conftest import short_session
+    from payload_agent.recording import resting_pose
+    from payload_agent.recording.rundata import load_manifest
+    from payload_agent.recording.state import RobotState
+
+    data = tweak(sim_ec66_data, "driver.rpc_port", 0)
+    data = tweak(data, "driver.monitor_port", 0)
+    data = tweak(data, "robot.name", "from-rest")
+    data = tweak(data, "procedure.inertia", False)
+    data = tweak(data, "storage", {"runs_dir": str(tmp_path / "runs"), "state_dir": str(tmp_path / "state")})
+    config = parse_config(short_session(data), str(tmp_path / "from-rest.yaml"))
+    vmax = config.robot.max_joint_speed_rad_s
+    cell = SimulatedCell(config).start()
+
+    def session() -> tuple[float, str]:
+        said: list[str] = []
+        outcome = run_identification(config, RunOptions(mode="baseline", assume_yes=True, report=False),
+                                     OperatorUI(out=said.append, progress=False), SimulatedCellUse(cell=cell))
+        first = load_manifest(outcome.run_dir)["first_move"]
+        return 100 * math.radians(first["speed_deg_s"]) / vmax, "\n".join(said)
+
+    try:
+        pct, text = session()  # no record yet: the approach speed
+        assert pct == pytest.approx(config.safety.approach_speed_percent) and "travel speed" not in text
+        assert resting_pose.standing_at(RobotState.for_config(config).root, cell.robot.snapshot().q) is not None
+        pct, text = session()
+        assert config.procedure.travel_speed_percent > config.safety.approach_speed_percent
+        assert pct == pytest.approx(config.procedure.travel_speed_percent)
+        assert "first move runs at travel speed" in text and "Safety gate: SAFE" in text
+        # the cell's own program moves joint 1 by 2° (and leaves it there): the record no longer matches
+        q = np.asarray(cell.robot.snapshot().q, float)
+        cell.robot.move_joints(q + np.radians([2.0, 0, 0, 0, 0, 0]), 0.2, 1.0)
+        deadline = time.monotonic() + 30
+        while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(2.0),
+                                                                 abs_tol=1e-3)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3)
+        pct, text = session()
+        assert pct == pytest.approx(config.safety.approach_speed_percent) and "travel speed" not in text
+    finally:
+        cell.close()

@@ -128,6 +128,34 @@ def test_the_robot_time_counts_the_approach_move_from_where_the_robot_stands(cap
     assert "approach move from where the robot stands" in err
 
 
+def test_from_our_own_resting_pose_the_plan_counts_the_approach_at_travel_speed(capsys, monkeypatch, tmp_path):
+    """Where our last completed motion left the arm (the state folder's record matches the angles), `run` makes its
+    first move at travel speed; the plan counts the approach so, and says it (issue 22 item 3: after `calibrate`
+    the approach was most of the robot time)."""
+    from payload_agent.configuration.config import load_config
+    from payload_agent.evaluation import design
+    from payload_agent.recording import resting_pose
+    from payload_agent.recording.state import RobotState
+
+    where = [0, -90, 90, 90, -90, 0]
+    args = ("--target-std", "20,5", "--from-deg", ",".join(map(str, where)))
+    rc, slow, _ = _plan_json(capsys, monkeypatch, tmp_path, *args)
+    assert rc == 0 and not slow["target"]["approach_from_rest"]
+    config = load_config(ROOT / "configs" / "sim-ec66.yaml")
+    resting_pose.record(RobotState.for_config(config).root, np.radians(where), tmp_path / "an-earlier-run")
+    rc, fast, err = _plan_json(capsys, monkeypatch, tmp_path, *args)
+    assert rc == 0 and fast["target"]["approach_from_rest"] and "our own resting pose" in err
+    keys = fast["target"]["chosen"]["procedure_keys"]
+    cand = design.Candidate(keys["speed_percent"], keys["travel_speed_percent"], *keys["sweep_deg"], 1,
+                            keys["accel_percent"], keys["name"])
+    q = np.radians(where)
+    travel, approach = design.approach_s(config, cand, q, from_rest=True), design.approach_s(config, cand, q)
+    assert 0 < travel < 0.5 * approach  # 20 % against 5 %, less the ramps
+    run_only = design.robot_time_s(design.plan_for(config, cand))
+    assert fast["target"]["chosen"]["robot_time_s"] == pytest.approx(run_only + travel, rel=1e-6)
+    assert fast["target"]["chosen"]["robot_time_s"] < slow["target"]["chosen"]["robot_time_s"]
+
+
 def test_the_expected_payload_is_what_the_prediction_assumes_and_the_output_names_it(capsys, monkeypatch, tmp_path):
     """A heavier expected payload gives a smaller centre-of-mass σ for the same procedure (σ_c ∝ 1/m); the
     output names the payload; a tool library entry can stand for it; a CoM without a mass is refused."""

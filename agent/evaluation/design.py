@@ -54,7 +54,7 @@ from payload_agent.evaluation.planned_baseline import SharedBaseline, reusing_ru
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model, cable_declared)
-from payload_agent.motion.planner import Plan, make_plan, move_duration_s, turned_to
+from payload_agent.motion.planner import Plan, from_resting_pose, make_plan, move_duration_s, robot_time_s, turned_to
 
 
 # The largest chance that the run's reported σ exceeds the target (mass or CoM) with which a candidate meets it.
@@ -170,18 +170,6 @@ def run_config(config: Config, c: Candidate) -> Config:
     return dataclasses.replace(cfg, procedure=dataclasses.replace(cfg.procedure, inertia=inertia))
 
 
-def robot_time_s(plan: Plan, start_q: Sequence[float] | None = None) -> float:
-    """Robot time of one run; the approach move (at its own speed) only when ``start_q``, where the robot
-    stands, is known."""
-    total, prev = 0.0, None if start_q is None else np.asarray(start_q, float)
-    for m in plan.moves:
-        tgt = np.asarray(m.target_rad)
-        if prev is not None:
-            total += move_duration_s(prev, tgt, m.speed_rad_s, m.accel_rad_s2)
-        prev = tgt
-    return total
-
-
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
 # ("baseline": the empty run the calibration shared, the same one in every repetition)
 NOISE_TERMS = ("noise", "wrist")
@@ -288,8 +276,9 @@ def nominal_theta(mass_kg: float, cog_mm: Sequence[float]) -> np.ndarray:
 
 
 def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, *, check_safety: bool = True,
-            start_q: Sequence[float] | None = None) -> Prediction:
-    """σ of one candidate; its robot time counts the approach from ``start_q`` once when that is given."""
+            start_q: Sequence[float] | None = None, from_rest: bool = False) -> Prediction:
+    """σ of one candidate; its robot time counts the approach from ``start_q`` once when that is given (at travel
+    speed ``from_rest``: the arm stands at our own resting pose)."""
     from payload_agent.solvers.wls import cog_with_covariance
 
     base = _one_run(config, dataclasses.replace(c, repetitions=1), noise, theta, check_safety, start_q)
@@ -301,7 +290,7 @@ def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, 
     sigma_m, sigma_c = reported_sigma_draws(cov, wrist, theta, noise_cov / c.repetitions, spread.over(c.repetitions))
     mean_cov = cov + wrist.expected()
     _, cov_c = cog_with_covariance(theta, mean_cov)
-    approach = approach_s(config, c, start_q)
+    approach = approach_s(config, c, start_q, from_rest)
     return Prediction(c, c.repetitions * time_s + approach, float(np.median(sigma_m)), float(np.median(sigma_c)), n,
                       problems, approach, 1000.0 * math.sqrt(max(mean_cov[0, 0], 0.0)),
                       1000.0 * math.sqrt(max(float(np.max(np.diag(cov_c))), 0.0)), np.column_stack([sigma_m, sigma_c]))
@@ -310,11 +299,12 @@ def predict(config: Config, c: Candidate, noise: NoiseModel, theta: np.ndarray, 
 _RUNS: dict[tuple, tuple] = {}
 
 
-def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None) -> float:
+def approach_s(config: Config, c: Candidate, start_q: Sequence[float] | None, from_rest: bool = False) -> float:
     """The approach move of the candidate's plan from ``start_q`` (0 when where the robot stands is unknown)."""
     if start_q is None:
         return 0.0
-    m = turned_to(config, plan_for(config, c), np.asarray(start_q, float)).moves[0]
+    plan = turned_to(config, plan_for(config, c), np.asarray(start_q, float))
+    m = (from_resting_pose(config, plan) if from_rest else plan).moves[0]
     return move_duration_s(np.asarray(start_q, float), np.asarray(m.target_rad), m.speed_rad_s, m.accel_rad_s2)
 
 
@@ -368,13 +358,13 @@ class Choice:
 def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseModel, *,
            nominal_mass_kg: float = 2.0, nominal_cog_mm: Sequence[float] = (0.0, 0.0, 100.0),
            grid: Sequence[Candidate] | None = None, exhaustive: bool = False, after: int = 12,
-           start_q: Sequence[float] | None = None) -> Choice:
+           start_q: Sequence[float] | None = None, from_rest: bool = False) -> Choice:
     """The fastest candidate whose predicted σ meets the target (mass and every CoM axis, 1σ).
 
     The robot time of every candidate comes from its plan alone (cheap), so candidates are predicted
     (safety gate and σ) fastest first until one meets the target, and ``after`` more for the table;
     ``exhaustive`` predicts them all. ``start_q``: where the robot stands, so every robot time counts the
-    approach move (which differs between procedures: their first poses differ).
+    approach move (which differs between procedures: their first poses differ); ``from_rest``: at travel speed.
     """
     theta = nominal_theta(nominal_mass_kg, nominal_cog_mm)
 
@@ -382,14 +372,14 @@ def choose(config: Config, mass_std_g: float, cog_std_mm: float, noise: NoiseMod
         from payload_agent.errors import PayloadAgentError
 
         try:
-            return c.repetitions * robot_time_s(plan_for(config, c)) + approach_s(config, c, start_q)
+            return c.repetitions * robot_time_s(plan_for(config, c)) + approach_s(config, c, start_q, from_rest)
         except (PayloadAgentError, ValueError):
             return float("inf")  # predict() reports why
 
     ordered = sorted(grid or candidates_for(config), key=time_of)
     preds, found, extra = [], False, 0
     for c in ordered:
-        p = predict(config, c, noise, theta, start_q=start_q)
+        p = predict(config, c, noise, theta, start_q=start_q, from_rest=from_rest)
         preds.append(p)
         found = found or p.meets(mass_std_g, cog_std_mm)
         extra += found and p.usable

@@ -285,6 +285,33 @@ def _closing_turns(build, wrists: dict[str, np.ndarray], after: tuple[float, ...
     return best
 
 
+def first_move_percent(config: Config, from_rest: bool) -> float:
+    """The speed cap of a session's first move, % of the joints' top speed: the slow approach, because the arm may
+    stand anywhere; travel speed (within ``safety.max_speed_percent``) when it stands at our own resting pose
+    (``recording.resting_pose``), a pose our own approved plan reached. The safety gate enforces it."""
+    s = config.safety
+    if not from_rest:
+        return s.approach_speed_percent
+    return max(s.approach_speed_percent, min(config.procedure.travel_speed_percent, s.max_speed_percent))
+
+
+def from_resting_pose(config: Config, plan: Plan) -> Plan:
+    """``plan`` with its first (approach) move at the speed ``first_move_percent`` allows from our own resting pose;
+    the caller has matched the live angles with the record, and the gate checks that again."""
+    if not plan.moves or plan.moves[0].kind != "approach":
+        return plan
+    first = plan.moves[0]
+    speed = config.robot.max_joint_speed_rad_s * first_move_percent(config, True) / 100.0
+    label = "from the resting pose to " + first.label.removeprefix("approach ")
+    return dataclasses.replace(plan, moves=(dataclasses.replace(first, label=label, speed_rad_s=speed),
+                                            *plan.moves[1:]))
+
+
+def robot_time_s(plan: Plan, start_q=None) -> float:
+    """Robot time of the plan; its first move (the approach) only when ``start_q``, where the robot stands, is known."""
+    return float(sum(d for d in expected_durations(plan, start_q) if not math.isnan(d)))
+
+
 def expected_durations(plan: Plan, start_q: np.ndarray | None) -> list[float]:
     """Per move, in seconds; the approach move's duration needs the robot's current angles."""
     out = []

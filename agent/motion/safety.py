@@ -20,7 +20,8 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import SafetyError
 from payload_agent.motion import workspace
-from payload_agent.motion.planner import MAX_SINGLE_MOVE_RAD, Move, Plan, move_duration_s, turned_to
+from payload_agent.motion.planner import (MAX_SINGLE_MOVE_RAD, Move, Plan, first_move_percent, move_duration_s,
+                                          turned_to)
 from payload_agent.recording.resting_pose import RestingPose
 
 
@@ -63,8 +64,7 @@ class SafetyGate:
         first_pct, first_what = s.approach_speed_percent, "approach cap"
         if self.resting is not None and start_q is not None:
             if self.resting.matches(start_q):
-                first_pct = max(s.approach_speed_percent, min(self.config.procedure.travel_speed_percent,
-                                                              s.max_speed_percent))
+                first_pct = first_move_percent(self.config, True)
                 first_what = "travel speed from our own resting pose"
             else:
                 first_what = (f"approach cap (the arm stands {math.degrees(self.resting.offset_rad(start_q)):.2f}° "

@@ -3,9 +3,10 @@
 Why: the first move of a session runs at the slow approach speed because the arm may stand anywhere,
 on a path nobody checked. When it still stands exactly where our own last session's completed motion
 left it (the record, checked against the live joint angles), that is a pose our own approved plan
-reached and stood at; a verify can then start from it at travel speed instead of creeping there at
-approach speed (issue 23: a known-tool change within 8 s of robot time). The safety gate still checks
-the whole plan, that first path included, and does the comparison with the live angles itself.
+reached and stood at; a session (verify, run, baseline, calibrate) can then start from it at travel
+speed instead of creeping there at approach speed (issue 23: a known-tool change within 8 s of robot
+time; issue 22: `run` after `calibrate`). The safety gate still checks the whole plan, that first path
+included, and does the comparison with the live angles itself.
 
 The record is removed before a phase's first move and written when a phase completed with the arm at
 its last target, or, after a stop our own supervision made because the link to the controller failed
@@ -88,6 +89,13 @@ def load(state_root: Path) -> RestingPose | None:
         return RestingPose(q, str(data["run_dir"]), str(data["recorded_utc"]), to)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+
+
+def standing_at(state_root: Path, q: Sequence[float] | None) -> RestingPose | None:
+    """The record when the arm stands where it says (``q``, the live angles or where a plan assumes the arm
+    stands, matches it): a session's first move may then run at travel speed. None otherwise."""
+    rec = None if q is None else load(state_root)
+    return rec if rec is not None and rec.matches(q) else None
 
 
 def clear(state_root: Path) -> None:

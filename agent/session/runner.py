@@ -22,10 +22,11 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (CommunicationError, DataError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, SafetyError)
-from payload_agent.motion.planner import Plan, expected_durations, remaining_plan, turned_to
+from payload_agent.motion.planner import Plan, expected_durations, from_resting_pose, remaining_plan, turned_to
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
 from payload_agent.evaluation.calibration import RUN_CALIBRATION, effective_calibration
+from payload_agent.recording import resting_pose
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
 from payload_agent.session import baseline as baselines
@@ -83,7 +84,6 @@ class Session:
     def _connected(self, plan: Plan, cell, driver: Driver) -> RunOutcome:
         config, opts, ui, mode, state = self.config, self.opts, self.ui, self.mode, self.state
         out = ui.out
-        gate = SafetyGate(config)
         t0 = time.monotonic()
         recorder = log = None
         try:
@@ -95,6 +95,11 @@ class Session:
             chosen = mode.select(config, plan, opts, state, current, probe.info, out)
             if opts.return_to_start:
                 chosen = _returning(config, chosen, probe.q)
+            resting = resting_pose.standing_at(state.root, probe.q)
+            gate = SafetyGate(config, resting)  # the gate compares the record with the angles itself
+            if resting is not None:
+                chosen = _from_resting_pose(config, chosen)
+                out(f"The arm rests at {resting.describe()}: the first move runs at travel speed")
             durations = _show_and_confirm(config, opts, ui, driver, gate, chosen, probe.q)
             changing = len(chosen.todo) > 1 or mode.empties_flange
             first, mounted, _ = chosen.todo[0]
@@ -162,6 +167,15 @@ def _returning(config: Config, chosen: Selection, start_q) -> Selection:
     accel = next((m.accel_rad_s2 for m in reversed(last.moves) if m.kind == "travel"), last.moves[-1].accel_rad_s2)
     back = Move("return to where the session started", "travel", tuple(float(v) for v in start_q), travel, accel)
     return replace(chosen, todo=[*chosen.todo[:-1], (phase, mounted, Plan(last.procedure, (*last.moves, back)))])
+
+
+def _from_resting_pose(config: Config, chosen: Selection) -> Selection:
+    """``chosen`` whose first run leaves our own resting pose at travel speed (``motion.planner.from_resting_pose``);
+    a later run of the session still approaches its start slowly."""
+    from dataclasses import replace
+
+    phase, mounted, first = chosen.todo[0]
+    return replace(chosen, todo=[(phase, mounted, from_resting_pose(config, first)), *chosen.todo[1:]])
 
 
 def _check_controller(config: Config, mode: Mode, ui: OperatorUI, driver: Driver, plan: Plan) -> Probe:
@@ -263,6 +277,8 @@ def _open_recorder(config: Config, mode: Mode, opts: RunOptions, plan: Plan, pro
                       None if pose_check is None else pose_check.to_json()).to_json(),
         "config_fingerprint": config_fingerprint(config), "phases_planned": chosen.phases,
         "store_empty": chosen.store_empty,
+        # the session's first move as it runs: at travel speed from our own resting pose, the plan's approach else
+        "first_move": chosen.todo[0][2].moves[0].to_json() if chosen.todo[0][2].moves else None,
         "solver": opts.solver or config.procedure.solver})  # `solve` redoes the run with the run's own solver
     if stored_info is not None:  # the run folder keeps its own copy: self-contained
         recorder.adopt_phase("empty", baselines.copy_into_run(state, stored_info, recorder.run_dir))

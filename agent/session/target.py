@@ -23,6 +23,7 @@ from payload_agent.errors import ConfigError, DataError
 from payload_agent.evaluation.design import Choice, NoiseModel, choose
 from payload_agent.evaluation.planned_baseline import SharedBaseline
 from payload_agent.evaluation.effort_noise import moving_and_standing_std
+from payload_agent.recording import resting_pose
 from payload_agent.recording.state import RobotState
 from payload_agent.session import stream_density
 from payload_agent.session.connection import build_driver
@@ -201,7 +202,13 @@ def plan_for_target(config: Config, text: str, payload: ExpectedPayload | None =
     from payload_agent.session.stored_candidate import grid_for
 
     return choose(config, grams, mm, noise, nominal_mass_kg=payload.mass_kg, nominal_cog_mm=payload.cog_mm,
-                  grid=grid_for(config), start_q=start_q), source
+                  grid=grid_for(config), start_q=start_q, from_rest=from_resting_pose(config, start_q)), source
+
+
+def from_resting_pose(config: Config, start_q) -> bool:
+    """Whether ``start_q`` is our own resting pose (``recording.resting_pose``): `run` then makes its first move at
+    travel speed, and the plan counts the approach so."""
+    return resting_pose.standing_at(RobotState.for_config(config).root, start_q) is not None
 
 
 def plan_target(config: Config, args, start_q, con) -> dict:
@@ -216,6 +223,9 @@ def plan_target(config: Config, args, start_q, con) -> dict:
         start_q, where = np.radians(config.simulation.start_deg), "from the simulation's start_deg"
     noise = noise_for(config)  # reads the stored baseline and calibration: once, for the choice and the advice
     choice, source = plan_for_target(config, args.target_std, payload, start_q, noise)
+    from_rest = from_resting_pose(config, start_q)
+    if from_rest:
+        where += " (our own resting pose: the approach at travel speed)"
     con.say(f"Procedures for the target ({source}); predicted for the payload {payload.describe()}; robot time "
             + (f"with the approach move {where}:" if start_q is not None else
                "without the approach move (give --from-deg or --connect to count it):"))
@@ -224,12 +234,12 @@ def plan_target(config: Config, args, start_q, con) -> dict:
     from payload_agent.session.target_advice import calibration_advice
 
     advice = calibration_advice(config, choice, noise[0], nominal_theta(payload.mass_kg, payload.cog_mm),
-                                grams, mm, start_q)
+                                grams, mm, start_q, from_rest)
     if advice:
         con.say(advice)
     out: dict = {"noise_source": source, "payload": {"mass_kg": payload.mass_kg, "cog_mm": list(payload.cog_mm),
                                                       "source": payload.source},
-                 "approach_counted": start_q is not None, "chosen": None, "calibration_advice": advice or None}
+                 "approach_counted": start_q is not None, "approach_from_rest": from_rest, "chosen": None, "calibration_advice": advice or None}
     if choice.best is None:
         return out
     best = choice.best

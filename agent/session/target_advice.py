@@ -32,7 +32,7 @@ SCREEN = 1.15
 
 
 def kept_out_by_lengths(config: Config, choice: design.Choice, noise: design.NoiseModel, theta: Sequence[float],
-                        mass_std_g: float, cog_std_mm: float, start_q=None
+                        mass_std_g: float, cog_std_mm: float, start_q=None, from_rest: bool = False
                         ) -> list[tuple[design.Prediction, design.Prediction]]:
     """Per procedure, the fastest usable candidate faster than the chosen one (any, when none was chosen) that misses
     the target with its DH-length term and meets it without (``design.Prediction.meets``): (its prediction, the one
@@ -57,14 +57,14 @@ def kept_out_by_lengths(config: Config, choice: design.Choice, noise: design.Noi
         if p.mass_rms_std_g ** 2 - lengths[key] ** 2 > (SCREEN * mass_std_g) ** 2:
             continue
         # the safety gate passed it already (usable): the same candidate, the same plan
-        q = design.predict(config, c, without, theta, check_safety=False, start_q=start_q)
+        q = design.predict(config, c, without, theta, check_safety=False, start_q=start_q, from_rest=from_rest)
         if q.meets(mass_std_g, cog_std_mm):
             found[c.procedure] = (p, q)
     return list(found.values())
 
 
 def calibration_advice(config: Config, choice: design.Choice, noise: design.NoiseModel, theta: Sequence[float],
-                       mass_std_g: float, cog_std_mm: float, start_q=None) -> str:
+                       mass_std_g: float, cog_std_mm: float, start_q=None, from_rest: bool = False) -> str:
     """Lines for ``plan --target-std`` naming, per procedure other than the one the stored calibration swept, the
     fastest faster candidate that misses the target only by its DH-length term, with the calibration on that
     procedure; "" when there is none, or no calibration stored, or one that does not record its procedure."""
@@ -74,7 +74,7 @@ def calibration_advice(config: Config, choice: design.Choice, noise: design.Nois
     if cal is None or cal.procedure is None:
         return ""
     lines = []
-    for p, q in kept_out_by_lengths(config, choice, noise, theta, mass_std_g, cog_std_mm, start_q):
+    for p, q in kept_out_by_lengths(config, choice, noise, theta, mass_std_g, cog_std_mm, start_q, from_rest):
         name = p.candidate.procedure or config.procedure.name
         if load_procedure(name).fingerprint != cal.procedure.fingerprint:
             lines.append(f"  {p.candidate.describe()} ({p.robot_time_s:.0f} s): σ {p.mass_std_g:.2f} g / "

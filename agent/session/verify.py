@@ -153,8 +153,8 @@ def _verify_connected(config: Config, opts: VerifyOptions, state: RobotState, dr
         theta0 = vs.theta_of(entry.mass_kg, entry.cog_mm)
         S0 = (np.asarray(entry.covariance_theta_si, float) if entry.covariance_theta_si is not None  # the run's own
               else vs.theta_cov(entry.mass_kg, entry.cog_mm, entry.mass_std_kg, entry.cog_std_mm))  # σ only: diagonal
-        resting = resting_pose.load(state.root)
-        from_rest = resting is not None and resting.matches(start_q)
+        resting = resting_pose.standing_at(state.root, start_q)
+        from_rest = resting is not None
         cand = verify_plan.choose(config, start_q, baseline, sigma, theta0, S0, opts.mass_limit_percent,
                                   opts.cog_limit_mm, from_rest=from_rest)
         out(f"Expected: {_expected_name(entry)}; baseline of {stored.recorded_utc}, effort noise "
@@ -165,7 +165,7 @@ def _verify_connected(config: Config, opts: VerifyOptions, state: RobotState, dr
                 f"{opts.cog_limit_mm:g} mm; this is the most sensitive one")
         if from_rest:
             out(f"The arm rests at {resting.describe()}: the first move runs at travel speed")  # type: ignore[union-attr]
-        gate = SafetyGate(config, resting if from_rest else None)  # the gate compares it with the angles itself
+        gate = SafetyGate(config, resting)  # the gate compares it with the angles itself
         verdict = gate.check(cand.plan, start_q)
         out("Safety gate: " + verdict.describe())
         gate.approve(cand.plan, start_q)  # refuses with every problem listed

@@ -24,7 +24,7 @@ import numpy as np
 from payload_agent.configuration.config import Config
 from payload_agent.configuration.procedure import Procedure
 from payload_agent.errors import DataError, PlanError
-from payload_agent.motion.planner import Move, Plan, make_plan, move_duration_s, turned_to
+from payload_agent.motion.planner import Move, Plan, from_resting_pose, make_plan, robot_time_s, turned_to
 from payload_agent.recording.rundata import SweepData
 from payload_agent.tools import verify_stats as vs
 from payload_agent.types import SweepKey
@@ -121,10 +121,7 @@ def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = Fals
     moves: list[Move] = []
     for k, s in enumerate(segs):
         label = f"{s.pose}-j{s.joint}"
-        if k == 0 and from_rest:
-            moves.append(Move(f"from the resting pose to verify {label} start", "approach", s.start, travel,
-                              s.accel_rad_s2))
-        elif k == 0:
+        if k == 0:
             moves.append(Move(f"approach verify {label} start", "approach", s.start, approach, s.accel_rad_s2))
         else:
             moves.append(Move(f"to verify {label} start", "travel", s.start, travel, s.accel_rad_s2))
@@ -132,15 +129,8 @@ def build_plan(config: Config, segs: tuple[Segment, ...], from_rest: bool = Fals
                           SweepKey(s.pose, s.joint, "up", s.speed_percent)))
         moves.append(Move(f"verify {label} down", "sweep", s.start, s.speed_rad_s, s.accel_rad_s2,
                           SweepKey(s.pose, s.joint, "down", s.speed_percent)))
-    return Plan(procedure if procedure is not None else make_plan(config).procedure, tuple(moves))
-
-
-def robot_time_s(plan: Plan, start_q: np.ndarray) -> float:
-    prev, total = np.asarray(start_q, float), 0.0
-    for m in plan.moves:
-        total += move_duration_s(prev, np.asarray(m.target_rad), m.speed_rad_s, m.accel_rad_s2)
-        prev = np.asarray(m.target_rad)
-    return total
+    plan = Plan(procedure if procedure is not None else make_plan(config).procedure, tuple(moves))
+    return from_resting_pose(config, plan) if from_rest else plan
 
 
 def choose(config: Config, start_q: np.ndarray, baseline: dict[SweepKey, SweepData], sigma: vs.EffortNoise,
