@@ -67,7 +67,7 @@ from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
                                                   reference_friction, residual_friction, three_step_response,
-                                                  three_step_scatter, wrist)
+                                                  three_step_rows, three_step_scatter, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
@@ -293,6 +293,8 @@ def friction_terms(ctx: Context) -> list[Term]:
         calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
     post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, offs, gains)
     std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
+    std3, sens3, note3 = three_step_rows.unused_offsets(post, calib)  # another torque the three steps read
+    std, sens = np.concatenate([std, std3]), {k: np.hstack([A, sens3[k]]) for k, A in sens.items()}
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]
@@ -303,7 +305,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
-                 f"{residual_friction.describe(post, asym)}{ref} in σ")]
+                 f"{residual_friction.describe(post, asym)}{ref} in σ{note3}")]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
