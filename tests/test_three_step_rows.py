@@ -14,14 +14,13 @@ import yaml
 
 from payload_agent.configuration.config import parse_config
 from payload_agent.evaluation import systematics
-from payload_agent.evaluation.systematics import three_step_response
+from payload_agent.evaluation.systematics import three_step_response, three_step_rows
 from payload_agent.fakes.arms import ec66_spec
 from payload_agent.fakes.offline import record_plan
 from payload_agent.fakes.physics import FrictionParams, PayloadTruth
 from payload_agent.fakes.sim_robot import SimRobot
 from payload_agent.motion.planner import make_plan
 from payload_agent.solvers import three_step
-from payload_agent.solvers.fitted import ALL
 
 from conftest import ROOT
 
@@ -63,24 +62,20 @@ def test_a_torque_not_read_as_friction_is_in_the_three_step_sigma_as_measured(ru
     syst = systematics.evaluate(prepared, kin, joints)
     fric = next(t for t in syst.terms if t.name == "residual friction")
     assert "j2" in fric.note and "not used" in fric.note  # not friction: the declared prior decides there
+    rows = next(t for t in syst.terms if t.name == three_step_rows.NAME)
+    assert not any(t.name == three_step_rows.NAME for t in systematics.evaluate(clean, kin, joints).terms)
 
     # what the torque does to the three-step's result (the same noise, with and without it)
     shift = three_step_response.theta(prepared.deltas, kin) - three_step_response.theta(clean.deltas, kin)
     assert abs(shift[0]) > 0.020  # tens of grams on a 3 kg tool
 
-    # the three-step's σ holds it as measured: the reported mass covers the shift, and its own column predicts it
+    # the three-step's σ holds it as measured: the reported mass covers the shift, and the term's mean column (the
+    # measured offset's effect) predicts it
     plain = three_step.solve(prepared.deltas, kin)
     reported = syst.apply(plain, systematics.THREE_STEP)
     assert abs(shift[0]) < 2.0 * reported.mass_std_kg
-    A = fric.sens[systematics.THREE_STEP]
-    mean_cols = [k for k in range(A.shape[1]) if abs(A[0, k]) > 0.5 * abs(shift[0])]
-    assert mean_cols, "no column of the shift's size"
-    assert A[0, mean_cols[0]] == pytest.approx(shift[0], rel=0.3)
-
+    assert rows.sens[systematics.THREE_STEP][0, 0] == pytest.approx(shift[0], rel=0.2)
     # the general fits take none of it (their σ is as before)
-    extra = A.shape[1] - next(t for t in systematics.evaluate(clean, kin, joints).terms
-                              if t.name == "residual friction").sens[ALL].shape[1]
-    assert extra > 0
-    for which, S in fric.sens.items():
+    for which, S in rows.sens.items():
         if which != systematics.THREE_STEP:
-            assert not S[:, -extra:].any(), which
+            assert not S.any(), which

@@ -293,8 +293,6 @@ def friction_terms(ctx: Context) -> list[Term]:
         calib = {which: np.hstack([S, np.zeros_like(S)]) for which, S in sens.items()}
     post = residual_friction.posterior(asym, [change[j] for j in all_joints], all_joints, offs, gains)
     std, sens = residual_friction.columns(post, calib, mu_r, sd_r)
-    std3, sens3, note3 = three_step_rows.unused_offsets(post, calib)  # another torque the three steps read
-    std, sens = np.concatenate([std, std3]), {k: np.hstack([A, sens3[k]]) for k, A in sens.items()}
     measured = [f"j{j + 1} {change[j].measured_nm:+.3f}±{change[j].measured_std_nm:.3f}"
                 + ("" if change[j].coulomb_only else " with the viscous part at the sweep speed")
                 for j in joints if change[j].measured]
@@ -305,7 +303,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
-                 f"{residual_friction.describe(post, asym)}{ref} in σ{note3}")]
+                 f"{residual_friction.describe(post, asym)}{ref} in σ"), *three_step_rows.terms(post, calib)]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:

@@ -25,22 +25,24 @@ from typing import Mapping
 import numpy as np
 
 from payload_agent.evaluation.systematics import residual_friction
+from payload_agent.evaluation.systematics.terms import Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
 
 
-def unused_offsets(post: residual_friction.Posterior, calib: Mapping[str, np.ndarray]
-                   ) -> tuple[np.ndarray, dict[str, np.ndarray], str]:
-    """(std, sens, note) of the three-step's extra columns for the measured offsets ``post`` did not use (``calib``:
-    {fit: (4, 2p)} as ``residual_friction.columns`` reads it, the first p columns the tool run's response S per joint
-    of ``post.joints``). Unit-σ columns S₃·b̂ and S₃·C^½ under ``THREE_STEP``, zero columns under every other key;
-    empty where every measured offset was used or the three-step has no response."""
+NAME = "three-step rows"  # the term's name (``Term.name``)
+
+
+def terms(post: residual_friction.Posterior, calib: Mapping[str, np.ndarray]) -> list[Term]:
+    """The term for the measured offsets ``post`` did not use, as the three-step reads them (``calib``: {fit: (4, 2p)}
+    as ``residual_friction.columns`` reads it, the first p columns the tool run's response S per joint of
+    ``post.joints``): unit-σ columns S₃·b̂ and S₃·C^½ under ``THREE_STEP``, zero columns under every other key. Empty
+    where every measured offset was used or the three-step has no response."""
     m = post.measured
-    empty = (np.zeros(0), {k: np.zeros((4, 0)) for k in calib}, "")
     if m is None or THREE_STEP not in calib:
-        return empty
+        return []
     unused = [j for j in post.joints if j in m.joints and not post.used(j)]
     if not unused:
-        return empty
+        return []
     S = calib[THREE_STEP][:, [post.joints.index(j) for j in unused]]
     idx = [m.joints.index(j) for j in unused]
     b, C = m.offsets_nm[idx], m.cov[np.ix_(idx, idx)]
@@ -49,9 +51,9 @@ def unused_offsets(post: residual_friction.Posterior, calib: Mapping[str, np.nda
     cols = np.hstack([(S @ b)[:, None], S @ root])
     sens = {k: (cols if k == THREE_STEP else np.zeros_like(cols)) for k in calib}
     found = ", ".join(f"j{j + 1} {b[i]:+.3f}±{np.sqrt(C[i, i]):.3f}" for i, j in enumerate(unused))
-    note = (f"; three-step solver: the offsets not read as friction ({found} N·m) are a torque on the rows it reads, "
-            "their effect on it as measured in its σ")
-    return np.ones(cols.shape[1]), sens, note
+    return [Term(NAME, np.ones(cols.shape[1]), sens,
+                 f"three-step solver: the offsets beside the fit not read as friction ({found} N·m) are a torque on the "
+                 "rows it reads, their effect on it as measured in its σ")]
 
 
-__all__ = ["unused_offsets"]
+__all__ = ["NAME", "terms"]
