@@ -67,7 +67,7 @@ from payload_agent.recording.rundata import SweepData
 from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
                                                   reference_friction, residual_friction, three_step_response,
-                                                  three_step_scatter, wrist)
+                                                  three_step_rows, three_step_scatter, wrist)
 from payload_agent.evaluation.systematics.planned import planned_covariance
 from payload_agent.evaluation.systematics.terms import Systematics, Term
 from payload_agent.evaluation.systematics.three_step_response import THREE_STEP
@@ -303,7 +303,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                         f"torque varies too little to tell ({', '.join(prior)})")
     return [Term("residual friction", std, sens,
                  f"friction direction asymmetry × the change of the Coulomb friction part between the runs ({how}): "
-                 f"{residual_friction.describe(post, asym)}{ref} in σ")]
+                 f"{residual_friction.describe(post, asym)}{ref} in σ"), *three_step_rows.terms(post, calib)]
 
 
 def wrist_terms(ctx: Context) -> list[Term]:
