@@ -442,6 +442,43 @@ def test_lost_connection_ends_the_stream_with_an_error():
         fake.close()
 
 
+@pytest.mark.parametrize("held_elsewhere", [False, True], ids=["driver-only", "held-elsewhere"])
+def test_close_ends_the_receive_interface_with_one_disconnect(ur2, monkeypatch, held_elsewhere):
+    """ur-rtde's receive interface disconnects in its destructor, and each disconnect() sleeps 0.5 s
+    (docs/sources.md): close leaves it that one disconnect instead of calling disconnect() first, and the
+    controller has none of the driver's RTDE connections left after close. When something else still holds the
+    interface, close disconnects it itself all the same."""
+    import rtde_receive
+
+    calls = []
+
+    class CountingReceive(rtde_receive.RTDEReceiveInterface):
+        def disconnect(self):  # the destructor's own call is C++'s and does not come here
+            calls.append(time.monotonic())
+            return super().disconnect()
+
+    monkeypatch.setattr(rtde_receive, "RTDEReceiveInterface", CountingReceive)
+    settle(ur2)
+    d = make_driver(ur2.host)
+    try:
+        d.connect()
+        d.wait_sample(2.0)
+        assert isinstance(d._recv, CountingReceive)
+        kept = d._recv if held_elsewhere else None
+    finally:
+        d.close()
+    assert d._recv is None
+    assert len(calls) == (1 if held_elsewhere else 0)
+    # no sample-stream session (the receive interface's, the sample reader's) is left open at the controller:
+    # the sum of the packages sent to the open ones is then 0 (the controller notices the close within a cycle
+    # or two of its own; a deadline, not a timing claim)
+    deadline = time.monotonic() + 5.0
+    while ur2.stream_packages_sent and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert ur2.stream_packages_sent == 0
+    del kept
+
+
 def test_missing_wheel_fails_only_this_driver(monkeypatch):
     """Without the ur-rtde wheel (Python 3.13+) the UR driver names the problem; Elite still loads, and a UR
     robot YAML still parses (plan works without the wheel)."""
