@@ -10,6 +10,7 @@ the calibration's: 1.5× off for the friction, 2× for joint 3's share (docs/ben
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from dataclasses import replace
@@ -32,14 +33,21 @@ REF = "3:0,0,80"
 STEP_NM = 0.05  # a constant torque the fit's response is linear in (the fit is linear in the data)
 
 
-def _pair(calibrate_procedure: str | None, candidate: str):
-    """(bench, calibration, the calibration's own deltas, the tool run prepared as a calibrated run prepares it)."""
+def _recorded(calibrate_procedure: str | None, candidate: str):
+    """(bench, the calibration's (loaded, empty) runs, the tool's (loaded, empty) runs): the offline recordings."""
     b = length_errors.bench(calibrate_with=REF, candidate=candidate, calibrate_procedure=calibrate_procedure)
-    spec, decl = SPECS["ur5e"](), b.config.robot.joints
-    loaded, empty = length_errors._record(b, spec, b.cal_plan, b.reference)
+    spec = SPECS["ur5e"]()
+    return b, length_errors._record(b, spec, b.cal_plan, b.reference), length_errors._record(b, spec, b.run_plan,
+                                                                                               b.truth)
+
+
+def _pair(recorded):
+    """(bench, calibration, the calibration's own deltas, the tool run prepared as a calibrated run prepares it)."""
+    b, (loaded, empty), tool_run = recorded
+    decl = b.config.robot.joints
     cal = fit_from_sweeps(loaded, empty, b.config, b.reference[0], np.asarray(b.reference[1]) / 1000.0, joints=decl)
     own = systematics.prepare(loaded, empty, decl, None).deltas
-    loaded, empty = length_errors._record(b, spec, b.run_plan, b.truth)
+    loaded, empty = tool_run
     scaled = [{k: replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in phase.items()}
               for phase in (loaded, empty)]
     if cal.zeros is not None:
@@ -48,13 +56,19 @@ def _pair(calibrate_procedure: str | None, candidate: str):
 
 
 @pytest.fixture(scope="module")
-def quarter_then_bd():
-    return _pair("j2_quarter", "paper_bd:10:0:55")
+def quarter_then_bd_runs():
+    """Recorded once for the file: the cluster test ripples copies of the same runs (they are deterministic)."""
+    return _recorded("j2_quarter", "paper_bd:10:0:55")
+
+
+@pytest.fixture(scope="module")
+def quarter_then_bd(quarter_then_bd_runs):
+    return _pair(quarter_then_bd_runs)
 
 
 @pytest.fixture(scope="module")
 def bd_then_quarter():
-    return _pair(None, "j2_quarter:10:0:40")
+    return _pair(_recorded(None, "j2_quarter:10:0:40"))
 
 
 def _fit_ratio(b, deltas, fitted) -> np.ndarray:
@@ -190,16 +204,16 @@ def _rippled(phase: dict) -> dict:
     return out
 
 
-def test_a_cluster_the_calibration_took_whole_is_measured_where_the_tool_run_moves_its_joint():
+def test_a_cluster_the_calibration_took_whole_is_measured_where_the_tool_run_moves_its_joint(quarter_then_bd_runs):
     """j2_quarter keeps joint 3 at 0° throughout, so its scale took the whole error there (w = 1); a paper_bd run
     moves joint 3, whose calibrated rows then carry −ε while the rows at 0° carry none. The three-step's scatter
     measurement (``measure(absorb_joints=...)``) must give that cluster its absorbed column; it used to leave every
     w = 1 cluster out (right only when the joint never moves in the tool run either)."""
-    b = length_errors.bench(calibrate_with=REF, candidate="paper_bd:10:0:55", calibrate_procedure="j2_quarter")
-    spec, decl, kin = SPECS["ur5e"](), b.config.robot.joints, b.config.robot.kinematics
-    loaded, empty = (_rippled(p) for p in length_errors._record(b, spec, b.cal_plan, b.reference))
+    b, cal_runs, tool_runs = copy.deepcopy(quarter_then_bd_runs)  # j2_quarter's calibration, a paper_bd tool run
+    decl, kin = b.config.robot.joints, b.config.robot.kinematics
+    loaded, empty = (_rippled(p) for p in cal_runs)
     cal = fit_from_sweeps(loaded, empty, b.config, b.reference[0], np.asarray(b.reference[1]) / 1000.0, joints=decl)
-    loaded, empty = (_rippled(p) for p in length_errors._record(b, spec, b.run_plan, b.truth))
+    loaded, empty = (_rippled(p) for p in tool_runs)
     scaled = [{k: replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in p.items()} for p in (loaded, empty)]
     if cal.zeros is not None:
         scaled = [zero_offsets.corrected(p, cal.zeros) for p in scaled]

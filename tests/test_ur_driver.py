@@ -79,16 +79,26 @@ def drv(ur):
 
 @pytest.fixture
 def healthy(ur, drv):
+    drv.connect()  # connected already, unless a fault test took the controller (``ur2``) before this one
     settle(ur, drv)
     yield drv
     settle(ur, drv)
 
 
-@pytest.fixture(scope="module")
-def ur2():
-    """A second controller for the fault tests: ur-rtde's control interface is one client's at a time."""
-    with FakeURController(time_scale=1.0, current_noise_a=0.05) as fake:
-        yield fake
+@pytest.fixture
+def ur2(ur, drv):
+    """The module's controller for the fault tests, to themselves: the module's driver is closed first (ur-rtde's
+    control interface is one client's at a time). Until session 23 this was a second controller, started beside
+    the first, with the module's driver kept connected to the file's end: about 0.5 s of CPU a second (two 500 Hz
+    controllers, ur-rtde's receive threads) while the fault tests ran. ``healthy`` connects the module's driver
+    again should a test need it after these."""
+    drv.close()
+    # its connections gone at the controller (the sum of packages sent to open sample streams is then 0): a
+    # deadline to wait within, not a timing claim
+    deadline = time.monotonic() + 5.0
+    while ur.stream_packages_sent and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return ur
 
 
 @pytest.fixture
@@ -440,6 +450,43 @@ def test_lost_connection_ends_the_stream_with_an_error():
     finally:
         d.close()
         fake.close()
+
+
+@pytest.mark.parametrize("held_elsewhere", [False, True], ids=["driver-only", "held-elsewhere"])
+def test_close_ends_the_receive_interface_with_one_disconnect(ur2, monkeypatch, held_elsewhere):
+    """ur-rtde's receive interface disconnects in its destructor, and each disconnect() sleeps 0.5 s
+    (docs/sources.md): close leaves it that one disconnect instead of calling disconnect() first, and the
+    controller has none of the driver's RTDE connections left after close. When something else still holds the
+    interface, close disconnects it itself all the same."""
+    import rtde_receive
+
+    calls = []
+
+    class CountingReceive(rtde_receive.RTDEReceiveInterface):
+        def disconnect(self):  # the destructor's own call is C++'s and does not come here
+            calls.append(time.monotonic())
+            return super().disconnect()
+
+    monkeypatch.setattr(rtde_receive, "RTDEReceiveInterface", CountingReceive)
+    settle(ur2)
+    d = make_driver(ur2.host)
+    try:
+        d.connect()
+        d.wait_sample(2.0)
+        assert isinstance(d._recv, CountingReceive)
+        kept = d._recv if held_elsewhere else None
+    finally:
+        d.close()
+    assert d._recv is None
+    assert len(calls) == (1 if held_elsewhere else 0)
+    # no sample-stream session (the receive interface's, the sample reader's) is left open at the controller:
+    # the sum of the packages sent to the open ones is then 0 (the controller notices the close within a cycle
+    # or two of its own; a deadline, not a timing claim)
+    deadline = time.monotonic() + 5.0
+    while ur2.stream_packages_sent and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert ur2.stream_packages_sent == 0
+    del kept
 
 
 def test_missing_wheel_fails_only_this_driver(monkeypatch):

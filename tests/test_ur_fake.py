@@ -205,7 +205,7 @@ def test_receive_interface_streams_in_sim_time(ur):
         cur = np.asarray(r.getActualCurrent())
         assert np.allclose(cur, tau / np.asarray(DEFAULT_GAINS_NM_PER_A), atol=0.4)
     finally:
-        r.disconnect()
+        del r  # its destructor disconnects (once: an explicit disconnect() first costs another 0.5 s)
 
 
 def test_dashboard(ur):
@@ -285,7 +285,7 @@ def test_control_interface_move_stop_and_payload(clean):
                 time.sleep(0.002)
             assert r.getRuntimeState() == 1
     finally:
-        r.disconnect()
+        del r  # its destructor disconnects (once: an explicit disconnect() first costs another 0.5 s)
     assert ur.script_errors == []
 
 
@@ -348,7 +348,7 @@ def test_protective_stop_and_estop_are_visible(clean):
         assert r.getSafetyMode() == 7 and r.getRobotMode() == 3
     finally:
         stack.close()
-        r.disconnect()
+        del r  # its destructor disconnects (once: an explicit disconnect() first costs another 0.5 s)
 
 
 def eventually(predicate, timeout_s: float = 3.0) -> None:
@@ -390,7 +390,7 @@ def test_tool_change_shows_in_actual_current(clean):
         loaded_tau, loaded = mean_current()
     finally:
         ur.robot.set_payload(None)
-        r.disconnect()
+        del r  # its destructor disconnects (once: an explicit disconnect() first costs another 0.5 s)
     gains = np.asarray(DEFAULT_GAINS_NM_PER_A)
     assert abs(loaded_tau[1] - empty_tau[1]) > 5.0  # the shoulder carries the extra 2 kg
     assert np.allclose((loaded - empty) * gains, loaded_tau - empty_tau, atol=0.3)

@@ -44,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import socket
+import sys
 import time
 from typing import Any, Callable, Sequence
 
@@ -166,7 +167,9 @@ class URRTDEDriver(URCapabilities, Driver):
             reader.open(self.options.connect_timeout_s)
         except CommunicationError:
             reader.close()
-            recv.disconnect()
+            self._recv = recv
+            del recv
+            self._end_receive()
             raise
         self._recv, self._reader = recv, reader
         self._last_ts = None
@@ -180,12 +183,28 @@ class URRTDEDriver(URCapabilities, Driver):
         reader, self._reader = self._reader, None
         if reader is not None:
             reader.close()
+        self._end_receive()
+
+    def _end_receive(self) -> None:
+        """End ur-rtde's receive interface (its RTDE connection paused and closed) once. Never raises.
+
+        ``RTDEReceiveInterface.disconnect()`` ends with a fixed 0.5 s sleep ("wait until everything has
+        disconnected"), whatever the controller does, and the interface's destructor calls it again (ur-rtde
+        1.6.5, src/rtde_receive_interface.cpp; docs/sources.md): a disconnect() before the last reference
+        went paid it twice. So the driver drops its reference, the last one, and the destructor disconnects
+        once. Should another reference still hold the interface (a traceback's frame), disconnect() is called
+        now all the same, so that the connection never outlives close(); its destructor then waits again when
+        that reference goes.
+        """
         recv, self._recv = self._recv, None
-        if recv is not None:
-            try:
+        if recv is None:
+            return
+        try:
+            if sys.getrefcount(recv) > 2:  # more than this frame's name and getrefcount's own argument
                 recv.disconnect()
-            except Exception:
-                pass
+        except Exception:
+            pass
+        del recv  # the destructor runs here (RTDE pause, socket closed, the 0.5 s)
 
     def _receive(self):
         if self._recv is None:
