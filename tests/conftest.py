@@ -109,6 +109,23 @@ def short_session(data):
     return fast_start(tweak(data, "procedure.name", "j2_pair"))
 
 
+def cell_program_turns_joint_1(cell, degrees: float = 2.0) -> None:
+    """The simulated cell's own program (not the agent) turns joint 1 by ``degrees`` and leaves the arm there;
+    returns once it stands at the new angle (or after 30 s), for tests of what a session does when someone else
+    moved the arm."""
+    import time
+
+    import numpy as np
+
+    q = np.asarray(cell.robot.snapshot().q, float)
+    cell.robot.move_joints(q + np.radians([degrees, 0, 0, 0, 0, 0]), 0.2, 1.0)
+    deadline = time.monotonic() + 30
+    while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(degrees),
+                                                             abs_tol=1e-3)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.3)
+
+
 EC66_Q0 = [0.0, -math.pi / 2, math.pi / 2, 0.0, math.pi / 2, 0.0]  # the fakes' tests start the EC66 here
 EC66_TIME_SCALE = 40.0
 

@@ -121,9 +121,8 @@ def test_the_next_session_leaves_our_own_resting_pose_at_travel_speed_and_only_f
     arm was moved by someone else, the next session approaches slowly again (issue 22 item 3, as `verify` does
     since issue 23)."""
     import math
-    import time
 
-    from conftest import short_session
+    from conftest import cell_program_turns_joint_1, short_session
     from payload_agent.recording import resting_pose
     from payload_agent.recording.rundata import load_manifest
     from payload_agent.recording.state import RobotState
@@ -152,14 +151,7 @@ def test_the_next_session_leaves_our_own_resting_pose_at_travel_speed_and_only_f
         assert config.procedure.travel_speed_percent > config.safety.approach_speed_percent
         assert pct == pytest.approx(config.procedure.travel_speed_percent)
         assert "first move runs at travel speed" in text and "Safety gate: SAFE" in text
-        # the cell's own program moves joint 1 by 2° (and leaves it there): the record no longer matches
-        q = np.asarray(cell.robot.snapshot().q, float)
-        cell.robot.move_joints(q + np.radians([2.0, 0, 0, 0, 0, 0]), 0.2, 1.0)
-        deadline = time.monotonic() + 30
-        while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(2.0),
-                                                                 abs_tol=1e-3)) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.3)
+        cell_program_turns_joint_1(cell, 2.0)  # someone else moved the arm: the record no longer matches
         pct, text = session()
         assert pct == pytest.approx(config.safety.approach_speed_percent) and "travel speed" not in text
     finally:

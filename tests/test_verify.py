@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import ROOT, short_session, tweak
+from conftest import ROOT, cell_program_turns_joint_1, short_session, tweak
 from payload_agent.cli import main
 from payload_agent.configuration.config import parse_config
 from payload_agent.errors import CommunicationError, RobotBusyError, ToolMismatchError
@@ -178,7 +178,6 @@ def test_a_verify_from_our_own_resting_pose_starts_at_travel_speed(identified):
     """Issue 23: where our last completed motion left the arm (the record in the state folder, matching the live
     angles), the verify's first move runs at travel speed; once someone else moved the arm, the slow approach."""
     import math
-    import time
 
     from payload_agent.recording import resting_pose
 
@@ -199,14 +198,7 @@ def test_a_verify_from_our_own_resting_pose_starts_at_travel_speed(identified):
     again, text, pct = verify()
     assert "first move runs at travel speed" in text and pct == pytest.approx(config.procedure.travel_speed_percent)
     assert again.robot_time_s <= 5.0
-    # the cell's program moves the arm 2° (and leaves it there): the record no longer matches
-    q = np.asarray(cell.robot.snapshot().q, float)
-    cell.robot.move_joints(q + np.radians([2.0, 0, 0, 0, 0, 0]), 0.2, 1.0)
-    deadline = time.monotonic() + 30
-    while (cell.robot.snapshot().moving or not math.isclose(cell.robot.snapshot().q[0], q[0] + math.radians(2.0),
-                                                             abs_tol=1e-3)) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    time.sleep(0.3)
+    cell_program_turns_joint_1(cell, 2.0)  # someone else moved the arm: the record no longer matches
     moved, text, pct = verify()
     assert "travel speed" not in text and pct == pytest.approx(config.safety.approach_speed_percent)
     assert resting_pose.load(root).run_dir == str(moved.run_dir)  # and the new record is where it ended
