@@ -202,10 +202,10 @@ def plan_for_target(config: Config, text: str, payload: ExpectedPayload | None =
     from payload_agent.session.stored_candidate import grid_for
 
     return choose(config, grams, mm, noise, nominal_mass_kg=payload.mass_kg, nominal_cog_mm=payload.cog_mm,
-                  grid=grid_for(config), start_q=start_q, from_rest=from_resting_pose(config, start_q)), source
+                  grid=grid_for(config), start_q=start_q, from_rest=at_resting_pose(config, start_q)), source
 
 
-def from_resting_pose(config: Config, start_q) -> bool:
+def at_resting_pose(config: Config, start_q) -> bool:
     """Whether ``start_q`` is our own resting pose (``recording.resting_pose``): `run` then makes its first move at
     travel speed, and the plan counts the approach so."""
     return resting_pose.standing_at(RobotState.for_config(config).root, start_q) is not None
@@ -223,7 +223,7 @@ def plan_target(config: Config, args, start_q, con) -> dict:
         start_q, where = np.radians(config.simulation.start_deg), "from the simulation's start_deg"
     noise = noise_for(config)  # reads the stored baseline and calibration: once, for the choice and the advice
     choice, source = plan_for_target(config, args.target_std, payload, start_q, noise)
-    from_rest = from_resting_pose(config, start_q)
+    from_rest = at_resting_pose(config, start_q)
     if from_rest:
         where += " (our own resting pose: the approach at travel speed)"
     con.say(f"Procedures for the target ({source}); predicted for the payload {payload.describe()}; robot time "
