@@ -111,6 +111,7 @@ class HostedController(SimulatedController):
         self._lock = threading.Lock()
         self._closed = False
         self._final: dict[tuple[str, str], Any] = {}  # (op, path) -> value, read before the close
+        self._methods: set[str] = set()  # paths the child said are methods: called without asking again
         parent_sock, child_sock = socket.socketpair()
         self._proc = subprocess.Popen([sys.executable, "-m", "payload_agent.fakes.hosted", str(child_sock.fileno())],
                                       pass_fds=(child_sock.fileno(),), close_fds=True)
@@ -150,11 +151,16 @@ class HostedController(SimulatedController):
             return self._reply(REPLY_TIMEOUT_S, path)
 
     def remote_attr(self, path: str) -> Any:
-        """The value of ``path`` in the child, or a function calling it there if it is a method."""
-        value = self._request("get", path)
-        if isinstance(value, str) and value == _CALLABLE:
-            return lambda *args, **kwargs: self._request("call", path, *args, **kwargs)
-        return value
+        """The value of ``path`` in the child, or a function calling it there if it is a method.
+
+        A method stays a method: once the child said so, later uses call it in one round trip instead of two
+        (tests poll ``robot.snapshot()`` every few milliseconds). A value is asked for every time."""
+        if path not in self._methods:
+            value = self._request("get", path)
+            if not (isinstance(value, str) and value == _CALLABLE):
+                return value
+            self._methods.add(path)
+        return lambda *args, **kwargs: self._request("call", path, *args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:  # the controller's own extras (payload_setting, stop_program, ...)
         if name.startswith("_"):

@@ -12,10 +12,21 @@ from pathlib import Path
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import sys
+
 import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Compiled bytecode kept for the suite's processes: with PYTHONDONTWRITEBYTECODE set (as the shells on this
+# project's machines have it) every process compiles the project's modules from source (the installed packages
+# come compiled), and the suite starts about a hundred (simulated controllers, UR children, CLI runs) besides its
+# three workers, each of which also rewrites and compiles every test file it collects. So the workers (from their
+# next import on) and every subprocess (they inherit the environment) write and read bytecode as Python does by
+# default: __pycache__ beside the sources (git-ignored), checked against each source's mtime and size.
+if os.environ.pop("PYTHONDONTWRITEBYTECODE", None):
+    sys.dont_write_bytecode = False
 
 # State follows the robot into $XDG_STATE_HOME (payload_agent.configuration.paths): the suite gets its
 # own, so it never reads or writes the user's baselines, calibrations or history (subprocesses inherit it).

@@ -158,6 +158,60 @@ def test_unreachable_controller_is_a_communication_error():
 
 # -- against the fake --------------------------------------------------------------------------------
 
+# First the tests with controllers of their own, before the module's controller (``ur``) starts: it would idle
+# beside them, connected (the simulated UR and ur-rtde's threads: about 0.5 s of CPU a second).
+
+def test_not_ready_when_remote_control_is_off():
+    """Reading works in Local mode; the first command (which needs the control script) is refused."""
+    with FakeURController(remote_control=False) as fake:
+        d = make_driver(fake.host)
+        try:
+            d.connect()
+            st = d.state()
+            assert not st.motion_allowed and "Remote Control" in st.reason and d.read_digital_input(0) is False
+            with pytest.raises(RobotNotReadyError, match="Remote Control"):
+                d.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
+            assert "rtde_control" not in fake.programs_run and not fake.events
+        finally:
+            d.close()
+
+
+def test_long_move_fast_sim_with_payload():
+    """A long move at time_scale 10: the move still ends on target, the tool shows in the current."""
+    with FakeURController(time_scale=10.0, payload=PayloadTruth(3.0, (0.0, 0.0, 0.08))) as fake:
+        d = make_driver(fake.host, Supervision(max_stream_gap_s=0.5))
+        try:
+            d.connect()
+            target = [1.2, -1.0, 1.0, -1.2, -1.0, 1.0]
+            samples = []
+            d.start_stream(samples.append)
+            d.wait_sample(10.0)  # the driver refuses to move before its first sample
+            d.move_joints(target, 0.5, 1.0, timeout_s=30.0)  # ~2.5 s simulated, ~0.3 s wall
+            d.stop_stream()
+            assert np.allclose(d._recv.getActualQ(), target, atol=1e-6)
+            # the tool's weight is in the shoulder current: |current| well above the empty arm's noise
+            assert len(samples) > 10 and abs(samples[-1].effort[1]) > 1.0
+        finally:
+            d.close()
+
+
+def test_lost_connection_ends_the_stream_with_an_error():
+    fake = FakeURController().start()
+    d = make_driver(fake.host)
+    try:
+        d.connect()
+        d.wait_sample(2.0)
+        fake.close()
+        deadline = time.monotonic() + 5.0
+        while d.stream_error is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert isinstance(d.stream_error, CommunicationError)
+        d.stop()  # never raises, controller gone
+    finally:
+        d.close()
+        fake.close()
+
+
 def test_identify_and_state(healthy):
     info = healthy.identify()
     assert (info.vendor, info.model, info.firmware) == ("Universal Robots", "UR5e", "5.11.1.108318")
@@ -332,21 +386,6 @@ def test_speed_above_the_configured_cap_is_refused(healthy):
         healthy.move_joints(HOME, 5.0, 1.0, timeout_s=10.0)
 
 
-def test_not_ready_when_remote_control_is_off():
-    """Reading works in Local mode; the first command (which needs the control script) is refused."""
-    with FakeURController(remote_control=False) as fake:
-        d = make_driver(fake.host)
-        try:
-            d.connect()
-            st = d.state()
-            assert not st.motion_allowed and "Remote Control" in st.reason and d.read_digital_input(0) is False
-            with pytest.raises(RobotNotReadyError, match="Remote Control"):
-                d.move_joints(HOME, 1.0, 3.0, timeout_s=10.0)
-            assert "rtde_control" not in fake.programs_run and not fake.events
-        finally:
-            d.close()
-
-
 def test_connect_does_not_take_over_the_robot_program(ur):
     """connect() + reads upload nothing: a `watch` connection must not replace the robot's program."""
     before = ur.programs_run.count("rtde_control")
@@ -414,42 +453,6 @@ def test_joint_temperatures_follow_the_controller(ur, healthy):
             ur.set_joint_temperatures([30.0] * 5)
     finally:
         ur.set_joint_temperatures(first)
-
-
-def test_long_move_fast_sim_with_payload():
-    """A long move at time_scale 10: the move still ends on target, the tool shows in the current."""
-    with FakeURController(time_scale=10.0, payload=PayloadTruth(3.0, (0.0, 0.0, 0.08))) as fake:
-        d = make_driver(fake.host, Supervision(max_stream_gap_s=0.5))
-        try:
-            d.connect()
-            target = [1.2, -1.0, 1.0, -1.2, -1.0, 1.0]
-            samples = []
-            d.start_stream(samples.append)
-            d.wait_sample(10.0)  # the driver refuses to move before its first sample
-            d.move_joints(target, 0.5, 1.0, timeout_s=30.0)  # ~2.5 s simulated, ~0.3 s wall
-            d.stop_stream()
-            assert np.allclose(d._recv.getActualQ(), target, atol=1e-6)
-            # the tool's weight is in the shoulder current: |current| well above the empty arm's noise
-            assert len(samples) > 10 and abs(samples[-1].effort[1]) > 1.0
-        finally:
-            d.close()
-
-
-def test_lost_connection_ends_the_stream_with_an_error():
-    fake = FakeURController().start()
-    d = make_driver(fake.host)
-    try:
-        d.connect()
-        d.wait_sample(2.0)
-        fake.close()
-        deadline = time.monotonic() + 5.0
-        while d.stream_error is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert isinstance(d.stream_error, CommunicationError)
-        d.stop()  # never raises, controller gone
-    finally:
-        d.close()
-        fake.close()
 
 
 @pytest.mark.parametrize("held_elsewhere", [False, True], ids=["driver-only", "held-elsewhere"])

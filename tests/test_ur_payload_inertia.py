@@ -36,6 +36,51 @@ def result_with_inertia(inertia=INERTIA, **extra) -> RunResult:
     return RunResult("sim-ur5e", "run", est, extra={"inertia_com_kgm2": [list(r) for r in inertia], **extra})
 
 
+# The tests with controllers of their own come before the module's controller (``ur511``) starts: it would
+# idle beside them, connected (the simulated UR and ur-rtde's threads: about 0.5 s of CPU a second).
+
+def test_a_readback_that_differs_is_refused_naming_the_likely_cause():
+    with FakeURController(time_scale=1.0, keep_payload_inertia=True) as fake:
+        d = connected(fake)
+        try:
+            with pytest.raises(CommunicationError) as err:
+                d.write_payload(TOOL)
+        finally:
+            d.close()
+    text = str(err.value)
+    assert "set_target_payload ran but the controller reports" in text
+    assert "inertia [0.0, 0.0, 0.0" in text and "inertia [0.0041, 0.0052, 0.0023" in text
+    assert "Remote Control" in text and "NOT verified" in text
+
+
+@pytest.mark.parametrize("version", [(5, 10, 0, 0), (5, 9, 4, 0)])
+def test_a_version_without_inertia_writes_mass_and_cog_and_says_so(version):
+    with FakeURController(time_scale=1.0, controller_version=version) as fake:
+        d = connected(fake)
+        try:
+            reason = d.payload_inertia_support()
+            assert f"PolyScope {'.'.join(map(str, version))}" in reason and "5.11" in reason
+            lines: list[str] = []
+            back = apply_result(d, result_with_inertia(), None, lines.append)
+        finally:
+            d.close()
+    assert back.mass_kg == pytest.approx(1.4) and back.cog_m == pytest.approx(TOOL.cog_m)
+    assert back.inertia_com_kgm2 is None  # no RTDE payload_inertia before 5.11
+    assert any(line.startswith("Inertia not written: UR controller") for line in lines)
+
+
+def test_set_target_payload_on_a_controller_before_5_10_does_nothing():
+    """ur-rtde strips its script's set_target_payload lines (tagged 5.10) on an older controller, so the
+    call succeeds and changes nothing: the reason the driver decides by version and reads back."""
+    from test_ur_fake import call, control_interface
+
+    with FakeURController(time_scale=1.0, controller_version=(5, 9, 4, 0)) as fake:
+        with control_interface(fake.host) as ctl:
+            assert call(ctl, "setTargetPayload", 1.2, [0.0, 0.0, 0.05], [0.01, 0.01, 0.01, 0.0, 0.0, 0.0])
+            assert fake.controller_payload[0] == 0.0
+            call(ctl, "stopScript")
+
+
 @pytest.fixture(scope="module")
 def ur511():
     with FakeURController(time_scale=1.0) as fake:  # PolyScope 5.11.1: set_target_payload and payload_inertia
@@ -95,48 +140,6 @@ def test_the_simulated_controller_refuses_a_negative_diagonal_as_set_target_payl
         check_target_payload_inertia([0.01, -0.02, 0.03, 0.0, 0.0, 0.0])
     with pytest.raises(ProgramError, match="133"):
         check_target_payload_inertia([140.0, 1.0, 1.0, 0.0, 0.0, 0.0])
-
-
-def test_a_readback_that_differs_is_refused_naming_the_likely_cause():
-    with FakeURController(time_scale=1.0, keep_payload_inertia=True) as fake:
-        d = connected(fake)
-        try:
-            with pytest.raises(CommunicationError) as err:
-                d.write_payload(TOOL)
-        finally:
-            d.close()
-    text = str(err.value)
-    assert "set_target_payload ran but the controller reports" in text
-    assert "inertia [0.0, 0.0, 0.0" in text and "inertia [0.0041, 0.0052, 0.0023" in text
-    assert "Remote Control" in text and "NOT verified" in text
-
-
-@pytest.mark.parametrize("version", [(5, 10, 0, 0), (5, 9, 4, 0)])
-def test_a_version_without_inertia_writes_mass_and_cog_and_says_so(version):
-    with FakeURController(time_scale=1.0, controller_version=version) as fake:
-        d = connected(fake)
-        try:
-            reason = d.payload_inertia_support()
-            assert f"PolyScope {'.'.join(map(str, version))}" in reason and "5.11" in reason
-            lines: list[str] = []
-            back = apply_result(d, result_with_inertia(), None, lines.append)
-        finally:
-            d.close()
-    assert back.mass_kg == pytest.approx(1.4) and back.cog_m == pytest.approx(TOOL.cog_m)
-    assert back.inertia_com_kgm2 is None  # no RTDE payload_inertia before 5.11
-    assert any(line.startswith("Inertia not written: UR controller") for line in lines)
-
-
-def test_set_target_payload_on_a_controller_before_5_10_does_nothing():
-    """ur-rtde strips its script's set_target_payload lines (tagged 5.10) on an older controller, so the
-    call succeeds and changes nothing: the reason the driver decides by version and reads back."""
-    from test_ur_fake import call, control_interface
-
-    with FakeURController(time_scale=1.0, controller_version=(5, 9, 4, 0)) as fake:
-        with control_interface(fake.host) as ctl:
-            assert call(ctl, "setTargetPayload", 1.2, [0.0, 0.0, 0.05], [0.01, 0.01, 0.01, 0.0, 0.0, 0.0])
-            assert fake.controller_payload[0] == 0.0
-            call(ctl, "stopScript")
 
 
 def test_a_driver_without_inertia_says_so_in_one_line():
