@@ -32,6 +32,7 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.configuration.config import JointSystematicsConfig
+from payload_agent.evaluation.gain_scales import own_scales
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general, wls
@@ -126,20 +127,22 @@ class JointGainZeroFit:
 
 
 def _rows(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta: np.ndarray, joints: Sequence[int],
-          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]]:
-    """Per (sweep, fitted joint): (joint, predicted Δτ, measured Δτ, ∂pred/∂q_i per zero joint, needs an offset)."""
+          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool, str | None]]:
+    """Per (sweep, fitted joint): (joint, predicted Δτ, measured Δτ, ∂pred/∂q_i per zero joint, needs an offset,
+    the still cluster whose own scale it gets or None: ``gain_scales.own_scales``)."""
     sweeps = general.select_sweeps(dict(deltas))
     base = general.build_groups(sweeps, kin, joints)
+    apart = own_scales(sweeps, base)
     shifted = {i: {g.label: g for g in general.build_groups(
         [replace(d, q=d.q + np.eye(6)[i] * STEP_RAD) for d in sweeps], kin, joints)} for i in zero_joints}
     by_name = {d.key.name: d for d in sweeps}
     out = []
-    for g in base:
+    for g, own_scale in zip(base, apart):
         d = by_name[g.sweep]
         pred = g.Y @ theta
         D = np.column_stack([((shifted[i][g.label].Y @ theta) - pred) / STEP_RAD if g.label in shifted[i]
                              else np.zeros(len(pred)) for i in zero_joints]) if zero_joints else np.zeros((len(pred), 0))
-        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving))
+        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving, own_scale))
     return out
 
 
@@ -158,7 +161,8 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     parts = _rows(deltas, kin, theta, joints, zj)
     jcol = {j: c for c, j in enumerate(joints)}
     offsets = [i for i, p in enumerate(parts) if p[4]]
-    nk, no, nz = len(joints), len(offsets), len(zj)
+    own = list(dict.fromkeys(p[5] for p in parts if p[5] is not None))  # the still clusters' own scales
+    nk, no, nz = len(joints), len(offsets) + len(own), len(zj)
     start = np.concatenate(([0], np.cumsum([len(p[1]) for p in parts])))
     y = np.concatenate([p[2] for p in parts])
     owner = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
@@ -166,12 +170,15 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     k = np.ones(nk)
     for it in range(3):
         X = np.zeros((len(y), nk + no + nz))
-        for i, (j, pred, _, D, _) in enumerate(parts):
+        for i, (j, pred, _, D, _, _) in enumerate(parts):
             sl = slice(start[i], start[i + 1])
             X[sl, jcol[j]] = pred
             X[sl, nk + no:] = -k[jcol[j]] * D
         for c, i in enumerate(offsets):
             X[start[i]:start[i + 1], nk + c] = 1.0
+        for i, p in enumerate(parts):
+            if p[5] is not None:
+                X[start[i]:start[i + 1], nk + len(offsets) + own.index(p[5])] = p[1]
         Xw = X * w[:, None]
         info = Xw.T @ X
         inv = np.linalg.pinv(info)
