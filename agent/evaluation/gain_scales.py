@@ -68,6 +68,9 @@ class JointFit:
     scale_std: float | None = None
     peak_torque_nm: float | None = None  # largest predicted payload torque on this joint
     noise_nm: float | None = None  # residual σ of the fit
+    # per still cluster with a scale of its own (``own_scales``): (name, ε, σ_ε), its relative gain error against
+    # this joint's fitted gain (the nuisance column's coefficient over k)
+    own: tuple[tuple[str, float, float], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {"joint": self.joint + 1, "status": self.status, "samples": self.samples, "scale": self.scale,
@@ -157,8 +160,17 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             status = "implausible"
         else:
             status = "fitted"
-        fits.append(JointFit(j, status, n, s, s_std, peak, sigma))
+        cov = XtX_inv @ B @ XtX_inv * n / dof
+        own_eps = tuple((name, float(coef[c] / k), float(np.sqrt(max(cov[c, c], float(XtX_inv[c, c]) * sigma ** 2
+                                                                       * n / dof))) / k)
+                        for c, name in enumerate(own, 1 + len(offset_parts)))
+        fits.append(JointFit(j, status, n, s, s_std, peak, sigma, own_eps))
     return fits
+
+
+def own_cluster_errors(fits: Sequence[JointFit]) -> dict[str, tuple[float, float]]:
+    """Every fitted joint's still clusters' (ε, σ_ε) by cluster name (``JointFit.own``)."""
+    return {name: (e, sd) for f in fits if f.status == "fitted" for name, e, sd in f.own}
 
 
 def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, nominal_gains: Sequence[float],
@@ -203,4 +215,4 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
 
 
 __all__ = ["SCALE_MIN", "SCALE_MAX", "MIN_SIGNAL_TO_NOISE", "MAX_SCALE_STD", "UNFITTED_GAIN_REL_STD", "MIN_SAMPLES",
-           "IMPLAUSIBLE_Z", "JointFit", "CalibrationFailed", "own_scales", "fit_joint_scales", "fit_gains_from_deltas"]
+           "IMPLAUSIBLE_Z", "JointFit", "CalibrationFailed", "own_scales", "own_cluster_errors", "fit_joint_scales", "fit_gains_from_deltas"]

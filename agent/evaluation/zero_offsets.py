@@ -25,7 +25,7 @@ payload measured with similar sweeps is: the coupled gains cancel most of it (do
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -124,6 +124,9 @@ class JointGainZeroFit:
     scale: dict[int, float]
     scale_std: dict[int, float]
     zeros: ZeroOffsets
+    # per still cluster with a scale of its own (``gain_scales.own_scales``): (ε, σ_ε), its relative gain error
+    # against its joint's fitted gain (the nuisance column's coefficient over the joint's k)
+    own: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def _rows(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta: np.ndarray, joints: Sequence[int],
@@ -226,22 +229,28 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     # s = 1/k: its σ by the delta method
     scale = {j: 1.0 / float(k[c]) for j, c in jcol.items()}
     scale_std = {j: float(np.sqrt(max(cond[c, c], 0.0))) / float(k[c]) ** 2 for j, c in jcol.items()}
+    joint_of = {p[5]: p[0] for p in parts if p[5] is not None}
+    col = {name: nk + len(offsets) + c for c, name in enumerate(own)}
+    own_eps = {name: (float(mean[col[name]] / k[jcol[joint_of[name]]]),
+                      float(np.sqrt(max(post[col[name], col[name]], 0.0)) / abs(k[jcol[joint_of[name]]])))
+               for name in own}
     return JointGainZeroFit(scale, scale_std, ZeroOffsets(zeros, rho, zcorr, tuple(tuple(float(v) for v in row)
-                                                                                 for row in coupling)))
+                                                                                 for row in coupling)), own_eps)
 
 
 def refit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Sequence[float], joints: Sequence[int],
           scale: np.ndarray, scale_std: np.ndarray, prior_std_rad: float | Sequence[float]
-          ) -> tuple[np.ndarray, np.ndarray, ZeroOffsets | None]:
-    """The gain fit's (scale, σ) with the zeros fitted jointly: the joint fit's scales and σ for ``joints`` and the
-    zeros; unchanged and None where no zero is declared uncertain (nothing to measure)."""
+          ) -> tuple[np.ndarray, np.ndarray, ZeroOffsets | None, dict[str, tuple[float, float]] | None]:
+    """The gain fit's (scale, σ) with the zeros fitted jointly: the joint fit's scales and σ for ``joints``, the
+    zeros and the still clusters' own (ε, σ_ε) (``JointGainZeroFit.own``); unchanged, None and None where no zero is
+    declared uncertain (nothing to measure)."""
     if not any(np.broadcast_to(np.asarray(prior_std_rad, float), (6,))[i] > 0 for i in CANDIDATES) or not joints:
-        return scale, scale_std, None
+        return scale, scale_std, None, None
     f = fit(deltas, kin, theta_ref, joints, prior_std_rad)
     scale, scale_std = np.array(scale, float), np.array(scale_std, float)
     for j in joints:
         scale[j], scale_std[j] = f.scale[j], f.scale_std[j]
-    return scale, scale_std, f.zeros
+    return scale, scale_std, f.zeros, f.own
 
 
 def corrected(sweeps: Mapping[SweepKey, SweepData], zeros: ZeroOffsets | None) -> dict[SweepKey, SweepData]:
