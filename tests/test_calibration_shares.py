@@ -190,6 +190,15 @@ def test_gains_json_round_trip_old_files_and_a_malformed_field(quarter_then_bd, 
             load_calibration(state, config)
     with pytest.raises(ValueError, match="reference_shares must be an object"):
         ReferenceShares.from_json([1, 2])
+    # the still clusters' own gain errors (session 24, keepboth): stored exactly, absent in older files (none applied)
+    scaled = dataclasses.replace(cal.reference_shares, scales=((1, -np.pi / 2, 0.0072, 0.0006),))
+    assert ReferenceShares.from_json(json.loads(json.dumps(scaled.to_json()))).scales == scaled.scales
+    assert scaled.own_scale(1, -np.pi / 2 + 5e-4, 1e-3) == (0.0072, 0.0006)
+    assert scaled.own_scale(2, -np.pi / 2, 1e-3) is None
+    assert "still_cluster_scales" not in cal.reference_shares.to_json() or cal.reference_shares.scales
+    assert ReferenceShares.from_json({k: v for k, v in scaled.to_json().items() if k != "still_cluster_scales"}).scales == ()
+    with pytest.raises(ValueError, match=r"still_cluster_scales\[0\]"):
+        ReferenceShares.from_json({**scaled.to_json(), "still_cluster_scales": [{"joint": 2, "angle_rad": 0.0}]})
 
 
 EPS = 0.004  # a gear-ripple-like gain error of joint 3 standing at 0° (the EC66's mesh ripple is up to ±0.7 %)
