@@ -228,7 +228,9 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
        the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains;
     4. the fit's own response to each DH length's error (``calibration_lengths``: steps 2 on shifted torques);
     5. what the gain fit took of a constant torque on each swept joint's rows and of each still cluster's gain
-       error (``calibration_shares``), which a tool run's friction and torque-gain scatter terms read.
+       error (``calibration_shares``), which a tool run's friction and torque-gain scatter terms read, and the still
+       clusters' own gain errors (the joint fit's, else the gain fit's), which a tool run standing at the same angles
+       takes off those rows (``calibration_clusters``).
 
     ``joints``: the declared systematics (default the config's ``robot.joints``); ``commands``: the plan's sweep
     commands (constant-speed windows); ``run_dir``: recorded as given."""

@@ -145,7 +145,9 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             r = resid[sl]
             _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
             B += wls.long_run_scores(X[sl] * r[:, None], lag)
-        k_var = max(float((XtX_inv @ B @ XtX_inv)[0, 0]), float(XtX_inv[0, 0]) * sigma ** 2) * n / dof
+        # each coefficient's variance: the sandwich, never below the white-noise one
+        var = np.maximum(np.diag(XtX_inv @ B @ XtX_inv), np.diag(XtX_inv) * sigma ** 2) * n / dof
+        k_var = float(var[0])
         peak = float(np.max(np.abs(pred)))
         if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
             fits.append(JointFit(j, "too little torque", n, peak_torque_nm=peak, noise_nm=sigma))
@@ -160,9 +162,7 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             status = "implausible"
         else:
             status = "fitted"
-        cov = XtX_inv @ B @ XtX_inv * n / dof
-        own_eps = tuple((name, float(coef[c] / k), float(np.sqrt(max(cov[c, c], float(XtX_inv[c, c]) * sigma ** 2
-                                                                       * n / dof))) / k)
+        own_eps = tuple((name, float(coef[c] / k), float(np.sqrt(var[c])) / k)
                         for c, name in enumerate(own, 1 + len(offset_parts)))
         fits.append(JointFit(j, status, n, s, s_std, peak, sigma, own_eps))
     return fits
