@@ -5,7 +5,8 @@ folder), the report's residual figure and the accuracy benchmark all call, so th
 
 1. the joint zeros a calibration measured are corrected (``zero_offsets``) and the declared joint stiffness is
    compensated in the loaded and the empty run alike, then the baseline is subtracted and the two directions
-   combined (``systematics.prepare``);
+   combined (``systematics.prepare``), and the still rows standing at the calibration's angles lose its
+   per-angle gain errors (``calibration_clusters``);
 2. ONE fitted model of those deltas is made (``general.fit_model``: the weighted fit, its per-pose fits
    and the fits with nuisance offsets, each made once) and handed to every consumer;
 3. every solver of ``solvers.SOLVERS`` solves on it (the chosen one first), the real arm's systematic
@@ -18,14 +19,14 @@ gains the efforts were converted with, and what is known about their error).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping, Sequence
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.errors import DataError
 import numpy as np
 
-from payload_agent.evaluation import quality, shared_baseline, systematics, zero_offsets
+from payload_agent.evaluation import calibration_clusters, quality, shared_baseline, systematics, zero_offsets
 from payload_agent.evaluation.systematics import compliance
 from payload_agent.evaluation.zero_offsets import ZeroOffsets
 from payload_agent.model.kinematics import Kinematics
@@ -86,6 +87,11 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     joints = zero_offsets.declaration(options.joints, gains.zeros)
     loaded, empty = zero_offsets.corrected(loaded, gains.zeros), zero_offsets.corrected(empty, gains.zeros)
     prepared = systematics.prepare(loaded, empty, joints, commands, mount_rad)
+    # the calibration's per-angle gain errors off the still rows standing at its angles (the general fit's; the
+    # three steps read moving rows only)
+    deltas, stood = calibration_clusters.corrected(prepared.deltas, gains.reference)
+    if stood:
+        prepared = replace(prepared, deltas=deltas, notes=[*prepared.notes, calibration_clusters.note(stood)])
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
     syst = systematics.evaluate(prepared, kin, joints, gains.rel_std, model=model, gain_reference=gains.reference)

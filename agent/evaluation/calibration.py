@@ -53,7 +53,7 @@ from payload_agent.recording.state import RobotState, write_json_atomic
 # the gain-scale fit itself (``gain_scales``), named here too: callers know it as the calibration's
 from payload_agent.evaluation.gain_scales import (  # noqa: F401
     IMPLAUSIBLE_Z, MAX_SCALE_STD, MIN_SAMPLES, MIN_SIGNAL_TO_NOISE, SCALE_MAX, SCALE_MIN, UNFITTED_GAIN_REL_STD,
-    CalibrationFailed, JointFit, fit_gains_from_deltas, fit_joint_scales)
+    CalibrationFailed, JointFit, fit_gains_from_deltas, fit_joint_scales, own_cluster_errors)
 
 FORMAT = "payload-agent-gains/1"
 
@@ -228,7 +228,9 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
        the declared change (``systematics.reference_friction``): what a direction asymmetry left in the gains;
     4. the fit's own response to each DH length's error (``calibration_lengths``: steps 2 on shifted torques);
     5. what the gain fit took of a constant torque on each swept joint's rows and of each still cluster's gain
-       error (``calibration_shares``), which a tool run's friction and torque-gain scatter terms read.
+       error (``calibration_shares``), which a tool run's friction and torque-gain scatter terms read, and the still
+       clusters' own gain errors (the joint fit's, else the gain fit's), which a tool run standing at the same angles
+       takes off those rows (``calibration_clusters``).
 
     ``joints``: the declared systematics (default the config's ``robot.joints``); ``commands``: the plan's sweep
     commands (constant-speed windows); ``run_dir``: recorded as given."""
@@ -240,14 +242,16 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
     theta_ref = [known_mass_kg, *(known_mass_kg * np.asarray(c))]
 
     scale, scale_std, fitted = fit_gains_from_deltas(deltas, kin, nominal, known_mass_kg, known_cog_m)
-    scale, scale_std, zeros = zero_offsets.refit(deltas, kin, theta_ref, fitted, scale, scale_std,
-                                                 decl.zero_offset_std_rad)
+    scale, scale_std, zeros, own = zero_offsets.refit(deltas, kin, theta_ref, fitted, scale, scale_std,
+                                                      decl.zero_offset_std_rad)
+    if own is None:  # no zeros fitted: the still clusters' own gain errors as the gain fit alone measured them
+        own = own_cluster_errors(fit_joint_scales(deltas, kin, known_mass_kg, known_cog_m))
     shift = lambda z: np.zeros(len(nominal)) if z is None else z.shift_rad()  # noqa: E731
 
     def refitted(ds):  # the same fit of the same joints on shifted torques: (scales, zero shifts)
         s, s_std, _ = fit_gains_from_deltas(ds, kin, nominal, known_mass_kg, known_cog_m)
         s = np.where(np.isin(np.arange(len(nominal)), fitted), s, scale)
-        s, _, z = zero_offsets.refit(ds, kin, theta_ref, fitted, s, s_std, decl.zero_offset_std_rad)
+        s, _, z, _ = zero_offsets.refit(ds, kin, theta_ref, fitted, s, s_std, decl.zero_offset_std_rad)
         return s, shift(z)
 
     lengths = calibration_lengths.measure(deltas, kin, theta_ref, refitted, (scale, shift(zeros)))
@@ -261,7 +265,7 @@ def fit_from_sweeps(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKe
         created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"),
         standing_angles=gain_scatter.standing_angles(deltas, kin), zeros=zeros, reference_friction=fric,
         length_response=lengths, procedure=SweptProcedure.of(config),
-        reference_shares=calibration_shares.measure(deltas, kin, theta_ref, fitted))
+        reference_shares=calibration_shares.measure(deltas, kin, theta_ref, fitted, own))
 
 
 def save_calibration(state: RobotState, cal: GainCalibration) -> Path:

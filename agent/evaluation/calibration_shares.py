@@ -19,10 +19,11 @@ from payload_agent.types import SweepKey
 
 
 def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Sequence[float],
-            fitted: Sequence[int]) -> ReferenceShares:
+            fitted: Sequence[int], own: Mapping[str, tuple[float, float]] | None = None) -> ReferenceShares:
     """Both responses on the calibration's own ``deltas`` for the joints it ``fitted`` (0-based): the projection the
     run used on its own sweeps (``three_step_response.reference_offset_shares``, ``gain_scatter.absorbed_shares``),
-    here on the sweeps the fit was made on."""
+    here on the sweeps the fit was made on. ``own``: the still clusters' own (ε, σ_ε) by cluster name, as the gain
+    fit measured them (``zero_offsets.JointGainZeroFit.own``), stored at their joint and angle."""
     sweeps = general.select_sweeps(dict(deltas))
     groups = general.build_groups(sweeps, kin) if sweeps else []
     reference = (list(theta_ref), tuple(int(j) for j in fitted))
@@ -39,7 +40,10 @@ def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: S
             angles.setdefault(name, []).append(float(np.median(by_name[g.sweep].q[:, g.joint])))
     shares = gain_scatter.absorbed_shares(sweeps, groups, labels, reference)
     clusters = tuple((j, float(np.mean(angles[c])), w) for c, (j, w) in shares.items())
-    return ReferenceShares(friction, clusters)
+    joint_of = {name: g.joint for g, name in zip(groups, names) if name is not None}
+    scales = tuple((joint_of[c], float(np.mean(angles[c])), float(e), float(sd))
+                   for c, (e, sd) in (own or {}).items() if c in angles)
+    return ReferenceShares(friction, clusters, scales)
 
 
 __all__ = ["measure"]

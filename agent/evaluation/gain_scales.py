@@ -3,7 +3,9 @@
 ``calibration`` (``payload-agent calibrate``) uses it; the maths is in its module docstring: the measured
 loaded-minus-empty torque at nominal gain is regressed on the torque the known reference predicts,
 Δτ_meas = k_j·Δτ_pred, and the gain scale is s_j = 1/k_j with a sandwich (per sweep, autocorrelation-corrected)
-standard error. A scale outside 0.8–1.25 is a wrong reference, not a drive.
+standard error. A scale outside 0.8–1.25 is a wrong reference, not a drive. Where joint j stands in a sweep and
+moves in another, that sweep's rows get a scale of their own, one per standing angle (``own_scales``): a standing strain-wave
+gear's load-dependent mesh ripple is a gain error of that angle alone, so k_j comes from the rows where j turns.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
+from payload_agent.evaluation.systematics import gain_scatter
 from payload_agent.solvers import general, wls
+from payload_agent.solvers.wls import Group
 from payload_agent.types import SweepKey
 
 SCALE_MIN, SCALE_MAX = 0.8, 1.25  # a drive gain this far off nominal is a wrong reference, not a drive
@@ -29,15 +33,27 @@ MIN_SAMPLES = 50  # per joint, over all sweeps
 IMPLAUSIBLE_Z = 3.0  # a scale this many σ outside SCALE_MIN–SCALE_MAX is a wrong reference, not noise
 
 
+def own_scales(sweeps: list[DeltaSweep], groups: list[Group]) -> list[str | None]:
+    """Per group: the (joint, standing angle) cluster whose own scale the calibration fits it (``general.stands_apart``;
+    ``gain_scatter.clusters``: the same angle in several sweeps is one cluster, one mesh phase), None for the rows
+    that carry the joint's drive gain."""
+    names = gain_scatter.clusters(sweeps, groups)
+    return [name if apart else None for name, apart in zip(names, general.stands_apart(sweeps, groups))]
+
+
 def _groups_by_joint(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool]]]:
-    """Per joint: (predicted Δτ, measured Δτ, needs an offset) for every sweep carrying that joint."""
+                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None]]]:
+    """Per joint: (predicted Δτ, measured Δτ, needs an offset, the cluster whose own scale it gets or None) for
+    every sweep carrying that joint."""
     sweeps = general.select_sweeps(deltas)
-    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool]]] = {}
-    for g, d in ((g, d) for d in sweeps for g in general.build_groups([d], kin)):
+    groups = general.build_groups(sweeps, kin)
+    by_name = {d.key.name: d for d in sweeps}
+    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None]]] = {}
+    for g, own in zip(groups, own_scales(sweeps, groups)):
+        d = by_name[g.sweep]
         # a moving joint in a one-direction sweep keeps friction the baseline did not remove
         offset = d.key.direction != "both" and g.joint == d.moving
-        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset))
+        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset, own))
     return out
 
 
@@ -52,6 +68,9 @@ class JointFit:
     scale_std: float | None = None
     peak_torque_nm: float | None = None  # largest predicted payload torque on this joint
     noise_nm: float | None = None  # residual σ of the fit
+    # per still cluster with a scale of its own (``own_scales``): (name, ε, σ_ε), its relative gain error against
+    # this joint's fitted gain (the nuisance column's coefficient over k)
+    own: tuple[tuple[str, float, float], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {"joint": self.joint + 1, "status": self.status, "samples": self.samples, "scale": self.scale,
@@ -96,15 +115,20 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
     theta = np.concatenate(([known_mass_kg], known_mass_kg * c))
     fits: list[JointFit] = []
     for j, parts in sorted(_groups_by_joint(deltas, kin, theta).items()):
-        pred = np.concatenate([p for p, _, _ in parts])
-        meas = np.concatenate([m for _, m, _ in parts])
+        pred = np.concatenate([p[0] for p in parts])
+        meas = np.concatenate([p[1] for p in parts])
         n = len(pred)
-        offset_parts = [i for i, (_, _, off) in enumerate(parts) if off]
-        X = np.zeros((n, 1 + len(offset_parts)))
+        offset_parts = [i for i, p in enumerate(parts) if p[2]]
+        own = list(dict.fromkeys(p[3] for p in parts if p[3] is not None))  # the still clusters' own scales
+        X = np.zeros((n, 1 + len(offset_parts) + len(own)))
         X[:, 0] = pred
-        start = np.concatenate(([0], np.cumsum([len(p) for p, _, _ in parts])))
+        start = np.concatenate(([0], np.cumsum([len(p[0]) for p in parts])))
         for col, i in enumerate(offset_parts, 1):
             X[start[i]:start[i + 1], col] = 1.0
+        for i, p in enumerate(parts):
+            if p[3] is not None:
+                col = 1 + len(offset_parts) + own.index(p[3])
+                X[start[i]:start[i + 1], col] = pred[start[i]:start[i + 1]]
         if n < MIN_SAMPLES + X.shape[1]:
             fits.append(JointFit(j, "too few samples", n))
             continue
@@ -121,7 +145,9 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             r = resid[sl]
             _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
             B += wls.long_run_scores(X[sl] * r[:, None], lag)
-        k_var = max(float((XtX_inv @ B @ XtX_inv)[0, 0]), float(XtX_inv[0, 0]) * sigma ** 2) * n / dof
+        # each coefficient's variance: the sandwich, never below the white-noise one
+        var = np.maximum(np.diag(XtX_inv @ B @ XtX_inv), np.diag(XtX_inv) * sigma ** 2) * n / dof
+        k_var = float(var[0])
         peak = float(np.max(np.abs(pred)))
         if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
             fits.append(JointFit(j, "too little torque", n, peak_torque_nm=peak, noise_nm=sigma))
@@ -136,8 +162,15 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             status = "implausible"
         else:
             status = "fitted"
-        fits.append(JointFit(j, status, n, s, s_std, peak, sigma))
+        own_eps = tuple((name, float(coef[c] / k), float(np.sqrt(var[c])) / k)
+                        for c, name in enumerate(own, 1 + len(offset_parts)))
+        fits.append(JointFit(j, status, n, s, s_std, peak, sigma, own_eps))
     return fits
+
+
+def own_cluster_errors(fits: Sequence[JointFit]) -> dict[str, tuple[float, float]]:
+    """Every fitted joint's still clusters' (ε, σ_ε) by cluster name (``JointFit.own``)."""
+    return {name: (e, sd) for f in fits if f.status == "fitted" for name, e, sd in f.own}
 
 
 def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, nominal_gains: Sequence[float],
@@ -182,4 +215,4 @@ def fit_gains_from_deltas(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, n
 
 
 __all__ = ["SCALE_MIN", "SCALE_MAX", "MIN_SIGNAL_TO_NOISE", "MAX_SCALE_STD", "UNFITTED_GAIN_REL_STD", "MIN_SAMPLES",
-           "IMPLAUSIBLE_Z", "JointFit", "CalibrationFailed", "fit_joint_scales", "fit_gains_from_deltas"]
+           "IMPLAUSIBLE_Z", "JointFit", "CalibrationFailed", "own_scales", "own_cluster_errors", "fit_joint_scales", "fit_gains_from_deltas"]

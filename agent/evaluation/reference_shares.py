@@ -31,6 +31,7 @@ from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.solvers.wls import Group
 
 KEY = "reference_shares"  # gains.json's key
+SCALES = "still_cluster_scales"  # its entry of the still clusters' own gain errors (optional)
 # said in a result's notes when the run's own sweeps stood in (a calibration stored before this was measured)
 STAND_IN_NOTE = ("the calibration's fit taken as the tool run's sweeps would give it (its gains.json predates the "
                  "stored reference_shares; calibrate again to use its own)")
@@ -47,6 +48,10 @@ class ReferenceShares:
 
     friction_rel_per_nm: tuple[tuple[int, int, float], ...]
     clusters: tuple[tuple[int, float, float], ...]
+    # (joint, angle rad, ε, σ_ε): the relative gain error the calibration measured for that still cluster against the
+    # joint's fitted gain (its own scale, ``gain_scales.own_scales``), which a tool run standing there takes off its
+    # rows (``calibration_clusters``); () in files written before it was stored: those rows keep it (today's rule)
+    scales: tuple[tuple[int, float, float, float], ...] = ()
 
     def friction(self, fitted: Sequence[int], joints: Sequence[int]) -> dict[int, np.ndarray]:
         """Per fitted joint j: (len(joints),) ε_jk for each joint k of ``joints`` (0 where k never swept both ways)."""
@@ -62,12 +67,21 @@ class ReferenceShares:
         near = [(abs(a - angle_rad), w) for j, a, w in self.clusters if j == joint and abs(a - angle_rad) <= tol_rad]
         return min(near)[1] if near else None
 
+    def own_scale(self, joint: int, angle_rad: float, tol_rad: float) -> tuple[float, float] | None:
+        """(ε, σ_ε) of the cluster where ``joint`` stood at ``angle_rad`` (within ``tol_rad``); None: none stored."""
+        near = [(abs(a - angle_rad), (e, sd)) for j, a, e, sd in self.scales
+                if j == joint and abs(a - angle_rad) <= tol_rad]
+        return min(near)[1] if near else None
+
     def to_json(self) -> dict[str, Any]:
         """gains.json's ``reference_shares`` (joints 1-based; angles in rad, as ``standing_angles_rad``)."""
         return {"friction_rel_per_nm": [{"fitted_joint": j + 1, "rows_of_joint": k + 1, "value": e}
                                         for j, k, e in self.friction_rel_per_nm],
                 "still_clusters": [{"joint": j + 1, "angle_rad": a, "share": w}
-                                   for j, a, w in self.clusters]}
+                                   for j, a, w in self.clusters],
+                **({} if not self.scales else
+                   {SCALES: [{"joint": j + 1, "angle_rad": a, "gain_error": e, "std": sd}
+                             for j, a, e, sd in self.scales]})}
 
     @classmethod
     def from_json(cls, d: Any) -> "ReferenceShares":
@@ -92,7 +106,17 @@ class ReferenceShares:
                     raise ValueError(f"{KEY}.{where}[{i}]: joints must be 1–6 and values finite, got {e!r}")
                 out.append((joint - 1, second - 1, value) if where == "friction_rel_per_nm"
                            else (joint - 1, second, value))
-        return cls(tuple(friction), tuple(clusters))
+        scales = []
+        for i, e in enumerate(d.get(SCALES) or []):
+            try:
+                joint, row = int(e["joint"]), tuple(float(e[f]) for f in ("angle_rad", "gain_error", "std"))
+            except (KeyError, TypeError, ValueError):
+                raise ValueError(f"{KEY}.{SCALES}[{i}] needs numbers joint, angle_rad, gain_error, std, "
+                                 f"got {e!r}") from None
+            if not (1 <= joint <= 6 and all(math.isfinite(v) for v in row) and row[2] >= 0):
+                raise ValueError(f"{KEY}.{SCALES}[{i}]: joint must be 1–6, values finite, std ≥ 0, got {e!r}")
+            scales.append((joint - 1, *row))
+        return cls(tuple(friction), tuple(clusters), tuple(scales))
 
 
 def of_reference(reference: Sequence | None) -> ReferenceShares | None:

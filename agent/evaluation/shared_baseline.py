@@ -34,7 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
-from payload_agent.solvers import three_step
+from payload_agent.solvers import general, three_step
 from payload_agent.solvers.fitted import ALL, FittedModel
 
 
@@ -67,20 +67,23 @@ def baseline_shares(model: FittedModel, theta_ref: Sequence[float], fitted_joint
         S_b, mean_gain = maps[g.sweep]
         return (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
 
-    return shares_on_rows(groups, theta_ref, fitted_joints, gain_rel_std, times)
+    return shares_on_rows(groups, theta_ref, fitted_joints, gain_rel_std, times,
+                          general.stands_apart(list(model.sweeps), list(groups)))
 
 
 def shares_on_rows(groups, theta_ref: Sequence[float], fitted_joints: Sequence[int], gain_rel_std: Sequence[float],
-                   baseline_times) -> dict[int, dict[int, np.ndarray]]:
+                   baseline_times, apart: Sequence[bool] | None = None) -> dict[int, dict[int, np.ndarray]]:
     """``baseline_shares`` on any rows: ``groups`` the general fit's row groups, ``baseline_times(i, a)`` Σ_b,i·a for
     group i (None: group i has no known baseline part). The run gives Σ_b from the deltas' noise maps, the plan
     (``planned_cross_covariance``) from its white noise model; the calibration's weights a_j and the scale-down are
-    the same for both."""
+    the same for both. ``apart``: per group, True where the calibration fits it a scale of its own
+    (``general.stands_apart``: a joint standing where it moves in another sweep), so it has no share in s_j; None: every
+    group of joint j has one (the plan's rows, which carry no sweeps)."""
     theta_ref = np.asarray(theta_ref, float)[:4]
     out: dict[int, dict[int, np.ndarray]] = {}
     for j in fitted_joints:
         s_j = float(gain_rel_std[j]) if j < len(gain_rel_std) else 0.0
-        mine = [i for i, g in enumerate(groups) if g.joint == j]
+        mine = [i for i, g in enumerate(groups) if g.joint == j and not (apart is not None and apart[i])]
         if s_j <= 0 or not mine:
             continue
         pred_ref = {i: groups[i].Y[:, :4] @ theta_ref for i in mine}

@@ -25,13 +25,14 @@ payload measured with similar sweeps is: the coupled gains cancel most of it (do
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.configuration.config import JointSystematicsConfig
+from payload_agent.evaluation.gain_scales import own_scales
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general, wls
@@ -123,23 +124,28 @@ class JointGainZeroFit:
     scale: dict[int, float]
     scale_std: dict[int, float]
     zeros: ZeroOffsets
+    # per still cluster with a scale of its own (``gain_scales.own_scales``): (ε, σ_ε), its relative gain error
+    # against its joint's fitted gain (the nuisance column's coefficient over the joint's k)
+    own: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def _rows(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta: np.ndarray, joints: Sequence[int],
-          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool]]:
-    """Per (sweep, fitted joint): (joint, predicted Δτ, measured Δτ, ∂pred/∂q_i per zero joint, needs an offset)."""
+          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool, str | None]]:
+    """Per (sweep, fitted joint): (joint, predicted Δτ, measured Δτ, ∂pred/∂q_i per zero joint, needs an offset,
+    the still cluster whose own scale it gets or None: ``gain_scales.own_scales``)."""
     sweeps = general.select_sweeps(dict(deltas))
     base = general.build_groups(sweeps, kin, joints)
+    apart = own_scales(sweeps, base)
     shifted = {i: {g.label: g for g in general.build_groups(
         [replace(d, q=d.q + np.eye(6)[i] * STEP_RAD) for d in sweeps], kin, joints)} for i in zero_joints}
     by_name = {d.key.name: d for d in sweeps}
     out = []
-    for g in base:
+    for g, own_scale in zip(base, apart):
         d = by_name[g.sweep]
         pred = g.Y @ theta
         D = np.column_stack([((shifted[i][g.label].Y @ theta) - pred) / STEP_RAD if g.label in shifted[i]
                              else np.zeros(len(pred)) for i in zero_joints]) if zero_joints else np.zeros((len(pred), 0))
-        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving))
+        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving, own_scale))
     return out
 
 
@@ -158,7 +164,8 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     parts = _rows(deltas, kin, theta, joints, zj)
     jcol = {j: c for c, j in enumerate(joints)}
     offsets = [i for i, p in enumerate(parts) if p[4]]
-    nk, no, nz = len(joints), len(offsets), len(zj)
+    own = list(dict.fromkeys(p[5] for p in parts if p[5] is not None))  # the still clusters' own scales
+    nk, no, nz = len(joints), len(offsets) + len(own), len(zj)
     start = np.concatenate(([0], np.cumsum([len(p[1]) for p in parts])))
     y = np.concatenate([p[2] for p in parts])
     owner = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
@@ -166,12 +173,15 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     k = np.ones(nk)
     for it in range(3):
         X = np.zeros((len(y), nk + no + nz))
-        for i, (j, pred, _, D, _) in enumerate(parts):
+        for i, (j, pred, _, D, _, _) in enumerate(parts):
             sl = slice(start[i], start[i + 1])
             X[sl, jcol[j]] = pred
             X[sl, nk + no:] = -k[jcol[j]] * D
         for c, i in enumerate(offsets):
             X[start[i]:start[i + 1], nk + c] = 1.0
+        for i, p in enumerate(parts):
+            if p[5] is not None:
+                X[start[i]:start[i + 1], nk + len(offsets) + own.index(p[5])] = p[1]
         Xw = X * w[:, None]
         info = Xw.T @ X
         inv = np.linalg.pinv(info)
@@ -219,22 +229,28 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     # s = 1/k: its σ by the delta method
     scale = {j: 1.0 / float(k[c]) for j, c in jcol.items()}
     scale_std = {j: float(np.sqrt(max(cond[c, c], 0.0))) / float(k[c]) ** 2 for j, c in jcol.items()}
+    joint_of = {p[5]: p[0] for p in parts if p[5] is not None}
+    col = {name: nk + len(offsets) + c for c, name in enumerate(own)}
+    own_eps = {name: (float(mean[col[name]] / k[jcol[joint_of[name]]]),
+                      float(np.sqrt(max(post[col[name], col[name]], 0.0)) / abs(k[jcol[joint_of[name]]])))
+               for name in own}
     return JointGainZeroFit(scale, scale_std, ZeroOffsets(zeros, rho, zcorr, tuple(tuple(float(v) for v in row)
-                                                                                 for row in coupling)))
+                                                                                 for row in coupling)), own_eps)
 
 
 def refit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Sequence[float], joints: Sequence[int],
           scale: np.ndarray, scale_std: np.ndarray, prior_std_rad: float | Sequence[float]
-          ) -> tuple[np.ndarray, np.ndarray, ZeroOffsets | None]:
-    """The gain fit's (scale, σ) with the zeros fitted jointly: the joint fit's scales and σ for ``joints`` and the
-    zeros; unchanged and None where no zero is declared uncertain (nothing to measure)."""
+          ) -> tuple[np.ndarray, np.ndarray, ZeroOffsets | None, dict[str, tuple[float, float]] | None]:
+    """The gain fit's (scale, σ) with the zeros fitted jointly: the joint fit's scales and σ for ``joints``, the
+    zeros and the still clusters' own (ε, σ_ε) (``JointGainZeroFit.own``); unchanged, None and None where no zero is
+    declared uncertain (nothing to measure)."""
     if not any(np.broadcast_to(np.asarray(prior_std_rad, float), (6,))[i] > 0 for i in CANDIDATES) or not joints:
-        return scale, scale_std, None
+        return scale, scale_std, None, None
     f = fit(deltas, kin, theta_ref, joints, prior_std_rad)
     scale, scale_std = np.array(scale, float), np.array(scale_std, float)
     for j in joints:
         scale[j], scale_std[j] = f.scale[j], f.scale_std[j]
-    return scale, scale_std, f.zeros
+    return scale, scale_std, f.zeros, f.own
 
 
 def corrected(sweeps: Mapping[SweepKey, SweepData], zeros: ZeroOffsets | None) -> dict[SweepKey, SweepData]:

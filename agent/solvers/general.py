@@ -49,7 +49,7 @@ NAME = "general"
 GRAVITY_JOINTS = (1, 2, 3, 4, 5)  # 0-based: joints 2..6
 ZERO_ROW_TOL = 1e-9  # N·m per unit θ: a joint whose rows are all below this carries no payload torque
 __all__ = ["NAME", "GRAVITY_JOINTS", "ZERO_ROW_TOL", "select_sweeps", "build_groups", "length_parameters",
-           "perturbed", "length_derivatives", "absorbed_length_error", "angle_derivatives", "length_absorption",
+           "perturbed", "length_derivatives", "absorbed_length_error", "stands_apart", "angle_derivatives", "length_absorption",
            "kinematic_sensitivities",
            "kinematic_covariance", "fit_model", "model_length_derivatives", "solve", "estimate"]
 
@@ -85,6 +85,19 @@ def build_groups(sweeps: list[DeltaSweep], kin: Kinematics,
             groups.append(Group(f"{d.key.name}/j{j + 1}", d.key.name, Yj, np.asarray(d.dtau[:, j], float), j,
                                 d.noise_map))
     return groups
+
+
+def stands_apart(sweeps: list[DeltaSweep], groups: list[Group]) -> list[bool]:
+    """Per group: True where its joint stands still in its sweep and moves in another of ``sweeps``.
+
+    A drive-gain calibration fits each such group a scale of its own (``gain_scales``, ``zero_offsets``), so the
+    joint's drive gain comes from its moving rows alone. Why: a strain-wave gear's load-dependent mesh ripple is,
+    on a joint that stands, a torque-gain error of that one angle (the mesh phase is frozen, nothing averages it;
+    docs/benchmarks.md, "Session 24"); read as the drive's gain it is carried to every angle the joint turns
+    through, where the mesh ripple does average out."""
+    by_name = {d.key.name: d for d in sweeps}
+    moves = {g.joint for g in groups if by_name[g.sweep].moving == g.joint}
+    return [by_name[g.sweep].moving != g.joint and g.joint in moves for g in groups]
 
 
 def length_parameters(kin: Kinematics) -> list[tuple[int, str]]:
@@ -129,8 +142,9 @@ def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: lis
 
     ε_jk = ⟨Y_j θ_ref, ∂Y_j/∂p_k θ_ref⟩ / ⟨Y_j θ_ref, Y_j θ_ref⟩ over joint j's rows of every sweep,
     each one-direction moving-joint group's mean removed from Y_j θ_ref (the calibration fits it an
-    offset: friction the baseline left). The tool run's sweeps stand in for the calibration's
-    (same procedure).
+    offset: friction the baseline left), and the groups where joint j stands while it moves in another sweep
+    left out (the calibration fits each its own scale, ``stands_apart``). The tool run's sweeps stand in for the
+    calibration's (same procedure).
     """
     theta_ref = np.asarray(list(reference[0]), float)
     fitted = sorted(int(j) for j in reference[1])
@@ -140,9 +154,11 @@ def absorbed_length_error(sweeps: list[DeltaSweep], groups: list[Group], dY: lis
     one_way = {d.key.name: d.moving for d in sweeps if d.key.direction != "both"}
     centred = pred_ref.copy()
     start = 0
-    for g in groups:
+    for g, apart in zip(groups, stands_apart(sweeps, groups)):
         sl = slice(start, start + len(g.y))
-        if one_way.get(g.sweep, -1) == g.joint:
+        if apart:  # the calibration fits this group its own scale: it takes no part in the joint's gain
+            centred[sl] = 0.0
+        elif one_way.get(g.sweep, -1) == g.joint:
             centred[sl] -= np.mean(pred_ref[sl])
         start = sl.stop
     eps: dict[int, np.ndarray] = {}

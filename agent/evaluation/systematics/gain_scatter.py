@@ -9,13 +9,13 @@ minus empty difference on that joint is (1 + ε)·Δτ with ε = ±L·s, a *gain
 (≈ 1 %) that is the same through the whole sweep and differs from one standing angle to the next.
 No white-noise or autocorrelation-robust (HAC) covariance can see it: within a sweep it is
 perfectly smooth and proportional to the signal, so the fit absorbs part of it and the rest looks
-like a tiny, slow residual. Neither does a per-joint drive-gain calibration remove it: the
-calibration fits one scale per joint, the mean over all of the joint's standing angles.
+like a tiny, slow residual. A drive-gain calibration fits each still cluster of a joint that also turns a
+scale of its own and stores its ε̂; a tool run standing there has it taken off (``calibration_clusters``),
+and the cluster keeps the calibration's σ_ε² in place of τ² (``corrected_prior``). The still wrist is pooled.
 
-Measured in the benchmark (realistic + ripple, 20 payloads, the same noise with and without the
-ripple): of the ripple's centre-of-mass error, the gain-like part on still joints is 0.20 mm rms per
-(sweep, joint) group, the moving joint's slow once-per-turn part 0.17 mm, the mesh part that HAC
-sees 0.002 mm (the same-noise comparison of the realistic and realistic+ripple cases).
+Measured in the benchmark (realistic + ripple, 20 payloads, same noise with and without the ripple): of the
+ripple's CoM error, the gain-like part on still joints is 0.20 mm rms per (sweep, joint) group, the moving
+joint's once-per-turn part 0.17 mm, the mesh part that HAC sees 0.002 mm.
 
 What. Every (joint, standing angle) pair k is a *cluster*: the still-joint rows of every sweep in
 which joint j stands at that angle (the wrist stands at one angle through all sweeps of a pose;
@@ -75,7 +75,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
-from payload_agent.evaluation import reference_shares
+from payload_agent.evaluation import calibration_clusters, reference_shares
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.solvers import general
 from payload_agent.solvers.fitted import ALL, FittedModel
@@ -333,15 +333,18 @@ class ScatterTerm:
     sens: dict[str, np.ndarray]  # fit -> (4, k) ∂θ̂/∂ε_k, less the calibration's absorption
     note: str
     combined: str  # the key of the combined fit in ``sens``
+    # per cluster (``labels`` order): the prior variance of its error, τ² except where the calibration's per-angle gain
+    # error was taken off its rows (``calibration_clusters``: σ_ε² of that ε̂); None: τ² for all
+    prior_var: np.ndarray | None = None
 
     def posterior(self) -> tuple[np.ndarray, np.ndarray]:
         """(ε̃, P): the clusters' gain errors given their measurement ε̂ ~ N(ε, C) and the scatter ε ~ N(0, τ²·I),
         posterior mean τ²·(C + τ²·I)⁻¹·ε̂ and covariance C − C·(C + τ²·I)⁻¹·C (module docstring)."""
-        t2 = self.scatter.tau ** 2
         C = np.asarray(self.scatter.eps_cov, float)
-        G = np.linalg.solve(C + t2 * np.eye(len(C)), np.eye(len(C)))
+        V = np.diag(self.scatter.tau ** 2 * np.ones(len(C)) if self.prior_var is None else self.prior_var)
+        G = np.linalg.solve(C + V, np.eye(len(C)))
         P = C - C @ G @ C
-        return t2 * (G @ self.scatter.eps), 0.5 * (P + P.T)
+        return V @ (G @ self.scatter.eps), 0.5 * (P + P.T)
 
     def effect_columns(self) -> np.ndarray:
         """(k, 1 + k): ε̃ and a square root of P side by side, unit-σ columns whose sum of squares is ε̃ε̃ᵀ + P
@@ -363,19 +366,35 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     fitted joints) of the drive-gain calibration the data were scaled with (None: nominal gains).
     """
     gs = of_model(model) if model is not None else measure(deltas, kin, gain_rel_std)
-    if gs.tau <= 0.0:
-        return None
     labels = list(gs.labels)
-    theta = fits[combined][1].theta[:4]
     sweeps = general.select_sweeps(deltas) if model is None else list(model.sweeps)
+    prior, gs = corrected_prior(gs, sweeps, list(fits[combined][0]), gain_reference)
+    if gs.tau <= 0.0 and prior is None:
+        return None
+    theta = fits[combined][1].theta[:4]
     shares = absorbed_shares(sweeps, list(fits[combined][0]), labels, gain_reference)
     sens = {which: sensitivities(sweeps, groups, res, theta, labels, absorbed=shares)
             for which, (groups, res) in fits.items()}
     how = ("" if reference_shares.of_reference(gain_reference) is not None
            else f"; {reference_shares.STAND_IN_NOTE}")
-    text = note(gs) + (f" (less what the drive-gain calibration absorbed{how})" if shares else "")
-    return ScatterTerm(gs, labels, shares, sens, text, combined)
+    text = note(gs) + (f" (less what the drive-gain calibration absorbed{how})" if shares else "") + (
+        "" if prior is None else "; clusters the calibration's per-angle errors corrected: its σ, not the scatter")
+    return ScatterTerm(gs, labels, shares, sens, text, combined, prior)
+
+
+def corrected_prior(gs: GainScatter, sweeps: list[DeltaSweep], groups: list[Group], gain_reference: tuple | None
+                    ) -> tuple[np.ndarray | None, GainScatter]:
+    """(prior variance per cluster, ``gs`` with τ of the others) where the calibration's ε̂ was taken off some clusters'
+    rows (``calibration_clusters``): their error is what ε̂ missed, σ_ε², not τ²; (None, ``gs``) where none was."""
+    stood = calibration_clusters.matches(sweeps, gain_reference)
+    fixed = {name: stood[(g.sweep, g.joint)][1] for g, name in zip(groups, clusters(sweeps, groups))
+             if (g.sweep, g.joint) in stood}
+    if not any(label in fixed for label in gs.labels):
+        return None, gs
+    rest = [i for i, label in enumerate(gs.labels) if label not in fixed]
+    gs = replace(gs, tau=float(np.sqrt(scatter_variance(gs.eps[rest], gs.eps_cov[np.ix_(rest, rest)]))))
+    return np.array([fixed[label] ** 2 if label in fixed else gs.tau ** 2 for label in gs.labels]), gs
 
 
 __all__ = ["GainScatter", "SAME_ANGLE_RAD", "clusters", "sensitivities", "absorbed_shares", "measure",
-           "of_model", "standing_angles", "ScatterTerm", "note", "term"]
+           "of_model", "standing_angles", "ScatterTerm", "note", "term", "corrected_prior"]

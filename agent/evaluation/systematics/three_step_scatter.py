@@ -62,13 +62,17 @@ def effect(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, model: Fitted
         return None
     gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
     reads = three_step_response.READS_JOINTS
+    # the shares first: a calibration that turned joints 2 and 3 took none of their standing angles' errors
+    # (``gain_scales.own_scales``, session 24), and the measurement below would repeat the plain one
+    sweeps, groups = list(model.sweeps), list(model.groups_of(ALL))
+    labels = list(dict.fromkeys(n for n in gain_scatter.clusters(sweeps, groups) if n is not None))
+    shares = {c: (j, w) for c, (j, w) in gain_scatter.absorbed_shares(sweeps, groups, labels, gain_reference).items()
+              if j in reads and w}
+    if not shares:
+        return None
     gs = gain_scatter.measure(dict(deltas), kin, gain, model=model, gain_reference=gain_reference,
                               absorb_joints=reads)
     if gs.tau <= 0.0:
-        return None
-    shares = {c: (j, w) for c, (j, w) in gain_scatter.absorbed_shares(
-        list(model.sweeps), list(model.groups_of(ALL)), gs.labels, gain_reference).items() if j in reads and w}
-    if not shares:
         return None
     response = {j: three_step_response.gain_response(deltas, kin, j, theta3) for j in sorted({j for j, _ in
                                                                                                shares.values()})}
