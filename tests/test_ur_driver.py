@@ -179,7 +179,9 @@ def test_not_ready_when_remote_control_is_off():
 def test_long_move_fast_sim_with_payload():
     """A long move at time_scale 10: the move still ends on target, the tool shows in the current."""
     with FakeURController(time_scale=10.0, payload=PayloadTruth(3.0, (0.0, 0.0, 0.08))) as fake:
-        d = make_driver(fake.host, Supervision(max_stream_gap_s=0.5))
+        # the move's end is what this test is about, not the supervision (its own tests below): a stream-gap limit a
+        # busy CI machine's scheduler does not reach (0.5 s tripped once with both cores busy, session 24)
+        d = make_driver(fake.host, Supervision(max_stream_gap_s=2.0))
         try:
             d.connect()
             target = [1.2, -1.0, 1.0, -1.2, -1.0, 1.0]
