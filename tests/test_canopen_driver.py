@@ -32,7 +32,10 @@ SLOW = math.radians(3)  # fault tests: the move lasts 4 s simulated, 1 s wall, s
 def config(time_scale=4.0, **driver):
     data = yaml.safe_load(SIM.read_text())
     data["simulation"]["time_scale"] = time_scale
-    data["driver"].update({"heartbeat_ms": 50, "heartbeat_timeout_ms": 400, **driver})
+    # SDO replies may wait 2 s (the driver's default is 0.5 s): the simulated drives answer from a process a CI
+    # machine with both cores busy can starve for longer than that while the rig connects (set-ups failed with "stopped
+    # answering SDO" in sessions 23 and 24); tests about a missing or late reply set their own limits
+    data["driver"].update({"heartbeat_ms": 50, "heartbeat_timeout_ms": 400, "sdo_timeout_s": 2.0, **driver})
     return parse_config(data, source="sim-canopen-arm.yaml")
 
 
