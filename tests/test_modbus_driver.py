@@ -30,7 +30,9 @@ RELAXED = Supervision(max_stream_gap_s=0.3)  # tests that are not about the watc
 
 
 def _start(preset="ur_modbus_server", **opts):
-    raw = {"type": "modbus", "host": "127.0.0.1", "preset": preset, **opts}
+    # a reply may take 1 s (the driver's default is 0.25 s): the simulated server's thread can be starved for longer
+    # on a CI machine with both cores busy (a connect failed so in session 24); tests of late replies set their own
+    raw = {"type": "modbus", "host": "127.0.0.1", "preset": preset, "timeout_s": 1.0, **opts}
     options = parse_modbus_options(raw)
     robot = SimRobot(ur5e_spec(), q0_rad=Q0, tick_s=0.008, noise_nm=0.3, seed=3)
     fake = SimulatedModbusRobot(robot, resolve_map(options), gains=GAINS, owns_robot=True).start()
