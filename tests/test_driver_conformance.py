@@ -107,7 +107,10 @@ def rig(family, idle_cells, tmp_path):
         idle_cells.pop(other)[0].close()
     cell, config = idle_cells.pop(family.name, (None, None))
     if cell is None:
-        config = load_sim_config(family.name, tmp_path)
+        # the CANopen drives' watch of the agent's heartbeat keeps the sim config's allowance: at the driver's
+        # real 150 ms a CI machine with both cores busy tripped it before a move (EMCY 0x8130, session 24's CI);
+        # the fault matrix keeps 150 ms, and tests/test_canopen_driver tests the watch itself
+        config = load_sim_config(family.name, tmp_path, strict_heartbeat=False)
         cell = SimulatedCell(config).start()
     ctrl = _Watched(cell.controller)
     drv = make_driver(cell.options, motion_limits(config), supervision(config))
