@@ -114,7 +114,7 @@ class Measured:
 
 def _map_covariance(model, fit) -> np.ndarray | None:
     """The fit's covariance had its sweeps' noise been white: each sweep's score variance from its noise map alone
-    (``wls.modelled_noise`` at every lag, the groups' residual variances as the fit took them), without the kernel
+    (``wls.modelled_noise`` at every lag, the groups' noise variances as the fit took them), without the kernel
     excess ``wls.fit`` adds where the residuals show more. None when a sweep has no map."""
     from payload_agent.solvers import wls
 
@@ -127,7 +127,7 @@ def _map_covariance(model, fit) -> np.ndarray | None:
         if noise is None or noise.shape[0] != len(groups[members[0]].y):
             return None
         B += wls.modelled_noise(noise @ noise.T, None, [
-            (groups[i].Y * fit.weights[starts[i]:starts[i + 1], None], fit.sigma_nm[groups[i].label] ** 2)
+            (groups[i].Y * fit.weights[starts[i]:starts[i + 1], None], fit.noise_sigma_nm[groups[i].label] ** 2)
             for i in members])
     inv = fit.normal_inverse
     return inv @ B @ inv

@@ -65,7 +65,7 @@ def baseline_shares(model: FittedModel, theta_ref: Sequence[float], fitted_joint
         if g.sweep not in maps:
             maps[g.sweep] = _baseline_noise(g.noise_map)
         S_b, mean_gain = maps[g.sweep]
-        return (res.sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
+        return (res.noise_sigma_nm[g.label] ** 2 / max(mean_gain, 1e-300)) * np.asarray(S_b @ a).ravel()
 
     return shares_on_rows(groups, theta_ref, fitted_joints, gain_rel_std, times,
                           general.stands_apart(list(model.sweeps), list(groups)))

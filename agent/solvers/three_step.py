@@ -41,7 +41,8 @@ from payload_agent.model.arm_geometry import ArmGeometry, wrap
 from payload_agent.model.kinematics import GRAVITY_M_S2, Kinematics
 from payload_agent.solvers.regressor import chain_frames, payload_regressor
 from payload_agent.solvers.results import Estimate
-from payload_agent.solvers.wls import HAC_MAX_FRACTION, autocorrelation_time, long_run_scores, modelled_excess
+from payload_agent.solvers.wls import (HAC_MAX_FRACTION, autocorrelation_time, long_run_scores, modelled_excess,
+                                      line_leftover, without_lines)
 from payload_agent.types import SweepKey
 
 NAME = "three-step"
@@ -342,7 +343,8 @@ def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.n
     cov_iid = np.zeros((4, 4))
     for name, Js in J.items():
         meas, pred, _ = data[name]
-        r = meas - pred
+        r = without_lines(meas - pred)  # the noise: no mesh ripple that averages out of the steps (``wls``)
+        cov += line_leftover(Js.T, meas - pred, r)  # what the ripple does leave in the steps
         n = len(r)
         _, lag = autocorrelation_time(r, max_lag=max(1, int(HAC_MAX_FRACTION * n)))
         dof = n / max(n - 1, 1)

@@ -12,7 +12,10 @@ never goes below the independent-noise covariance. Where the rows say how their 
 that map at every lag, scaled up where the residuals' kernel estimate shows more
 (``modelled_excess``): samples interpolated across one gap of a run's sample stream share one
 error, which neither a short kernel nor the residuals (whose mean over a group the fit's offsets
-absorb) can see. An optional relative drive-gain
+absorb) can see. Before any of that, narrow spectral lines away from zero frequency are taken out of the
+residuals (``without_lines``): a periodic-in-angle torque on a turning joint (the gear mesh) averages out of the
+estimate, yet a kernel whose bandwidth reaches a quarter of its period reads it as long-run variance. An optional
+relative drive-gain
 uncertainty per joint is propagated on top (``gain_covariance``).
 
 Used by the general solver, the dynamic baseline, the quality gate (per-pose fits) and the
@@ -31,6 +34,10 @@ from payload_agent.errors import DataError
 SIGMA_FLOOR_NM = 1e-9  # noise-free data: keep the weights finite
 HAC_WINDOW_C = 5.0  # Sokal's automatic window: smallest lag M with M >= C·τ_int
 HAC_MAX_FRACTION = 0.25  # bandwidth at most this fraction of a sweep's samples
+LINE_FALSE_ALARM = 0.01  # chance that white noise shows one spurious line in a whole series
+LINE_LOWEST_BIN = 8  # a line must run through at least this many periods over the series to average out
+LINE_BACKGROUND_BINS = 16  # half-width of the running median that gives the spectrum's smooth background
+LINE_MAX = 6  # lines taken out of one series at most (the mesh line, its drift, a harmonic)
 
 
 @dataclass
@@ -53,7 +60,8 @@ class FitResult:
     theta: np.ndarray  # (p,) parameters
     cov: np.ndarray  # (p, p) autocorrelation-robust covariance (+ drive-gain term when asked)
     cov_iid: np.ndarray  # (p, p) textbook s²·(YᵀWY)⁻¹ for independent noise
-    sigma_nm: dict[str, float]  # residual σ of each group (first pass), by group label
+    sigma_nm: dict[str, float]  # residual σ of each group (first pass), by group label: the weights
+    noise_sigma_nm: dict[str, float]  # σ of each group's noise: its final residuals ``without_lines``
     weights: np.ndarray  # (n,) row weights 1/σ²
     normal_inverse: np.ndarray  # (p, p) (YᵀWY)⁻¹, for propagating systematic errors
     residual_rms_nm: dict[str, float]  # final residual RMS of each group, by label
@@ -90,6 +98,72 @@ def autocorrelation_time(x: np.ndarray, *, c: float = HAC_WINDOW_C, max_lag: int
         if m >= c * tau:
             return max(tau, 1.0), m
     return max(tau, 1.0), max_lag
+
+
+def without_lines(r: np.ndarray) -> np.ndarray:
+    """The residuals less their narrow spectral lines away from zero frequency: what the long-run variance is of.
+
+    What the kernel estimate must count is the residuals' spectral density at zero frequency (the scores' long-run
+    variance); a deterministic oscillation of k ≥ ``LINE_LOWEST_BIN`` periods over the series (the mesh ripple of a
+    turning joint, periodic in its angle, about 30 periods over a sweep at any speed) has none there: multiplied
+    by the smooth sensitivities it averages out of the estimate. A Bartlett kernel whose bandwidth (from the same
+    residuals' autocorrelation) reaches a fair part of its period leaks its power into the zero-frequency
+    estimate, and its variance inflates the independent-noise level too. A line (``_line``) is a bin of the
+    Hann-tapered periodogram above its running median background by more than white noise reaches in one of the
+    series' bins but with chance ``LINE_FALSE_ALARM``; it is taken out by least squares as a sinusoid of that
+    frequency whose amplitude and phase drift slowly (cos, sin times 1, t, t²: the mesh amplitude follows the
+    load torque along the sweep), and the next line is sought, up to ``LINE_MAX``. What a line does leave in the
+    estimate (its partial periods) is carried apart, ``line_leftover``. Broad low-frequency power (slow
+    unmodelled torques, errors shared across a stream gap, an AR(1) or a random walk) is not a line and stays;
+    in white noise nothing is found but by the false-alarm chance. The agent is not told the gear ratio.
+    """
+    x = np.asarray(r, float).copy()
+    n = len(x)
+    t = np.linspace(-1.0, 1.0, n)
+    i = np.arange(n)
+    for _ in range(LINE_MAX):
+        f = _line(x)
+        if f is None:
+            break
+        phase = 2.0 * np.pi * f * i
+        basis = np.column_stack([fn(phase) * t ** d for fn in (np.cos, np.sin) for d in range(3)])
+        coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
+        x -= basis @ coef
+    return x
+
+
+def line_leftover(S: np.ndarray, r: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """What the lines taken out of ``r`` (``noise = without_lines(r)``) leave in the estimate, as a score variance:
+    the outer product of Sᵀ·(r − noise), ``S`` (n, p) the estimate's scores per unit residual of each sample.
+
+    A line over k periods averages out of a smooth sensitivity but for its partial periods (order 1/k of its
+    amplitude, 0.1–1 % for the mesh ripple over a sweep): that part is an error of the estimate, of the size
+    measured here, and stays in σ. The line's own share the fit absorbed is smooth and shows in ``r`` only to
+    second order, so the line found in the residuals is the line in the data."""
+    d = S.T @ (np.asarray(r, float) - noise)
+    return np.outer(d, d)
+
+
+def _line(x: np.ndarray) -> float | None:
+    """The frequency (cycles per sample) of the strongest line of ``x`` (see ``without_lines``), or None."""
+    from scipy.ndimage import median_filter
+
+    n = len(x)
+    taper = np.hanning(n)
+    P = np.abs(np.fft.rfft((x - np.mean(x)) * taper)) ** 2
+    nb = len(P)
+    if nb < LINE_LOWEST_BIN + 2 * LINE_BACKGROUND_BINS:
+        return None
+    background = median_filter(P, size=2 * LINE_BACKGROUND_BINS + 1, mode="reflect") / np.log(2.0)
+    ratio = P / np.maximum(background, 1e-300)
+    ratio[:LINE_LOWEST_BIN] = 0.0
+    ratio[-2:] = 0.0
+    k = int(np.argmax(ratio))
+    if ratio[k] <= np.log(nb / LINE_FALSE_ALARM):
+        return None
+    grid = (k + np.linspace(-1.0, 1.0, 41)) / n  # the peak between bins
+    power = np.abs(np.exp(-2j * np.pi * np.outer(grid, np.arange(n))) @ ((x - np.mean(x)) * taper)) ** 2
+    return float(grid[int(np.argmax(power))])
 
 
 def long_run_scores(U: np.ndarray, bandwidth: int) -> np.ndarray:
@@ -184,7 +258,12 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     w = 1.0 / sigma[idx] ** 2
 
     theta, inv = weighted_lstsq(Y, y, w)
-    r = y - Y @ theta
+    r_fit = y - Y @ theta
+    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
+    # the noise: each group's residuals without the lines that average out of the estimate (``without_lines``)
+    r = np.concatenate([without_lines(r_fit[starts[i]:starts[i + 1]]) for i in range(len(groups))])
+    noise_sigma = np.array([max(float(np.sqrt(np.mean(r[idx == i] ** 2) * dof_factor)), SIGMA_FLOOR_NM)
+                            for i in range(len(groups))])
     s2 = float(r @ (w * r) / (n - p))
     cov_iid = s2 * inv
 
@@ -193,11 +272,10 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     # whose noise map is known: from it, and from the residuals only where they show more)
     B = np.zeros((p, p))
     tau: dict[str, float] = {}
-    starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
     for sweep in dict.fromkeys(g.sweep for g in groups):
         members = [i for i, g in enumerate(groups) if g.sweep == sweep]
         U = sum(groups[i].Y * (w[starts[i]:starts[i + 1]] * r[starts[i]:starts[i + 1]])[:, None] for i in members)
-        z = sum(r[starts[i]:starts[i + 1]] / sigma[i] for i in members)  # normalised residual per instant
+        z = sum(r[starts[i]:starts[i + 1]] / noise_sigma[i] for i in members)  # normalised residual per instant
         m = len(z)
         t, lag = autocorrelation_time(z, max_lag=max(1, int(HAC_MAX_FRACTION * m)))
         tau[sweep] = t
@@ -205,8 +283,9 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
         noise = groups[members[0]].noise_map
         if noise is not None and noise.shape[0] == m:
             B_sweep = modelled_excess(B_sweep, noise, lag, [
-                (groups[i].Y * w[starts[i]:starts[i + 1], None], sigma[i] ** 2) for i in members])
-        B += B_sweep
+                (groups[i].Y * w[starts[i]:starts[i + 1], None], noise_sigma[i] ** 2) for i in members])
+        rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in members])
+        B += B_sweep + line_leftover(Y[rows] * w[rows, None], r_fit[rows], r[rows])
     cov = inv @ B @ inv
     # never below the independent-noise covariance (the kernel estimate is itself noisy)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
@@ -219,11 +298,12 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     normal = (Y * w[:, None]).T @ Y
     d = 1.0 / np.sqrt(np.diag(normal))
     cond = float(np.linalg.cond(normal * np.outer(d, d)))
-    rms = {g.label: float(np.sqrt(np.mean(r[idx == i] ** 2))) for i, g in enumerate(groups)}
+    rms = {g.label: float(np.sqrt(np.mean(r_fit[idx == i] ** 2))) for i, g in enumerate(groups)}
     return FitResult(
         theta=theta, cov=cov, cov_iid=cov_iid, sigma_nm=dict(zip([g.label for g in groups], sigma.tolist())),
         weights=w, normal_inverse=inv, residual_rms_nm=rms, condition_number=cond, s2=s2, n=n, tau=tau,
-        inflation=float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300)))))
+        inflation=float(np.max(np.sqrt(np.diag(cov) / np.maximum(np.diag(cov_iid), 1e-300)))),
+        noise_sigma_nm=dict(zip([g.label for g in groups], noise_sigma.tolist())))
 
 
 def gain_directions(groups: list[Group], Y: np.ndarray, w: np.ndarray, inv: np.ndarray, theta: np.ndarray,
