@@ -141,12 +141,13 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
         XtX_inv = np.linalg.pinv(X.T @ X)
         B = np.zeros((X.shape[1], X.shape[1]))
         # the noise: each sweep's residuals without a turning joint's mesh ripple, which averages out of k (``wls``)
-        noise = np.concatenate([wls.without_lines(resid[start[i]:start[i + 1]]) for i in range(len(parts))])
+        noise, lines = (np.concatenate(a) for a in zip(*(wls.without_lines(resid[start[i]:start[i + 1]])
+                                                         for i in range(len(parts)))))
         for i in range(len(parts)):
             sl = slice(start[i], start[i + 1])
             r = noise[sl]
             _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
-            B += wls.long_run_scores(X[sl] * r[:, None], lag) + wls.line_leftover(X[sl], resid[sl], r)
+            B += wls.long_run_scores(X[sl] * r[:, None], lag) + wls.line_leftover(X[sl], lines[sl])
         # each coefficient's variance: the sandwich, never below the white-noise one
         var = np.maximum(np.diag(XtX_inv @ B @ XtX_inv), np.diag(XtX_inv) * float(noise @ noise / dof)) * n / dof
         k_var = float(var[0])

@@ -194,12 +194,13 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
                 w[owner == j] = 1.0 / max(float(np.sqrt(r @ r / max(len(r) - 1, 1))), wls.SIGMA_FLOOR_NM) ** 2
     B = np.zeros_like(info)
     # the noise: each sweep's residuals without a turning joint's mesh ripple, which averages out of the fit (``wls``)
-    noise = np.concatenate([wls.without_lines(resid[start[i]:start[i + 1]]) for i in range(len(parts))])
+    noise, lines = (np.concatenate(a) for a in zip(*(wls.without_lines(resid[start[i]:start[i + 1]])
+                                                     for i in range(len(parts)))))
     for i in range(len(parts)):
         sl = slice(start[i], start[i + 1])
         r = noise[sl] * w[sl]
         _, lag = wls.autocorrelation_time(noise[sl], max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
-        B += wls.long_run_scores(X[sl] * r[:, None], lag) + wls.line_leftover(X[sl] * w[sl, None], resid[sl], noise[sl])
+        B += wls.long_run_scores(X[sl] * r[:, None], lag) + wls.line_leftover(X[sl] * w[sl, None], lines[sl])
     dof = max(len(y) - X.shape[1], 1)
     cov = inv @ B @ inv * len(y) / dof
     chi2 = float(noise @ (w * noise)) / dof  # the white-noise covariance, scaled by the fit's own noise

@@ -343,8 +343,8 @@ def _covariance(J: dict[str, np.ndarray], data: dict[str, tuple[np.ndarray, np.n
     cov_iid = np.zeros((4, 4))
     for name, Js in J.items():
         meas, pred, _ = data[name]
-        r = without_lines(meas - pred)  # the noise: no mesh ripple that averages out of the steps (``wls``)
-        cov += line_leftover(Js.T, meas - pred, r)  # what the ripple does leave in the steps
+        r, lines = without_lines(meas - pred)  # the noise: no mesh ripple that averages out of the steps (``wls``)
+        cov += line_leftover(Js.T, lines)  # what the ripple does leave in the steps
         n = len(r)
         _, lag = autocorrelation_time(r, max_lag=max(1, int(HAC_MAX_FRACTION * n)))
         dof = n / max(n - 1, 1)

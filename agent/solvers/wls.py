@@ -34,9 +34,9 @@ from payload_agent.errors import DataError
 SIGMA_FLOOR_NM = 1e-9  # noise-free data: keep the weights finite
 HAC_WINDOW_C = 5.0  # Sokal's automatic window: smallest lag M with M >= C·τ_int
 HAC_MAX_FRACTION = 0.25  # bandwidth at most this fraction of a sweep's samples
-LINE_FALSE_ALARM = 0.01  # chance that white noise shows one spurious line in a whole series
-LINE_LOWEST_BIN = 8  # a line must run through at least this many periods over the series to average out
-LINE_BACKGROUND_BINS = 16  # half-width of the running median that gives the spectrum's smooth background
+LINE_FALSE_ALARM = 1e-4  # chance that white noise shows one spurious line in a whole series
+LINE_LOWEST_BIN = 16  # a line must run through at least this many periods over the series to average out
+LINE_BACKGROUND_BINS = 16  # least half-width of the running median that gives the spectrum's smooth background
 LINE_MAX = 6  # lines taken out of one series at most (the mesh line, its drift, a harmonic)
 
 
@@ -100,8 +100,9 @@ def autocorrelation_time(x: np.ndarray, *, c: float = HAC_WINDOW_C, max_lag: int
     return max(tau, 1.0), max_lag
 
 
-def without_lines(r: np.ndarray) -> np.ndarray:
-    """The residuals less their narrow spectral lines away from zero frequency: what the long-run variance is of.
+def without_lines(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(noise, lines): the residuals less their narrow spectral lines away from zero frequency, which is what the
+    long-run variance is of, and those lines.
 
     What the kernel estimate must count is the residuals' spectral density at zero frequency (the scores' long-run
     variance); a deterministic oscillation of k ≥ ``LINE_LOWEST_BIN`` periods over the series (the mesh ripple of a
@@ -115,12 +116,16 @@ def without_lines(r: np.ndarray) -> np.ndarray:
     load torque along the sweep), and the next line is sought, up to ``LINE_MAX``. What a line does leave in the
     estimate (its partial periods) is carried apart, ``line_leftover``. Broad low-frequency power (slow
     unmodelled torques, errors shared across a stream gap, an AR(1) or a random walk) is not a line and stays;
-    in white noise nothing is found but by the false-alarm chance. The agent is not told the gear ratio.
+    in white noise nothing is found but by the false-alarm chance. The agent is not told the gear ratio. The
+    noise is scaled by √(n/(n − c)) for the c columns taken out, so that its variance stays the noise's (a spurious
+    line in a short sweep's white noise would otherwise take 6 of its degrees of freedom, 3 % of 180 samples).
     """
-    x = np.asarray(r, float).copy()
+    r = np.asarray(r, float)
+    x = r.copy()
     n = len(x)
     t = np.linspace(-1.0, 1.0, n)
     i = np.arange(n)
+    columns = 0
     for _ in range(LINE_MAX):
         f = _line(x)
         if f is None:
@@ -129,18 +134,21 @@ def without_lines(r: np.ndarray) -> np.ndarray:
         basis = np.column_stack([fn(phase) * t ** d for fn in (np.cos, np.sin) for d in range(3)])
         coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
         x -= basis @ coef
-    return x
+        columns += basis.shape[1]
+    if not columns:
+        return x, np.zeros(n)
+    return x * np.sqrt(n / max(n - columns, 1)), r - x
 
 
-def line_leftover(S: np.ndarray, r: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """What the lines taken out of ``r`` (``noise = without_lines(r)``) leave in the estimate, as a score variance:
-    the outer product of Sᵀ·(r − noise), ``S`` (n, p) the estimate's scores per unit residual of each sample.
+def line_leftover(S: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """What the lines taken out of the residuals (``without_lines``) leave in the estimate, as a score variance:
+    the outer product of Sᵀ·lines, ``S`` (n, p) the estimate's scores per unit residual of each sample.
 
     A line over k periods averages out of a smooth sensitivity but for its partial periods (order 1/k of its
     amplitude, 0.1–1 % for the mesh ripple over a sweep): that part is an error of the estimate, of the size
     measured here, and stays in σ. The line's own share the fit absorbed is smooth and shows in ``r`` only to
     second order, so the line found in the residuals is the line in the data."""
-    d = S.T @ (np.asarray(r, float) - noise)
+    d = S.T @ lines
     return np.outer(d, d)
 
 
@@ -154,8 +162,19 @@ def _line(x: np.ndarray) -> float | None:
     nb = len(P)
     if nb < LINE_LOWEST_BIN + 2 * LINE_BACKGROUND_BINS:
         return None
-    background = median_filter(P, size=2 * LINE_BACKGROUND_BINS + 1, mode="reflect") / np.log(2.0)
-    ratio = P / np.maximum(background, 1e-300)
+    # the running median over ±h bins, h doubling from LINE_BACKGROUND_BINS up to nb/16 but never past zero
+    # frequency: a symmetric window's median is the middle value on any monotone slope (an AR(1)'s, a random
+    # walk's) and steadier the wider it is, where a window reflected at zero would sit low beside a steep start
+    background = np.full(nb, np.inf)  # below the first window: no line sought (LINE_LOWEST_BIN is above it)
+    h = LINE_BACKGROUND_BINS
+    while True:
+        smooth = median_filter(P, size=2 * h + 1, mode="reflect")
+        background[h:] = smooth[h:]
+        if 2 * h > nb // 16:
+            break
+        h *= 2
+    background /= np.log(2.0)
+    ratio = P / np.maximum(background, np.finfo(float).tiny)
     ratio[:LINE_LOWEST_BIN] = 0.0
     ratio[-2:] = 0.0
     k = int(np.argmax(ratio))
@@ -261,8 +280,11 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
     r_fit = y - Y @ theta
     starts = np.concatenate(([0], np.cumsum([len(g.y) for g in groups])))
     # the noise: each group's residuals without the lines that average out of the estimate (``without_lines``)
-    r = np.concatenate([without_lines(r_fit[starts[i]:starts[i + 1]]) for i in range(len(groups))])
-    noise_sigma = np.array([max(float(np.sqrt(np.mean(r[idx == i] ** 2) * dof_factor)), SIGMA_FLOOR_NM)
+    r, lines = (np.concatenate(a) for a in zip(*(without_lines(r_fit[starts[i]:starts[i + 1]])
+                                                 for i in range(len(groups)))))
+    # each group's noise σ: the first pass's, less the lines' share of its final residuals (the same without lines)
+    noise_sigma = np.array([max(sigma[i] * float(np.sqrt(np.sum(r[idx == i] ** 2) / max(np.sum(r_fit[idx == i] ** 2),
+                                                                                    1e-300))), SIGMA_FLOOR_NM)
                             for i in range(len(groups))])
     s2 = float(r @ (w * r) / (n - p))
     cov_iid = s2 * inv
@@ -285,7 +307,7 @@ def fit(groups: list[Group], gain_rel_std: Iterable[float] | None = None) -> Fit
             B_sweep = modelled_excess(B_sweep, noise, lag, [
                 (groups[i].Y * w[starts[i]:starts[i + 1], None], noise_sigma[i] ** 2) for i in members])
         rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in members])
-        B += B_sweep + line_leftover(Y[rows] * w[rows, None], r_fit[rows], r[rows])
+        B += B_sweep + line_leftover(Y[rows] * w[rows, None], lines[rows])
     cov = inv @ B @ inv
     # never below the independent-noise covariance (the kernel estimate is itself noisy)
     ratio = np.sqrt(np.maximum(np.diag(cov), 0.0) / np.maximum(np.diag(cov_iid), 1e-300))
