@@ -52,8 +52,15 @@ def corrected(deltas: Mapping[SweepKey, DeltaSweep], reference: tuple | None
               ) -> tuple[dict[SweepKey, DeltaSweep], dict[tuple[str, int], tuple[float, float]]]:
     """``deltas`` with every matched still row's torque divided by 1 + ε̂ (``matches``), and the matches."""
     found = matches({k.name: d for k, d in deltas.items()}, reference)
+    return scaled(deltas, found), found
+
+
+def scaled(deltas: Mapping[SweepKey, DeltaSweep], found: Mapping[tuple[str, int], tuple[float, float]]
+           ) -> dict[SweepKey, DeltaSweep]:
+    """``deltas`` with the rows of ``found`` (``matches``: (sweep name, joint) -> (ε̂, σ_ε)) divided by 1 + ε̂: the
+    same correction on deltas made again from the same run (a finite difference of its angles or torques)."""
     if not found:
-        return dict(deltas), found
+        return dict(deltas)
     out = {}
     for key, d in deltas.items():
         factor = np.ones(d.dtau.shape[1])
@@ -61,7 +68,7 @@ def corrected(deltas: Mapping[SweepKey, DeltaSweep], reference: tuple | None
             if (key.name, j) in found:
                 factor[j] = 1.0 / (1.0 + found[(key.name, j)][0])
         out[key] = d if np.all(factor == 1.0) else replace(d, dtau=np.asarray(d.dtau, float) * factor)
-    return out, found
+    return out
 
 
 def note(found: Mapping[tuple[str, int], tuple[float, float]]) -> str:
@@ -74,4 +81,4 @@ def note(found: Mapping[tuple[str, int], tuple[float, float]]) -> str:
             f"{len(found)} (sweep, joint) groups); their remaining error, the calibration's σ, in the torque-gain term")
 
 
-__all__ = ["TOL_RAD", "matches", "corrected", "note"]
+__all__ = ["TOL_RAD", "matches", "corrected", "scaled", "note"]
