@@ -279,7 +279,7 @@ def friction_terms(ctx: Context) -> list[Term]:
         for k in extra:
             change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
     labels = [str(j) for j in all_joints]
-    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model), None
+    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model, ctx.gain_reference), None
     mu_r = sd_r = np.zeros(len(all_joints))
     if ctx.gain_reference is not None:
         eps = three_step_response.reference_offset_shares(ctx.sweeps, ctx.groups[ALL], per_joint, labels,
@@ -288,7 +288,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
                                                      ctx.three_step, sens, all_joints, eps)
         mu_r, sd_r, ref = reference_friction.reference_change(ctx.gain_reference, all_joints, rel, constant)
-        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r)
+        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r, ctx.gain_reference)
         how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
                    else reference_shares.STAND_IN_NOTE)
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"
