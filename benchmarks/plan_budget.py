@@ -8,7 +8,8 @@ it depends on where the robot stands) and the one ``plan`` chooses, it prints th
 constant-speed seconds (loaded run, both legs), and σ of the mass and of the centre of mass (largest axis) as
 the terms of ``design.covariance_terms`` are added one by one: the noise alone, + the wrist torques, + the
 drive gains, + the DH lengths, + the joint zeros, + the residual friction, + the shared baseline's correlation
-(negative; 0 unless the candidate's run subtracts the calibration's empty run) (= the root of the run's expected
+(negative; 0 unless the candidate's run subtracts the calibration's empty run), + the torque-gain term of the
+clusters standing at the calibration's angles (``planned_scatter``) (= the root of the run's expected
 variance; the plan's σ is the median over the draws of the wrist term and of the run's own noise estimate: the
 last columns, with their spread and P over). The last
 columns are the information per second, σ m (noise alone) · √(constant-speed s), and the constant-speed
@@ -38,7 +39,7 @@ from payload_agent.session import target as targets  # noqa: E402
 from payload_agent.solvers.wls import cog_with_covariance  # noqa: E402
 
 # the order the terms are added in (each column: this one and all before it)
-ORDER = ("noise", "wrist", "gains", "lengths", "zeros", "friction", "baseline")
+ORDER = ("noise", "wrist", "gains", "lengths", "zeros", "friction", "baseline", "scatter")
 
 
 def sigmas(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
@@ -114,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"target {grams:g} g / {mm:g} mm for the simulation's payload; chosen: "
           + (f"{choice.best.candidate.describe()} ({choice.best.robot_time_s:.1f} s)" if choice.best else "none"))
     head = " | ".join(("noise", "+ wrist", "+ gains", "+ DH lengths", "+ zeros", "+ friction (plan)",
-                       "+ shared baseline"))
+                       "+ shared baseline", "+ gain scatter (corrected clusters)"))
     print(f"\n| candidate | procedure s | constant-speed s | {head} | σ m·√s (noise) | constant-speed s for "
-          f"{grams:g} g | a typical run (median) | run-to-run spread m / c | P over |\n|" + "---|" * 15)
+          f"{grams:g} g | a typical run (median) | run-to-run spread m / c | P over |\n|" + "---|" * 16)
     for q, b in rows:
         mark = " (chosen)" if choice.best is not None and q is choice.best else ""
         cells = " | ".join(f"{m:.2f} / {c:.2f}" for m, c in b["cumulative"])

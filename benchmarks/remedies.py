@@ -44,6 +44,17 @@ def scaled(sweeps: dict, scale: np.ndarray) -> dict:
     return {k: dataclasses.replace(s, effort_nm=np.asarray(s.effort_nm) * scale) for k, s in sweeps.items()}
 
 
+def calibrated_gains(cal, unfitted_std: float, shared: bool = True):
+    """The ``analyse.Gains`` of a case's calibration (``benchmarks.reference.calibration``): its gains, their
+    uncertainty (``unfitted_std`` for the joints it did not fit), its reference (the per-angle gain errors too) and
+    zeros; ``shared``: the reference run was subtracted against the tool run's own empty run."""
+    from payload_agent.evaluation.analyse import Gains
+
+    return Gains(tuple(cal.gains_nm_per_unit), "calibrated on the benchmark's reference run", None,
+                 tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros,
+                 shared_baseline=shared)
+
+
 def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitted_std: float, kin_kw: dict,
                   solver: str = "general", mount_rad=None, cal=None):
     """(Estimate, gate columns) of general-bi-cal-comp (``solver`` "three-step": three-step-bi-cal-comp) on one
@@ -52,7 +63,7 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
     rest), as the agent records them. ``cal``: a calibration made elsewhere (``benchmarks.cross_calibration``: on
     another procedure against its own empty run, so no shared baseline; ``ref`` is then unused); None: this
     case's, on ``ref`` against ``empty``."""
-    from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+    from payload_agent.evaluation.analyse import AnalysisOptions, analyse
 
     decl = declaration(declared)
     shared = cal is None  # the calibration's reference run and the tool run share this case's empty run, as
@@ -61,11 +72,9 @@ def comp_estimate(loaded: dict, empty: dict, ref: dict, declared, config, unfitt
         cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores: gains, zeros, reference friction
     scale = np.asarray(cal.scale, float)
     options = AnalysisOptions(config.robot.kinematics, decl, kin_kw.get("length_std_m"), solver)
-    gains = Gains(tuple(cal.gains_nm_per_unit), "calibrated on the benchmark's reference run", None,
-                  tuple(float(v) for v in cal.gain_rel_std(unfitted_std)), cal.reference, cal.zeros,
-                  shared_baseline=shared)
+    gains = calibrated_gains(cal, unfitted_std, shared)
     result = analyse(scaled(loaded, scale), scaled(empty, scale), options, gains, solvers=(), mount_rad=mount_rad)
     return dataclasses.replace(result.primary, solver=COMP if solver == "general" else COMP3), columns(result.quality)
 
 
-__all__ = ["COMP", "COMP3", "comp_estimate", "declaration", "scaled"]
+__all__ = ["COMP", "COMP3", "calibrated_gains", "comp_estimate", "declaration", "scaled"]

@@ -167,6 +167,8 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
                                                           if best.candidate.stored_baseline else None)
         plan = {"procedure": best.candidate.describe(), "robot_time_s": best.robot_time_s,
                 "pred_length_std": list(term_sigmas(terms["lengths"], sim)),
+                # the torque-gain term of the clusters standing at the calibration's angles (``planned_scatter``)
+                "pred_scatter_std": list(term_sigmas(terms["scatter"], sim)),
                 "approach_s": best.approach_s, "pred_std": [best.mass_std_g, best.cog_std_mm],
                 "pred_rms_std": [best.mass_rms_std_g, best.cog_rms_std_mm],
                 "p_over_target": best.p_over(*targets.parse_target(target)),
@@ -197,6 +199,8 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
             "passed": bool(outcome.result.quality.get("passed")), "wrist_note": wrist[0] if wrist else None,
             "wrist_weight": wrist_weight(wrist[0] if wrist else None),
             "shared_baseline": any("empty baseline" in n for n in est.notes),
+            # the calibration's per-angle gain errors taken off still rows standing at its angles (``calibration_clusters``)
+            "corrected_clusters": any(n.startswith("still rows standing at the calibration's angles") for n in est.notes),
             "reused_baseline": "from_baseline" in json.loads((outcome.run_dir / "manifest.json").read_text())[
                 "phases"]["empty"], **plan}
 

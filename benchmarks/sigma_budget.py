@@ -27,7 +27,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import cases  # noqa: E402
 from benchmarks.reference import calibration, theta_reference  # noqa: E402
-from benchmarks.remedies import declaration, scaled  # noqa: E402
+from benchmarks.remedies import calibrated_gains, declaration, scaled  # noqa: E402
 
 
 QUANTITIES = {"m": (0, 1000.0, "g"), "x": (1, 1000.0, "mm"), "y": (2, 1000.0, "mm"), "z": (3, 1000.0, "mm")}
@@ -44,11 +44,12 @@ def to_mass_cog(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 def analysed_case(scenario: str, index: int, proc: cases.Procedure, n_payloads: int) -> dict:
-    """One case of the accuracy benchmark's general-bi-cal-comp, recorded and prepared as the analysis does: the
-    calibrated, compensated deltas (``prepared``), the fitted model, the calibration, the gains' uncertainty, the
-    declaration, the payload (``mass``, ``cog`` mm), the arm's draws, where the loaded run started (``mount``), and the
+    """One case of the accuracy benchmark's general-bi-cal-comp, recorded and prepared as the analysis does
+    (``analyse.prepared_run``: the calibration's zeros and per-angle gain errors corrected): the calibrated,
+    compensated deltas (``prepared``), the fitted model, the calibration, the gains' uncertainty, the declaration the
+    terms use, the payload (``mass``, ``cog`` mm), the arm's draws, where the loaded run started (``mount``), and the
     recorded sweeps (``loaded``, ``empty``, ``ref``) with the procedure's ``config``."""
-    from payload_agent.evaluation import systematics
+    from payload_agent.evaluation.analyse import prepared_run
     from payload_agent.fakes.offline import record_plan
     from payload_agent.fakes.physics import PayloadTruth
     from payload_agent.solvers import general
@@ -66,10 +67,11 @@ def analysed_case(scenario: str, index: int, proc: cases.Procedure, n_payloads: 
     loaded, _ = record_plan(robot, plan_bi, torque_scale=draws["gain"])
     ref = cases.record_reference(robot, plan_bi, draws)
     decl = declaration(draws["declared"])
-    cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores (its zeros are not corrected here)
+    cal = calibration(ref, empty, config, decl)  # what ``calibrate`` stores
     scale = np.asarray(cal.scale, float)
-    gain_std = np.asarray(cal.gain_rel_std(cases.declared_unfitted_gain_std(scenario)), float)
-    prepared = systematics.prepare(scaled(loaded, scale), scaled(empty, scale), decl, mount_rad=mount)
+    gains = calibrated_gains(cal, cases.declared_unfitted_gain_std(scenario))
+    gain_std = np.asarray(gains.rel_std, float)
+    prepared, decl = prepared_run(scaled(loaded, scale), scaled(empty, scale), decl, gains, mount_rad=mount)
     model = general.fit_model(prepared.deltas, kin, gain_std)
     return dict(prepared=prepared, model=model, cal=cal, gain_std=gain_std, decl=decl, kin=kin, mass=mass, cog=cog,
                 draws=draws, mount=mount, loaded=loaded, empty=empty, ref=ref, config=config)

@@ -47,8 +47,8 @@ def sigmas(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     """One seed: the error, and σ with the run's wrist term, without it, and with the free offsets' term instead."""
-    from payload_agent.evaluation import systematics, zero_offsets
-    from payload_agent.evaluation.analyse import AnalysisOptions, analyse
+    from payload_agent.evaluation import systematics
+    from payload_agent.evaluation.analyse import AnalysisOptions, analyse, prepared_run
     from payload_agent.solvers import general
 
     r = record(config, cal_config, run_config, seed, reference)
@@ -56,10 +56,7 @@ def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     result = analyse(r["loaded"], r["empty"], options, gains, commands=r["commands"], mount_rad=r["mount_rad"])
     est = result.primary
     # the wrist term as ``analyse`` evaluated it: the same prepared data and model, that term alone
-    joints = zero_offsets.declaration(options.joints, gains.zeros)
-    prepared = systematics.prepare(zero_offsets.corrected(r["loaded"], gains.zeros),
-                                   zero_offsets.corrected(r["empty"], gains.zeros), joints, r["commands"],
-                                   r["mount_rad"])
+    prepared, joints = prepared_run(r["loaded"], r["empty"], options.joints, gains, r["commands"], r["mount_rad"])
     model = general.fit_model(prepared.deltas, options.kin, gains.rel_std)
 
     def wrist_cov(p) -> tuple[np.ndarray, list[str]]:

@@ -19,8 +19,10 @@ import numpy as np
 import pytest
 
 from benchmarks import length_errors
+from benchmarks.remedies import calibrated_gains
 from payload_agent.errors import DataError
-from payload_agent.evaluation import systematics, zero_offsets
+from payload_agent.evaluation import systematics
+from payload_agent.evaluation.analyse import prepared_run
 from payload_agent.evaluation.calibration import (GainCalibration, fit_from_sweeps, fit_gains_from_deltas,
                                                   load_calibration, save_calibration)
 from payload_agent.evaluation.reference_shares import STAND_IN_NOTE, ReferenceShares, both_way_joint, of_reference
@@ -50,9 +52,7 @@ def _pair(recorded):
     loaded, empty = tool_run
     scaled = [{k: replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in phase.items()}
               for phase in (loaded, empty)]
-    if cal.zeros is not None:
-        scaled = [zero_offsets.corrected(phase, cal.zeros) for phase in scaled]
-    return b, cal, own, systematics.prepare(*scaled, decl, None)
+    return b, cal, own, prepared_run(*scaled, decl, calibrated_gains(cal, 0.0))[0]
 
 
 @pytest.fixture(scope="module")
@@ -227,9 +227,7 @@ def test_a_cluster_the_calibration_took_whole_is_measured_where_the_tool_run_mov
     cal = fit_from_sweeps(loaded, empty, b.config, b.reference[0], np.asarray(b.reference[1]) / 1000.0, joints=decl)
     loaded, empty = (_rippled(p) for p in tool_runs)
     scaled = [{k: replace(v, effort_nm=v.effort_nm * np.asarray(cal.scale)) for k, v in p.items()} for p in (loaded, empty)]
-    if cal.zeros is not None:
-        scaled = [zero_offsets.corrected(p, cal.zeros) for p in scaled]
-    deltas = systematics.prepare(*scaled, decl, None).deltas
+    deltas = prepared_run(*scaled, decl, calibrated_gains(cal, 0.0))[0].deltas
     gs = gain_scatter.measure(dict(deltas), kin, gain_reference=cal.reference, absorb_joints=(1, 2))
     label = next(c for c in gs.labels if c.startswith("j3@0.00"))
     assert cal.reference_shares.share(2, 0.0, gain_scatter.SAME_ANGLE_RAD) == pytest.approx(1.0, abs=0.01)

@@ -148,7 +148,7 @@ def test_the_residual_friction_term_measures_the_asymmetry_the_agent_was_not_tol
 
         fric = term()
         with monkeypatch.context() as m:  # the declared form: no measured offsets, the prior alone
-            m.setattr(residual_friction, "measure", lambda model: None)
+            m.setattr(residual_friction, "measure", lambda model, gain_reference=None: None)
             declared = term()
         return general.fit_model(prepared.deltas, kin).fit().theta[:4], fric, declared
 
@@ -162,8 +162,11 @@ def test_the_residual_friction_term_measures_the_asymmetry_the_agent_was_not_tol
     assert "j2 " in fric.note and "viscous" not in fric.note, fric.note  # the Coulomb part's change
     assert "measured as one offset per moving joint" in fric.note, fric.note
     predicted_g = 1000.0 * fric.std[0] * fric.sens[ALL][0, 0]  # the measured mean's effect, with its sign
-    assert abs(predicted_g - shift_g) < 0.15 * abs(shift_g), (predicted_g, shift_g)
-    assert sigma_g(fric) > 0.9 * abs(shift_g), (sigma_g(fric), shift_g)
+    # within the posterior's own spread of it (since session 25 the offsets are fitted beside the still clusters'
+    # gains, whose cost in precision that spread holds: b̂ of joint 2 ±0.008 N·m here, ±0.003 without them)
+    spread_g = np.sqrt(sigma_g(fric) ** 2 - predicted_g ** 2)
+    assert predicted_g * shift_g > 0 and abs(predicted_g - shift_g) < 2.0 * spread_g, (predicted_g, shift_g, spread_g)
+    assert abs(shift_g) < 2.0 * sigma_g(fric), (sigma_g(fric), shift_g)
     # no asymmetry: nothing measured, and σ far below the declared form's on the same data
     assert abs(1000.0 * fric_sym.std[0] * fric_sym.sens[ALL][0, 0]) < 0.15 * abs(shift_g)
     assert sigma_g(fric_sym) < 0.5 * sigma_g(declared_sym), (sigma_g(fric_sym), sigma_g(declared_sym))

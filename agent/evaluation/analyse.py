@@ -19,14 +19,14 @@ gains the efforts were converted with, and what is known about their error).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 from payload_agent.configuration.config import Config, JointSystematicsConfig
 from payload_agent.errors import DataError
 import numpy as np
 
-from payload_agent.evaluation import calibration_clusters, quality, shared_baseline, systematics, zero_offsets
+from payload_agent.evaluation import quality, shared_baseline, systematics, zero_offsets
 from payload_agent.evaluation.systematics import compliance
 from payload_agent.evaluation.zero_offsets import ZeroOffsets
 from payload_agent.model.kinematics import Kinematics
@@ -67,6 +67,20 @@ class Gains:
     shared_baseline: bool = False
 
 
+def prepared_run(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData],
+                 declared: JointSystematicsConfig, gains: Gains, commands: Mapping | None = None,
+                 mount_rad: Sequence[float] | None = None) -> tuple[systematics.Prepared, JointSystematicsConfig]:
+    """Step 1 with the calibration the efforts were converted with: (the prepared run, the joint declaration its
+    terms use). The calibration's measured zeros correct every angle and their σ replaces the declared zeros' in the
+    joint-zero term; its per-angle gain errors come off the still rows standing at its angles
+    (``systematics.prepare``'s ``gain_reference``; the three steps read moving rows only). What ``analyse`` reads,
+    and what a benchmark that evaluates one term of a run on its own must read too."""
+    # (the cable's rest, mount_rad, is on the wrist joints, whose zeros are not measured)
+    joints = zero_offsets.declaration(declared, gains.zeros)
+    loaded, empty = zero_offsets.corrected(loaded, gains.zeros), zero_offsets.corrected(empty, gains.zeros)
+    return systematics.prepare(loaded, empty, joints, commands, mount_rad, gains.reference), joints
+
+
 def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, SweepData], options: AnalysisOptions,
             gains: Gains, *, commands: Mapping | None = None, notes: Sequence[str] = (), robot: str = "",
             run_dir: str = "", solvers: Sequence[str] | None = None,
@@ -82,16 +96,7 @@ def analyse(loaded: Mapping[SweepKey, SweepData], empty: Mapping[SweepKey, Sweep
     for name in (options.solver, *(solvers or ())):
         if name not in SOLVERS:
             raise DataError(f"unknown solver {name!r}; available: {', '.join(SOLVERS)}")
-    # the calibration's measured zeros: every angle corrected, their σ in the joint-zero term (the declared elsewhere)
-    # (the cable's rest, mount_rad, is on the wrist joints, whose zeros are not measured)
-    joints = zero_offsets.declaration(options.joints, gains.zeros)
-    loaded, empty = zero_offsets.corrected(loaded, gains.zeros), zero_offsets.corrected(empty, gains.zeros)
-    prepared = systematics.prepare(loaded, empty, joints, commands, mount_rad)
-    # the calibration's per-angle gain errors off the still rows standing at its angles (the general fit's; the
-    # three steps read moving rows only)
-    deltas, stood = calibration_clusters.corrected(prepared.deltas, gains.reference)
-    if stood:
-        prepared = replace(prepared, deltas=deltas, notes=[*prepared.notes, calibration_clusters.note(stood)])
+    prepared, joints = prepared_run(loaded, empty, options.joints, gains, commands, mount_rad)
     kin, deltas = options.kin, prepared.deltas
     model = general.fit_model(deltas, kin, gains.rel_std)
     syst = systematics.evaluate(prepared, kin, joints, gains.rel_std, model=model, gain_reference=gains.reference)
@@ -164,4 +169,4 @@ def _with_systematics(key: str | None, est: Estimate, syst: systematics.Systemat
     return syst.apply(est, key)
 
 
-__all__ = ["AnalysisOptions", "Gains", "analyse", "solve_all"]
+__all__ = ["AnalysisOptions", "Gains", "prepared_run", "analyse", "solve_all"]

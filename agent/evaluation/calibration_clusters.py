@@ -6,9 +6,10 @@ drive-gain calibration fits each such (joint, angle) cluster of a joint that als
 (``gain_scales.own_scales``), so the joint's gain comes from its moving rows, and stores the cluster's ε̂ against
 that gain with its σ (``reference_shares.ReferenceShares.scales``). A tool run that stands at the same angle carries
 the same ε on the payload's torque there; ``corrected`` divides those rows' loaded − empty torque by 1 + ε̂, so the
-general fit reads them as the calibration did. The three-step solver reads only moving rows and keeps the moving-row
+general fit reads them as the calibration did. ``systematics.prepare`` applies it given the calibration's reference:
+every consumer of a calibrated run's deltas reads them corrected. The three-step solver reads only moving rows and keeps the moving-row
 gains. What stays on a corrected cluster is ε − ε̂, the calibration's σ_ε, which the torque-gain scatter term carries
-in place of the scatter's size (``gain_scatter.term``). A calibration stored without the scales corrects nothing.
+in place of the scatter's size (``gain_scatter.term``), and the plan predicts (``planned_scatter``). A calibration stored without the scales corrects nothing.
 
 Which rows: joint j's rows in a sweep where j does not move, when its median angle is within ``TOL_RAD`` of a
 stored cluster's. 1e-3 rad (0.057°) is 1/31 of the mesh period of a 100-tooth-pair gear (1.8° at 2N·q), so the
@@ -52,8 +53,15 @@ def corrected(deltas: Mapping[SweepKey, DeltaSweep], reference: tuple | None
               ) -> tuple[dict[SweepKey, DeltaSweep], dict[tuple[str, int], tuple[float, float]]]:
     """``deltas`` with every matched still row's torque divided by 1 + ε̂ (``matches``), and the matches."""
     found = matches({k.name: d for k, d in deltas.items()}, reference)
+    return scaled(deltas, found), found
+
+
+def scaled(deltas: Mapping[SweepKey, DeltaSweep], found: Mapping[tuple[str, int], tuple[float, float]]
+           ) -> dict[SweepKey, DeltaSweep]:
+    """``deltas`` with the rows of ``found`` (``matches``: (sweep name, joint) -> (ε̂, σ_ε)) divided by 1 + ε̂: the
+    same correction on deltas made again from the same run (a finite difference of its angles or torques)."""
     if not found:
-        return dict(deltas), found
+        return dict(deltas)
     out = {}
     for key, d in deltas.items():
         factor = np.ones(d.dtau.shape[1])
@@ -61,7 +69,7 @@ def corrected(deltas: Mapping[SweepKey, DeltaSweep], reference: tuple | None
             if (key.name, j) in found:
                 factor[j] = 1.0 / (1.0 + found[(key.name, j)][0])
         out[key] = d if np.all(factor == 1.0) else replace(d, dtau=np.asarray(d.dtau, float) * factor)
-    return out, found
+    return out
 
 
 def note(found: Mapping[tuple[str, int], tuple[float, float]]) -> str:
@@ -74,4 +82,4 @@ def note(found: Mapping[tuple[str, int], tuple[float, float]]) -> str:
             f"{len(found)} (sweep, joint) groups); their remaining error, the calibration's σ, in the torque-gain term")
 
 
-__all__ = ["TOL_RAD", "matches", "corrected", "note"]
+__all__ = ["TOL_RAD", "matches", "corrected", "scaled", "note"]

@@ -15,7 +15,8 @@ the same terms ``general.solve`` reports, plus those of ``evaluation.systematics
 predicted before the run (``systematics.planned_covariance``: joint zeros) and the expectation of the
 run's data-sized ones (``planned_terms``: the wrist torques, and the residual friction with the change as
 the run will measure it, an earlier run's measurement standing in for the truth when there is one; the
-stiffness and the gain-scatter terms are not predicted), and the calibration's shared empty run where the candidate's
+stiffness term is not predicted, the gain-scatter term only for the clusters standing at the angles whose gain errors
+the calibration measured, ``planned_scatter``), and the calibration's shared empty run where the candidate's
 run will subtract it (``planned_baseline``). ``inflation`` is the ratio of the reported
 (autocorrelation-robust) to the white-noise σ a run of this arm showed (``noise_inflation``: the stored
 calibration run's own fit; 1 without one).
@@ -52,6 +53,7 @@ from payload_agent.evaluation.candidates import (ACCELS_PERCENT, CONFIGURED, PRO
 from payload_agent.evaluation.noise_scatter import NoiseScatter, scatter
 from payload_agent.evaluation.planned_baseline import SharedBaseline, reusing_run_mount
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
+from payload_agent.evaluation.planned_scatter import corrected_covariance
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
                                                     reported_sigma_draws, wrist_model, cable_declared)
 from payload_agent.motion.planner import Plan, from_resting_pose, make_plan, move_duration_s, robot_time_s, turned_to
@@ -173,7 +175,7 @@ def run_config(config: Config, c: Candidate) -> Config:
 # the named parts of a prediction (``covariance_terms``): the first two shrink with repetitions, the rest do not
 # ("baseline": the empty run the calibration shared, the same one in every repetition)
 NOISE_TERMS = ("noise", "wrist")
-SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros", "baseline")
+SYSTEMATIC_TERMS = ("friction", "gains", "lengths", "zeros", "baseline", "scatter")
 
 
 def covariance_terms(config: Config, plan: Plan, noise: NoiseModel, theta: np.ndarray, *, shared: bool = False
@@ -231,6 +233,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
     terms["baseline"] = np.zeros((4, 4))
+    # the torque-gain term of the clusters standing at the calibration's angles, σ_ε each (``planned_scatter``)
+    terms["scatter"] = corrected_covariance(sweeps, groups, w, inv, theta, noise.gain_reference)
     if shared and noise.gain_reference is not None and rel is not None:
         from payload_agent.evaluation.shared_baseline import planned_cross_covariance
 

@@ -64,7 +64,7 @@ from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.errors import DataError
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
-from payload_agent.evaluation import reference_shares
+from payload_agent.evaluation import calibration_clusters, reference_shares
 from payload_agent.evaluation.systematics import (cable_spring, compliance, friction, gain_scatter, offsets,
                                                   reference_friction, residual_friction, three_step_response,
                                                   three_step_rows, three_step_scatter, wrist)
@@ -110,18 +110,21 @@ class Prepared:
     # the joint angles (rad, as reported) the loaded run started from, where the tool was mounted: the rest
     # angles of a tool cable's spring (``cable_spring``); None: not recorded (the free wrist offsets then)
     mount_rad: np.ndarray | None = None
+    # (sweep name, still joint) -> the calibration's (ε̂, σ_ε) whose 1 + ε̂ divided those rows (``calibration_clusters``)
+    still_scales: Mapping[tuple[str, int], tuple[float, float]] = field(default_factory=dict)
 
 
 def prepare(loaded: Sweeps, empty: Sweeps, decl: JointSystematicsConfig, commands: Mapping | None = None,
-            mount_rad: Sequence[float] | None = None) -> Prepared:
-    """Step 1: compensate the declared stiffness in both runs, subtract, combine (``mount_rad``: where the
-    loaded run started, kept for the cable term)."""
+            mount_rad: Sequence[float] | None = None, gain_reference: GainReference | None = None) -> Prepared:
+    """Step 1: compensate the declared stiffness in both runs, subtract, combine (``mount_rad``: where the loaded run
+    started, for the cable term); the calibration's per-angle gain errors off the rows standing at its angles."""
     c = joint_declaration(decl).compliance()
     lo, em = compliance.compensate(loaded, c), compliance.compensate(empty, c)
     notes: list[str] = []
-    deltas = deltas_of(lo, em, commands, notes)
+    deltas, stood = calibration_clusters.corrected(deltas_of(lo, em, commands, notes), gain_reference)
+    notes += [calibration_clusters.note(stood)] if stood else []
     mount = None if mount_rad is None else np.asarray(mount_rad, float)
-    return Prepared(loaded, empty, lo, em, deltas, commands, notes, mount)
+    return Prepared(loaded, empty, lo, em, deltas, commands, notes, mount, stood)
 
 
 # -- the fits every term is evaluated on ------------------------------------------------------------------
@@ -212,8 +215,8 @@ def joint_terms(ctx: Context) -> list[Term]:
         return []
     p = ctx.prepared
 
-    def theta_of(lo, em):
-        return ctx.thetas(deltas_of(lo, em, p.commands))
+    def theta_of(lo, em):  # corrected as the run's deltas were
+        return ctx.thetas(calibration_clusters.scaled(deltas_of(lo, em, p.commands), p.still_scales))
 
     d_c, d_z = compliance.sensitivities(p.raw_loaded, p.raw_empty, jd, theta_of)
     out = []
@@ -276,7 +279,7 @@ def friction_terms(ctx: Context) -> list[Term]:
         for k in extra:
             change[k], constant[k] = friction.CoulombChange(0.0, float("inf"), 0.0, 0.0, 0.0, True), 0.0
     labels = [str(j) for j in all_joints]
-    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model), None
+    sens, offs, gains = ctx.offset_sens(per_joint, labels), residual_friction.measure(ctx.model, ctx.gain_reference), None
     mu_r = sd_r = np.zeros(len(all_joints))
     if ctx.gain_reference is not None:
         eps = three_step_response.reference_offset_shares(ctx.sweeps, ctx.groups[ALL], per_joint, labels,
@@ -285,7 +288,7 @@ def friction_terms(ctx: Context) -> list[Term]:
                                                      per_joint, labels, ctx.gain_reference, ctx.fits[ALL],
                                                      ctx.three_step, sens, all_joints, eps)
         mu_r, sd_r, ref = reference_friction.reference_change(ctx.gain_reference, all_joints, rel, constant)
-        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r)
+        gains = residual_friction.through_gains(ctx.model, eps, mu_r, sd_r, ctx.gain_reference)
         how_ref = ("the calibration's own fit of its sweeps (gains.json)" if stored is not None
                    else reference_shares.STAND_IN_NOTE)
         ref = f"; also in the drive-gain calibration's reference run, {ref}, read through its gains by {how_ref}"

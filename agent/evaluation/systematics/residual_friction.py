@@ -3,8 +3,8 @@
 A Coulomb direction asymmetry a_j leaves a_j·Δt_j on every two-direction row of joint j's sweeps, Δt_j the change
 of the Coulomb level between the empty and the loaded run (``friction``): the same constant in every sweep of the
 joint, while the payload's torque varies along each sweep as cos/sin of the link angle. So the general fit with one
-nuisance offset per moving joint (``residual_joint``, ``offsets.fit_offsets``, made once per model) measures
-b_j = a_j·Δt_j directly, b̂ ~ N(b, C). Until session 19 the term declared it, b_j of standard deviation
+nuisance offset per moving joint (``residual_joint``) and one nuisance gain column per still (joint, angle) cluster
+(``offsets_fit``, made once per model; why the gain columns: there) measures b_j = a_j·Δt_j directly, b̂ ~ N(b, C). Until session 19 the term declared it, b_j of standard deviation
 σ_a·√E[Δt_j²] with σ_a the declared asymmetry (``robot.friction_asymmetry_percent``): on the hard arm at 1 % sweeps
 an asymmetry at the edge of its range (|a| = 1.5–1.7 σ_a) moved the mass by 10 g where the term said 6 g, and on an
 arm without asymmetry the declared term was the whole mass σ.
@@ -38,16 +38,16 @@ general mass by up to 8 g, rms error 4.2 → 5.4 g over 24 cases (docs/benchmark
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError
-from payload_agent.evaluation.systematics import friction, offsets
-from payload_agent.solvers.fitted import FittedModel
-from payload_agent.solvers.wls import Group
+from payload_agent.evaluation.systematics import friction, offsets, wrist
+from payload_agent.solvers.fitted import ALL, FittedModel
+from payload_agent.solvers.wls import Group, fit
 
 CHECK_CHI2 = 10.83  # χ²₁ at 1 − 0.001: an offset beyond it is not the friction residual alone (``consistent``)
 
@@ -117,21 +117,51 @@ class Posterior:
         return self.mean[p:] ** 2 + np.diag(self.cov)[p:]
 
 
-def measure(model: FittedModel) -> Measured | None:
-    """The offsets, one per moving joint's two-direction rows, fitted beside θ on ``model``'s rows (once per model);
-    None where they cannot be separated from the payload's torque."""
+def offsets_fit(model: FittedModel, gain_reference: tuple | None = None) -> tuple[offsets.OffsetFit, int]:
+    """(fit, k): the general fit of ``model``'s rows with the k offsets ``residual_joint`` names (its columns 4 to 4 + k)
+    and, after them, one nuisance gain column per still (joint, angle) cluster of joints 1–3 (``wrist.columns``, with
+    the share a drive-gain calibration ``gain_reference`` absorbed of each cluster on its joint's other rows); made
+    once per model.
+
+    Why the gain columns: without them θ̂ is pinned by the still rows, and b̂ takes up any gain error of a standing
+    angle (the frozen gear-mesh ripple, ±1 % of the payload torque there; docs/benchmarks.md, session 24) as if it
+    were a constant on the moving rows: a 1 % scale of joints 2 and 3's still rows moved b̂ of joint 2 by 0.21 N·m,
+    12 σ (tests/test_three_step_rows.py), and the calibration's per-angle correction of those rows
+    (``calibration_clusters``, ≤ 1 %) moved it on hard 1 % case 6 from −0.199 to −0.030 N·m. With them a still
+    cluster's scale cannot be read as an offset, and b̂'s covariance holds what that costs (docs/benchmarks.md,
+    session 25). Always, not where a test finds a scatter: a still angle's gain is not its joint's moving rows' on a
+    geared arm (the ripple), nor after a calibration that fits them apart (its moving-row gains carry the reference
+    run's friction residue, ``through_gains``, its still angles their own ε̂); and a test's threshold would switch
+    b̂ between two readings of the same rows."""
+    def make() -> tuple[offsets.OffsetFit, int]:
+        sweeps, groups = list(model.sweeps), list(model.groups)
+        base = groups[0].Y.shape[1] if groups else 4
+        aug, labels = offsets.augment(sweeps, groups, residual_joint)
+        with_gains, wrist_labels = wrist.columns(sweeps, groups, model.fit(ALL).theta[:4], True, gain_reference)
+        extra = base + len(wrist_labels)  # wrist.columns' own wrist-offset columns are left out
+        aug = [replace(a, Y=np.hstack([a.Y, w.Y[:, extra:]])) for a, w in zip(aug, with_gains)]
+        gain = None if model.gain_rel_std is None else list(model.gain_rel_std)
+        return offsets.OffsetFit(fit(aug, gain), labels, aug), len(labels)
+
+    return model.cached(("residual-friction offsets", gain_reference is not None), make)
+
+
+def measure(model: FittedModel, gain_reference: tuple | None = None) -> Measured | None:
+    """The offsets, one per moving joint's two-direction rows, fitted beside θ and the still clusters' gains on
+    ``model``'s rows (``offsets_fit``); None where they cannot be separated from the payload's torque."""
     try:
-        fit = offsets.fit_offsets({}, None, residual_joint, model=model)
+        found, k = offsets_fit(model, gain_reference)
     except (DataError, np.linalg.LinAlgError):
         return None
-    cov = np.asarray(fit.offsets_cov, float)
-    if not fit.labels or not np.all(np.isfinite(cov)):
+    r = found.result
+    b, cov = np.asarray(r.theta[4:4 + k], float), np.asarray(r.cov[4:4 + k, 4:4 + k], float)
+    if not k or not np.all(np.isfinite(cov)):
         return None
-    return Measured(tuple(int(lab) for lab in fit.labels), np.asarray(fit.offsets_nm, float), cov)
+    return Measured(tuple(int(lab) for lab in found.labels), b, cov)
 
 
-def through_gains(model: FittedModel, eps: Mapping[int, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray
-                  ) -> ThroughGains | None:
+def through_gains(model: FittedModel, eps: Mapping[int, np.ndarray], ref_mean_nm: np.ndarray, ref_std_nm: np.ndarray,
+                  gain_reference: tuple | None = None) -> ThroughGains | None:
     """Q (k, p): how the offsets ``measure`` fits move per N·m of constant torque on each of the term's p labels' rows
     of the calibration's reference run, with that run's change (μr, sr) as the calibration measured it. The gains
     took ε_jk of it (``three_step_response.reference_offset_shares``), so the tool data on joint j's rows are off by
@@ -139,16 +169,16 @@ def through_gains(model: FittedModel, eps: Mapping[int, np.ndarray], ref_mean_nm
     (``reference_friction.reference_columns``): Q = −Σ_j G_j·ε_jᵀ, G_j the offsets' response to a relative gain error
     of joint j. None where the offsets cannot be fitted."""
     try:
-        fit = offsets.fit_offsets({}, None, residual_joint, model=model)  # the fit ``measure`` made (cached)
+        found, k = offsets_fit(model, gain_reference)  # the fit ``measure`` made (cached)
     except (DataError, np.linalg.LinAlgError):
         return None
-    r = fit.result
-    joint_of_row = np.repeat([g.joint for g in fit.groups], [len(g.y) for g in fit.groups])
-    Y = np.vstack([g.Y for g in fit.groups])
-    Q = np.zeros((len(fit.labels), len(ref_mean_nm)))
+    r = found.result
+    joint_of_row = np.repeat([g.joint for g in found.groups], [len(g.y) for g in found.groups])
+    Y = np.vstack([g.Y for g in found.groups])
+    Q = np.zeros((k, len(ref_mean_nm)))
     for j, e in eps.items():
         rows = joint_of_row == j
-        Q -= np.outer((r.normal_inverse @ (Y[rows].T @ (r.weights[rows] * (Y[rows] @ r.theta))))[4:], e)
+        Q -= np.outer((r.normal_inverse @ (Y[rows].T @ (r.weights[rows] * (Y[rows] @ r.theta))))[4:4 + k], e)
     return ThroughGains(Q, np.asarray(ref_mean_nm, float), np.asarray(ref_std_nm, float))
 
 
@@ -245,5 +275,5 @@ def describe(post: Posterior, asym_std: float) -> str:
     return out
 
 
-__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "measure", "through_gains", "consistent", "ThroughGains",
+__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "offsets_fit", "measure", "through_gains", "consistent", "ThroughGains",
            "Posterior", "posterior", "columns", "describe"]
