@@ -24,7 +24,7 @@ drive-gain calibration (``long_run_scores`` for the standard error of a gain sca
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 import numpy as np
@@ -61,7 +61,6 @@ class FitResult:
     cov: np.ndarray  # (p, p) autocorrelation-robust covariance (+ drive-gain term when asked)
     cov_iid: np.ndarray  # (p, p) textbook s²·(YᵀWY)⁻¹ for independent noise
     sigma_nm: dict[str, float]  # residual σ of each group (first pass), by group label: the weights
-    noise_sigma_nm: dict[str, float]  # σ of each group's noise: its final residuals ``without_lines``
     weights: np.ndarray  # (n,) row weights 1/σ²
     normal_inverse: np.ndarray  # (p, p) (YᵀWY)⁻¹, for propagating systematic errors
     residual_rms_nm: dict[str, float]  # final residual RMS of each group, by label
@@ -70,6 +69,8 @@ class FitResult:
     n: int  # rows
     tau: dict[str, float]  # integrated autocorrelation time of each sweep's residuals
     inflation: float  # largest ratio of robust to independent-noise standard deviation
+    # σ of each group's noise: its final residuals ``without_lines`` (last, so that positional constructions hold)
+    noise_sigma_nm: dict[str, float] = field(default_factory=dict)
 
     @property
     def std(self) -> np.ndarray:
