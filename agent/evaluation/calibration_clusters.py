@@ -6,10 +6,11 @@ drive-gain calibration fits each such (joint, angle) cluster of a joint that als
 (``gain_scales.own_scales``), so the joint's gain comes from its moving rows, and stores the cluster's ε̂ against
 that gain with its σ (``reference_shares.ReferenceShares.scales``). A tool run that stands at the same angle carries
 the same ε on the payload's torque there; ``corrected`` divides those rows' loaded − empty torque by 1 + ε̂, so the
-general fit reads them as the calibration did. ``systematics.prepare`` applies it given the calibration's reference:
-every consumer of a calibrated run's deltas reads them corrected. The three-step solver reads only moving rows and keeps the moving-row
-gains. What stays on a corrected cluster is ε − ε̂, the calibration's σ_ε, which the torque-gain scatter term carries
-in place of the scatter's size (``gain_scatter.term``), and the plan predicts (``planned_scatter``). A calibration stored without the scales corrects nothing.
+general fit reads them as the calibration did. ``systematics.prepare`` applies it given the calibration's
+reference: every consumer of a calibrated run's deltas reads them corrected. The three-step solver reads only moving
+rows and keeps the moving-row gains. What stays on a corrected cluster is ε − ε̂, the calibration's σ_ε, which the
+torque-gain scatter term carries in place of the scatter's size (``gain_scatter.term``) and the plan predicts
+(``planned_scatter``). A calibration stored without the scales corrects nothing.
 
 Which rows: joint j's rows in a sweep where j does not move, when its median angle is within ``TOL_RAD`` of a
 stored cluster's. 1e-3 rad (0.057°) is 1/31 of the mesh period of a 100-tooth-pair gear (1.8° at 2N·q), so the

@@ -43,8 +43,9 @@ def corrected_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Grou
 
 def _planned_fit(theta: np.ndarray, w: np.ndarray, normal_inverse: np.ndarray) -> wls.FitResult:
     """The fit of the planned rows as ``gain_scatter.sensitivities`` reads a run's: its weights and (YᵀWY)⁻¹."""
-    return wls.FitResult(np.asarray(theta, float), normal_inverse, normal_inverse, {}, w, normal_inverse, {},
-                         float("nan"), 1.0, len(w), {}, 1.0)
+    return wls.FitResult(theta=np.asarray(theta, float), cov=normal_inverse, cov_iid=normal_inverse, sigma_nm={},
+                         weights=w, normal_inverse=normal_inverse, residual_rms_nm={}, condition_number=float("nan"),
+                         s2=1.0, n=len(w), tau={}, inflation=1.0)
 
 
 __all__ = ["corrected_covariance"]

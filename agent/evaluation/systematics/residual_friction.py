@@ -3,9 +3,9 @@
 A Coulomb direction asymmetry a_j leaves a_j·Δt_j on every two-direction row of joint j's sweeps, Δt_j the change
 of the Coulomb level between the empty and the loaded run (``friction``): the same constant in every sweep of the
 joint, while the payload's torque varies along each sweep as cos/sin of the link angle. So the general fit with one
-nuisance offset per moving joint (``residual_joint``) and one nuisance gain column per still (joint, angle) cluster
-(``offsets_fit``, made once per model; why the gain columns: there) measures b_j = a_j·Δt_j directly, b̂ ~ N(b, C). Until session 19 the term declared it, b_j of standard deviation
-σ_a·√E[Δt_j²] with σ_a the declared asymmetry (``robot.friction_asymmetry_percent``): on the hard arm at 1 % sweeps
+nuisance offset per moving joint (``residual_joint``) and one nuisance gain column per still (joint, angle)
+cluster (``offsets_fit``, made once per model; why the gain columns: there) measures b_j = a_j·Δt_j directly,
+b̂ ~ N(b, C). Until session 19 the term declared it, b_j of standard deviation σ_a·√E[Δt_j²] with σ_a the declared asymmetry (``robot.friction_asymmetry_percent``): on the hard arm at 1 % sweeps
 an asymmetry at the edge of its range (|a| = 1.5–1.7 σ_a) moved the mass by 10 g where the term said 6 g, and on an
 arm without asymmetry the declared term was the whole mass σ.
 
@@ -275,5 +275,5 @@ def describe(post: Posterior, asym_std: float) -> str:
     return out
 
 
-__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "offsets_fit", "measure", "through_gains", "consistent", "ThroughGains",
-           "Posterior", "posterior", "columns", "describe"]
+__all__ = ["CHECK_CHI2", "residual_joint", "Measured", "offsets_fit", "measure", "through_gains", "consistent",
+           "ThroughGains", "Posterior", "posterior", "columns", "describe"]
