@@ -107,9 +107,10 @@ def parked_what_if(config: Config, c, noise: design.NoiseModel, theta) -> design
 def park_advice(config: Config, choice: design.Choice, noise: design.NoiseModel, theta: Sequence[float],
                 mass_std_g: float, cog_std_mm: float) -> str:
     """Lines for ``plan --target-std`` naming the fastest candidate whose procedure alone is faster than the chosen
-    row's robot time (its approach counted) and which, calibrated on with ``--park``, would meet the target in the
-    what-if of ``parked_what_if``: the ``calibrate`` command with its keys and ``--park``; "" when none is found or
-    the chosen row is the stored plan already (the calibration's own). Nothing is promised: plan again after it."""
+    row's robot time (its approach counted; any, when none meets the target) and which, calibrated on with ``--park``,
+    would meet the target in the what-if of ``parked_what_if``: the ``calibrate`` command with its keys and
+    ``--park``; "" when none is found or the chosen row is the stored plan already (the calibration's own). Nothing is
+    promised: plan again after it."""
     from payload_agent.errors import PayloadAgentError
     from payload_agent.evaluation.candidates import candidates_for
     from payload_agent.motion.planner import robot_time_s
@@ -137,7 +138,8 @@ def park_advice(config: Config, choice: design.Choice, noise: design.NoiseModel,
         now = next((p for p in choice.table if p.candidate == c), None)
         name = c.procedure or config.procedure.name
         return "\n".join([
-            f"Faster with a calibration on its own plan that parks the arm at its first pose: {c.describe()}, "
+            ("Faster" if best is not None else "Within the target, perhaps,")
+            + f" with a calibration on its own plan that parks the arm at its first pose: {c.describe()}, "
             f"{t:.1f} s of robot time with no approach"
             + ("" if now is None or not now.usable else
                f" (now: {now.robot_time_s:.0f} s with the approach, σ {now.mass_std_g:.2f} g / {now.cog_std_mm:.2f} mm, "
