@@ -67,7 +67,7 @@ def test_calibrate_with_the_park_ends_at_the_first_pose_and_the_run_of_its_plan_
 
         with monkeypatch.context() as m:
             m.setattr(run_ends, "parked", refused)
-            with pytest.raises(SafetyError, match="park at .*joint 1 turns 250"):
+            with pytest.raises(SafetyError, match="(?s)park at .*joint 1 turns 250.*leave --park out"):
                 _calibrate(config, cell, [])
         assert np.allclose(cell.robot.snapshot().q, start, atol=1e-3)  # nothing moved (the angles carry noise)
         assert baselines.load_baseline(state) is None and not state.gains_path.exists()

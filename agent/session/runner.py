@@ -236,10 +236,13 @@ def _refuse_unreachable_runs(gate: SafetyGate, chosen: Selection, start_q: np.nd
             f"the safety gate refused the session before its first move: {names[phase]} starts where "
             f"{names[before]} ends ([{end}] deg) and its first target is [{begin}] deg:\n"
             + "\n".join(f"  - {p}" for p in verdict.problems)
-            + "\nThe plan does not close its loop (`payload-agent plan` says whether it does). Record the runs in "
-            "two sessions (`payload-agent baseline` with the empty flange; move the arm to within 200° of that first "
-            "target in every joint; then this command, which uses the stored baseline), or change the procedure "
-            "so that it ends within reach of its start.")
+            + ("\nThe move back to the plan's first pose (--park) is refused: `payload-agent plan --park` shows it; "
+               "leave --park out, or choose a plan whose end lies within reach of its first pose."
+               if any("(park at " in p for p in verdict.problems) else
+               "\nThe plan does not close its loop (`payload-agent plan` says whether it does). Record the runs in "
+               "two sessions (`payload-agent baseline` with the empty flange; move the arm to within 200° of that first "
+               "target in every joint; then this command, which uses the stored baseline), or change the procedure "
+               "so that it ends within reach of its start."))
 
 
 def _open_recorder(config: Config, mode: Mode, opts: RunOptions, plan: Plan, probe: Probe, driver: Driver,
