@@ -29,7 +29,7 @@ from benchmarks.remedies import comp_estimate  # noqa: E402
 from benchmarks.sigma_budget import analysed_case  # noqa: E402
 
 
-def with_cable(declared: Declared | None, fitted: bool) -> Declared:
+def with_cable(declared: Declared | None, fitted: bool | None) -> Declared:
     """The scenario's declaration with ``robot.tool_cable_fitted`` set (None, the realistic arm: nothing else)."""
     base = Declared(None, 0.0, 0.0) if declared is None else declared
     return dataclasses.replace(base, tool_cable_fitted=fitted)
@@ -41,7 +41,7 @@ def z_scores(scenario: str, index: int, proc: cases.Procedure, n_payloads: int, 
     kin_kw = {"length_std_m": cases.declared_length_std_mm(scenario) / 1000.0}
     unfitted = cases.declared_unfitted_gain_std(scenario)
     rows = []
-    for fitted in (False, True):
+    for fitted in (None, True):
         est, _ = comp_estimate(c["loaded"], c["empty"], c["ref"], with_cable(c["draws"]["declared"], fitted),
                                c["config"], unfitted, kin_kw, solver, c["mount"])
         rows.append(cases._row({}, est, c["mass"], c["cog"], 0.0))

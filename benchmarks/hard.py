@@ -77,7 +77,9 @@ class Declared:
     friction_asymmetry_std: float = 0.0
     # standard uncertainty of the friction level's change between the runs, relative (robot.friction_change_percent)
     friction_change_std: float = 0.0
-    tool_cable_fitted: bool = False  # robot.tool_cable_fitted: the cell's integrator knows a cable is on the tool
+    # robot.tool_cable_fitted: True, the cell's integrator knows a cable is on the tool; None, not declared (a benchmark
+    # arm's user is not assumed to know); False, declared that none is (benchmarks.wrist_null's "declared none")
+    tool_cable_fitted: bool | None = None
 
 
 def draw(scenario: str, index: int):
