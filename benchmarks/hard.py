@@ -122,5 +122,6 @@ def draw(scenario: str, index: int):
     change = math.sqrt(DRIFT ** 2 / 3.0 + ((WARMUP_MAX_C * FRICTION_PER_C) ** 2 / 3.0 if on("temperature") else 0.0))
     declared = Declared(STIFFNESS_NM_PER_RAD if on("elasticity") else None, STIFFNESS_SPREAD / math.sqrt(3.0),
                         math.radians(ZERO_OFFSET_STD_DEG) if on("zero_offset") else 0.0,
-                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change, on("cable"))
+                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change,
+                        True if on("cable") else None)  # without the cable: nothing declared, as before session 26
     return tool, reference, declared
