@@ -43,8 +43,8 @@ sweeps on the hard arm.
 
 Where the YAML declares that no cable or hose runs to the tool (``robot.tool_cable_fitted: false``), σ carries no
 cable term below the test: the share w·β̂β̂ᵀ is there because the agent cannot tell a weak cable from noise, and the
-user can (on the clean shipped sim-ec66 that share was in σ in 28–30 % of runs and widened the largest CoM σ by up to
-1.2 mm, docs/benchmarks.md, session 26). Where the test still finds one (T above its 1 − ``ALPHA`` quantile, 5 % of
+user can (on the clean shipped sim-ec66 that share was in σ in 11 of 40 runs and widened the largest CoM σ by up to
+0.45 mm, to at most 1.29 mm, with the same coverage without it: docs/benchmarks.md, session 26, "no tool cable"). Where the test still finds one (T above its 1 − ``ALPHA`` quantile, 5 % of
 runs on an arm without a cable) the data contradict the declaration: σ holds the whole measured effect, as
 undeclared, and the note names the key (``note``).
 """
