@@ -14,42 +14,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks import cases
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import comp_estimate
 from payload_agent.evaluation import reference_shares
 from payload_agent.evaluation.calibration import fit_from_sweeps
-from payload_agent.fakes.arms import SPECS
-from payload_agent.fakes.effects import PhysicsEffects, TorqueRipple, ripple_phases
-from payload_agent.fakes.offline import record_plan
-from payload_agent.fakes.physics import FrictionParams, PayloadTruth
-from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.fakes.effects import ripple_phases
+from ripple_runs import GEAR_RATIO, recorded
 
 LOAD_RATIO = 0.01  # benchmarks.hard.RIPPLE_LOAD_RATIO
-GEAR_RATIO = 100.0
 SEED = 12  # the arm's ripple phases: joint 4 at 180° sees s = +0.99
 TOOL = (2.0, (40.0, -30.0, 60.0))  # kg, mm: joint 4's torque has the reference's sign in each pose
 
 
-def _runs(load_ratio: float):
-    """(reference run, empty run, config, tool run) on the ideal EC66, no noise, the ripple on joints 4–6."""
-    proc = cases.Procedure("20", 20.0, cases.SPEED_ROW_TRAVEL, cases.SPEED_ROW_ACCEL, *cases.SWEEP_DEG)
-    plan, _, config = cases.plans(proc)
-    ripple = TorqueRipple(0.0, (0.0,) * 3 + (load_ratio,) * 3, GEAR_RATIO, once_per_rev_fraction=0.0)
-    friction = FrictionParams(np.array(cases.COULOMB_NM), np.array(cases.VISCOUS_NM_S_RAD), np.zeros(6))
-    robot = SimRobot(SPECS["ec66"](), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=cases.TICK_S,
-                     friction=friction, noise_nm=0.0, seed=SEED, effects=PhysicsEffects(ripple=ripple))
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(TOOL[0], TOOL[1]))
-    tool, _ = record_plan(robot, plan)
-    return ref, empty, config, tool
-
-
 @pytest.fixture(scope="module")
 def runs():
-    return _runs(LOAD_RATIO), _runs(0.0)
+    return tuple(recorded((0.0,) * 3 + (load,) * 3, TOOL, SEED) for load in (LOAD_RATIO, 0.0))
 
 
 def test_the_calibration_measures_the_wrists_gain_error_per_standing_angle_and_torque_sign(runs):
