@@ -11,12 +11,16 @@ took the rest (``still_joint_scales``).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from benchmarks.reference import REFERENCE
 from benchmarks.remedies import comp_estimate
-from payload_agent.evaluation import reference_shares
+from payload_agent.analysis.combine import add_combined
+from payload_agent.analysis.delta import subtract_all
+from payload_agent.evaluation import calibration_clusters, reference_shares
 from payload_agent.evaluation.calibration import fit_from_sweeps
 from payload_agent.fakes.effects import ripple_phases
 from ripple_runs import GEAR_RATIO, recorded
@@ -60,3 +64,21 @@ def test_the_wrists_ripple_leaves_the_tool_runs_centre_of_mass(runs):
     (on, on_std), (off, _) = errors
     assert abs(on[2] - off[2]) < 0.03, (on, off)
     assert np.all(np.abs(on) < 2.0 * on_std), (on, on_std)
+
+
+def test_a_tool_run_gets_the_error_the_calibration_measured_at_its_own_torques_sign(runs):
+    """The stored errors of joint 4 at 180° are per sign of the reference's torque there (+ in one pose, − in the
+    other): a tool run's rows there get the one of their own loaded − empty torque's sign, so a tool whose torque has
+    the other sign than the reference's in a pose gets the other pose's error (what the simulated |τ| ripple makes of
+    it; a real gear's signed one gives both the same), and no sign, no correction."""
+    ref, empty, config, tool = runs[0]
+    cal = fit_from_sweeps(ref, empty, config, REFERENCE[0], np.asarray(REFERENCE[1]) / 1000.0)
+    deltas = {k.name: d for k, d in add_combined(subtract_all(tool, empty))[0].items()}
+    flipped = {n: dataclasses.replace(d, dtau=-np.asarray(d.dtau)) for n, d in deltas.items()}
+    still = {n: dataclasses.replace(d, dtau=np.zeros_like(d.dtau)) for n, d in deltas.items()}
+    same, other = (calibration_clusters.matches(x, cal.reference) for x in (deltas, flipped))
+    wrist = sorted(n for (n, j) in same if j == 3)
+    assert len({same[(n, 3)] for n in wrist}) == 2  # two poses, two signs, two errors
+    assert {n: other[(n, 3)] for n in wrist} == {n: next(same[(m, 3)] for m in wrist if same[(m, 3)] != same[(n, 3)])
+                                               for n in wrist}
+    assert not any(j == 3 for (_, j) in calibration_clusters.matches(still, cal.reference))
