@@ -5,7 +5,9 @@ loaded-minus-empty torque at nominal gain is regressed on the torque the known r
 Δτ_meas = k_j·Δτ_pred, and the gain scale is s_j = 1/k_j with a sandwich (per sweep, autocorrelation-corrected)
 standard error. A scale outside 0.8–1.25 is a wrong reference, not a drive. Where joint j stands in a sweep and
 moves in another, that sweep's rows get a scale of their own, one per standing angle (``own_scales``): a standing strain-wave
-gear's load-dependent mesh ripple is a gain error of that angle alone, so k_j comes from the rows where j turns.
+gear's load-dependent mesh ripple is a gain error of that angle alone, so k_j comes from the rows where j turns. A joint
+that turns in no sweep gets one scale per (standing angle, sign of the reference's torque) relative to its gain, the
+clusters' information-weighted mean (``still_joint_scales``).
 """
 
 from __future__ import annotations
