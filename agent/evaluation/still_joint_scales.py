@@ -86,7 +86,9 @@ def relative_errors(coef: np.ndarray, cov: np.ndarray, floor: np.ndarray | None,
     var = np.einsum("ij,jk,ik->i", R, cov, R)
     if floor is not None:
         var = np.maximum(var, np.einsum("ij,jk,ik->i", R, floor, R))
-    return (R @ coef) / k, np.sqrt(np.maximum(var, 0.0)) / abs(k)
+    if not k > 0:  # no reference torque on the joint: no gain, no relative errors (never stored: ``kept``)
+        return np.full(len(R), np.nan), np.full(len(R), np.inf)
+    return (R @ coef) / k, np.sqrt(np.maximum(var, 0.0)) / k
 
 
 def kept(own: dict[str, tuple[float, float]], relative: Sequence[str]) -> dict[str, tuple[float, float]]:
