@@ -199,6 +199,16 @@ def test_gains_json_round_trip_old_files_and_a_malformed_field(quarter_then_bd, 
     assert ReferenceShares.from_json({k: v for k, v in scaled.to_json().items() if k != "still_cluster_scales"}).scales == ()
     with pytest.raises(ValueError, match=r"still_cluster_scales\[0\]"):
         ReferenceShares.from_json({**scaled.to_json(), "still_cluster_scales": [{"joint": 2, "angle_rad": 0.0}]})
+    # a never-turning joint's, per sign of its torque (session 26): stored exactly, applied only at the same sign
+    signed = dataclasses.replace(scaled, signed_scales=((3, np.pi, 1, 0.016, 0.0002), (3, np.pi, -1, -0.003, 0.00004)))
+    assert ReferenceShares.from_json(json.loads(json.dumps(signed.to_json()))).signed_scales == signed.signed_scales
+    assert signed.own_scale(3, np.pi - 5e-4, 1e-3, 1) == (0.016, 0.0002)
+    assert signed.own_scale(3, np.pi, 1e-3, -1) == (-0.003, 0.00004)
+    assert signed.own_scale(3, np.pi, 1e-3, 0) is None  # no torque there: no sign, no correction
+    assert ReferenceShares.from_json(scaled.to_json()).signed_scales == ()
+    with pytest.raises(ValueError, match=r"still_cluster_signed_scales\[0\]"):
+        ReferenceShares.from_json({**signed.to_json(), "still_cluster_signed_scales": [
+            {"joint": 4, "angle_rad": 0.0, "torque_sign": 0, "gain_error": 0.0, "std": 0.0}]})
 
 
 EPS = 0.004  # a gear-ripple-like gain error of joint 3 standing at 0° (the EC66's mesh ripple is up to ±0.7 %)

@@ -16,19 +16,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks import cases
 from benchmarks.reference import REFERENCE
 from payload_agent.analysis.combine import add_combined
 from payload_agent.analysis.delta import subtract_all
 from payload_agent.evaluation.gain_scales import fit_gains_from_deltas
-from payload_agent.fakes.arms import SPECS
-from payload_agent.fakes.effects import PhysicsEffects, TorqueRipple, ripple_phases
-from payload_agent.fakes.offline import record_plan
-from payload_agent.fakes.physics import FrictionParams, PayloadTruth
-from payload_agent.fakes.sim_robot import SimRobot
+from payload_agent.fakes.effects import ripple_phases
+from ripple_runs import GEAR_RATIO, recorded
 
 LOAD_RATIO = 0.01  # benchmarks.hard.RIPPLE_LOAD_RATIO
-GEAR_RATIO = 100.0
 SEED = 12  # the arm's ripple phases: the standing joints 2 (at −90°) and 3 (at 0°) see gain errors of 0.2–0.7 %
 
 
@@ -38,17 +33,7 @@ TOOL = (4.0, (40.0, -30.0, 120.0))  # the tool run's payload (kg, mm): another t
 def _reference_deltas(load_ratio: float):
     """(combined reference-minus-empty deltas, the reference run, the empty run, the config, a tool run) on the ideal
     EC66, no noise."""
-    proc = cases.Procedure("20", 20.0, cases.SPEED_ROW_TRAVEL, cases.SPEED_ROW_ACCEL, *cases.SWEEP_DEG)
-    plan, _, config = cases.plans(proc)
-    ripple = TorqueRipple(0.0, (load_ratio,) * 3 + (0.0,) * 3, GEAR_RATIO, once_per_rev_fraction=0.0)
-    friction = FrictionParams(np.array(cases.COULOMB_NM), np.array(cases.VISCOUS_NM_S_RAD), np.zeros(6))
-    robot = SimRobot(SPECS["ec66"](), q0_rad=np.asarray(plan.moves[0].target_rad), tick_s=cases.TICK_S,
-                     friction=friction, noise_nm=0.0, seed=SEED, effects=PhysicsEffects(ripple=ripple))
-    empty, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(REFERENCE[0], REFERENCE[1]))
-    ref, _ = record_plan(robot, plan)
-    robot.set_payload(PayloadTruth.point(TOOL[0], TOOL[1]))
-    tool, _ = record_plan(robot, plan)
+    ref, empty, config, tool = recorded((load_ratio,) * 3 + (0.0,) * 3, TOOL, SEED)
     return add_combined(subtract_all(ref, empty))[0], ref, empty, config, tool
 
 

@@ -13,7 +13,10 @@ torque-gain scatter term carries in place of the scatter's size (``gain_scatter.
 (``planned_scatter``). A calibration stored without the scales corrects nothing.
 
 Which rows: joint j's rows in a sweep where j does not move, when its median angle is within ``TOL_RAD`` of a
-stored cluster's. 1e-3 rad (0.057°) is 1/31 of the mesh period of a 100-tooth-pair gear (1.8° at 2N·q), so the
+stored cluster's; for a joint that never turned in the calibration (``still_joint_scales``, stored per sign of the
+reference's torque there) only where the median of the run's own loaded − empty torque there has the same sign: the
+simulated gear's load-dependent ripple grows with |τ|, a real one's with the signed τ, and the two agree only where the
+sign is the same; a row of the other sign keeps the joint's gain and its error stays in the torque-gain term's τ. 1e-3 rad (0.057°) is 1/31 of the mesh period of a 100-tooth-pair gear (1.8° at 2N·q), so the
 ripple's phase moves by at most 0.2 rad inside it, and it is wider than what separates the two runs' angles at the
 same commanded pose: the stiffness compensation (τ/k, a few 1e-4 rad between payloads) and the calibrated joint
 zeros (a few hundredths of a degree, taken off the tool run's angles and not the calibration's).
@@ -37,17 +40,30 @@ def matches(sweeps: Mapping[str, DeltaSweep] | list[DeltaSweep], reference: tupl
             tol_rad: float = TOL_RAD) -> dict[tuple[str, int], tuple[float, float]]:
     """(sweep name, still joint 0-based) -> the calibration's (ε̂, σ_ε) of the cluster it stands at; {} without."""
     stored = reference_shares.of_reference(reference)
-    if stored is None or not stored.scales:
+    if stored is None or not stored.scaled_joints():
         return {}
     out = {}
     for d in (sweeps.values() if isinstance(sweeps, Mapping) else sweeps):
-        for j in sorted({j for j, *_ in stored.scales}):
+        for j in stored.scaled_joints():
             if j == d.moving:
                 continue
-            hit = stored.own_scale(j, float(np.median(d.q[:, j])), tol_rad)
+            # a never-turning joint's error is stored per sign of its torque: the run's own there (module docstring)
+            sign = int(np.sign(np.median(d.dtau[:, j])))
+            hit = stored.own_scale(j, float(np.median(d.q[:, j])), tol_rad, sign)
             if hit is not None:
                 out[(d.key.name, j)] = hit
     return out
+
+
+def uncorrected(shares: Mapping[str, tuple[int, float]], sweeps: list[DeltaSweep], groups: list, names: list,
+                reference: tuple | None) -> dict[str, tuple[int, float]]:
+    """``shares`` (``gain_scatter.absorbed_shares``: cluster -> (joint, w)) without the clusters whose rows ``matches``
+    corrects: there the calibration's own scale of the cluster took the place of the joint's gain, whose absorption of
+    the cluster's error is then gone with it (what stays is ε − ε̂, on the cluster's rows alone). ``names``: each
+    group's cluster name (``gain_scatter.clusters``)."""
+    found = matches(sweeps, reference)
+    fixed = {name for g, name in zip(groups, names) if (g.sweep, g.joint) in found}
+    return {c: v for c, v in shares.items() if c not in fixed}
 
 
 def corrected(deltas: Mapping[SweepKey, DeltaSweep], reference: tuple | None
@@ -83,4 +99,4 @@ def note(found: Mapping[tuple[str, int], tuple[float, float]]) -> str:
             f"{len(found)} (sweep, joint) groups); their remaining error, the calibration's σ, in the torque-gain term")
 
 
-__all__ = ["TOL_RAD", "matches", "corrected", "scaled", "note"]
+__all__ = ["TOL_RAD", "matches", "uncorrected", "corrected", "scaled", "note"]

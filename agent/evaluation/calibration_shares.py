@@ -11,6 +11,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
+from payload_agent.evaluation import still_joint_scales
 from payload_agent.evaluation.reference_shares import ReferenceShares, both_way_joint
 from payload_agent.evaluation.systematics import gain_scatter, three_step_response
 from payload_agent.model.kinematics import Kinematics
@@ -23,7 +24,9 @@ def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: S
     """Both responses on the calibration's own ``deltas`` for the joints it ``fitted`` (0-based): the projection the
     run used on its own sweeps (``three_step_response.reference_offset_shares``, ``gain_scatter.absorbed_shares``),
     here on the sweeps the fit was made on. ``own``: the still clusters' own (ε, σ_ε) by cluster name, as the gain
-    fit measured them (``zero_offsets.JointGainZeroFit.own``), stored at their joint and angle."""
+    fit measured them (``zero_offsets.JointGainZeroFit.own``), stored at their joint and angle; a never-turning joint's
+    (``still_joint_scales``) also at the sign of the reference's torque there, where its σ_ε is below the scatter's τ̂
+    (``still_joint_scales.kept``)."""
     sweeps = general.select_sweeps(dict(deltas))
     groups = general.build_groups(sweeps, kin) if sweeps else []
     reference = (list(theta_ref), tuple(int(j) for j in fitted))
@@ -41,9 +44,16 @@ def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: S
     shares = gain_scatter.absorbed_shares(sweeps, groups, labels, reference)
     clusters = tuple((j, float(np.mean(angles[c])), w) for c, (j, w) in shares.items())
     joint_of = {name: g.joint for g, name in zip(groups, names) if name is not None}
+    signed: dict[str, tuple[int, list[float], int]] = {}
+    for c in still_joint_scales.signed_clusters(sweeps, groups, theta_ref):
+        if c is not None:
+            signed.setdefault(c[0], (c[1], [], c[3]))[1].append(c[2])
+    own = still_joint_scales.kept(dict(own or {}), list(signed))
     scales = tuple((joint_of[c], float(np.mean(angles[c])), float(e), float(sd))
-                   for c, (e, sd) in (own or {}).items() if c in angles)
-    return ReferenceShares(friction, clusters, scales)
+                   for c, (e, sd) in own.items() if c in angles)
+    signed_scales = tuple((signed[c][0], float(np.mean(signed[c][1])), signed[c][2], float(e), float(sd))
+                          for c, (e, sd) in own.items() if c in signed)
+    return ReferenceShares(friction, clusters, scales, signed_scales)
 
 
 __all__ = ["measure"]

@@ -5,7 +5,9 @@ loaded-minus-empty torque at nominal gain is regressed on the torque the known r
 Δτ_meas = k_j·Δτ_pred, and the gain scale is s_j = 1/k_j with a sandwich (per sweep, autocorrelation-corrected)
 standard error. A scale outside 0.8–1.25 is a wrong reference, not a drive. Where joint j stands in a sweep and
 moves in another, that sweep's rows get a scale of their own, one per standing angle (``own_scales``): a standing strain-wave
-gear's load-dependent mesh ripple is a gain error of that angle alone, so k_j comes from the rows where j turns.
+gear's load-dependent mesh ripple is a gain error of that angle alone, so k_j comes from the rows where j turns. A joint
+that turns in no sweep gets one scale per (standing angle, sign of the reference's torque) relative to its gain, the
+clusters' information-weighted mean (``still_joint_scales``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.errors import DataError, QualityGateError
 from payload_agent.model.kinematics import Kinematics
+from payload_agent.evaluation import still_joint_scales
 from payload_agent.evaluation.systematics import gain_scatter
 from payload_agent.solvers import general, wls
 from payload_agent.solvers.wls import Group
@@ -42,18 +45,20 @@ def own_scales(sweeps: list[DeltaSweep], groups: list[Group]) -> list[str | None
 
 
 def _groups_by_joint(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
-                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None]]]:
-    """Per joint: (predicted Δτ, measured Δτ, needs an offset, the cluster whose own scale it gets or None) for
-    every sweep carrying that joint."""
+                     theta: np.ndarray) -> dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None, str | None]]]:
+    """Per joint: (predicted Δτ, measured Δτ, needs an offset, the cluster whose own scale it gets or None, the
+    cluster whose scale relative to the joint's gain it gets or None: ``still_joint_scales``) for every sweep
+    carrying that joint."""
     sweeps = general.select_sweeps(deltas)
     groups = general.build_groups(sweeps, kin)
     by_name = {d.key.name: d for d in sweeps}
-    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None]]] = {}
-    for g, own in zip(groups, own_scales(sweeps, groups)):
+    out: dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None, str | None]]] = {}
+    relative = still_joint_scales.signed_clusters(sweeps, groups, theta)
+    for g, own, rel in zip(groups, own_scales(sweeps, groups), relative):
         d = by_name[g.sweep]
         # a moving joint in a one-direction sweep keeps friction the baseline did not remove
         offset = d.key.direction != "both" and g.joint == d.moving
-        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset, own))
+        out.setdefault(g.joint, []).append((g.Y @ theta, g.y, offset, own, None if rel is None else rel[0]))
     return out
 
 
@@ -120,7 +125,10 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
         n = len(pred)
         offset_parts = [i for i, p in enumerate(parts) if p[2]]
         own = list(dict.fromkeys(p[3] for p in parts if p[3] is not None))  # the still clusters' own scales
-        X = np.zeros((n, 1 + len(offset_parts) + len(own)))
+        # a never-turning joint's clusters: the first one's gain in column 0, each other's difference to it
+        rel = list(dict.fromkeys(p[4] for p in parts if p[4] is not None))
+        rel_col = {name: 1 + len(offset_parts) + len(own) + c - 1 for c, name in enumerate(rel) if c > 0}
+        X = np.zeros((n, 1 + len(offset_parts) + len(own) + max(len(rel) - 1, 0)))
         X[:, 0] = pred
         start = np.concatenate(([0], np.cumsum([len(p[0]) for p in parts])))
         for col, i in enumerate(offset_parts, 1):
@@ -129,6 +137,8 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             if p[3] is not None:
                 col = 1 + len(offset_parts) + own.index(p[3])
                 X[start[i]:start[i + 1], col] = pred[start[i]:start[i + 1]]
+            if p[4] in rel_col:
+                X[start[i]:start[i + 1], rel_col[p[4]]] = pred[start[i]:start[i + 1]]
         if n < MIN_SAMPLES + X.shape[1]:
             fits.append(JointFit(j, "too few samples", n))
             continue
@@ -149,8 +159,16 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             _, lag = wls.autocorrelation_time(r, max_lag=max(1, int(wls.HAC_MAX_FRACTION * len(r))))
             B += wls.long_run_scores(X[sl] * r[:, None], lag) + wls.line_leftover(X[sl], lines[sl])
         # each coefficient's variance: the sandwich, never below the white-noise one
-        var = np.maximum(np.diag(XtX_inv @ B @ XtX_inv), np.diag(XtX_inv) * float(noise @ noise / dof)) * n / dof
+        sandwich, white = XtX_inv @ B @ XtX_inv * n / dof, XtX_inv * float(noise @ noise / dof) * n / dof
+        var = np.maximum(np.diag(sandwich), np.diag(white))
         k_var = float(var[0])
+        rel_eps: tuple[tuple[str, float, float], ...] = ()
+        if rel:  # the joint's gain: the clusters' information-weighted mean (``still_joint_scales``)
+            info = [float(sum(p[0] @ p[0] for p in parts if p[4] == name)) for name in rel]
+            a, R = still_joint_scales.relative_map(len(coef), 0, [rel_col.get(name) for name in rel], info)
+            e, sd = still_joint_scales.relative_errors(coef, sandwich, white, a, R)
+            k, k_var = float(a @ coef), float(max(a @ sandwich @ a, a @ white @ a))
+            rel_eps = tuple((name, float(e[c]), float(sd[c])) for c, name in enumerate(rel))
         peak = float(np.max(np.abs(pred)))
         if peak < MIN_SIGNAL_TO_NOISE * max(sigma, 1e-12) or not k > 0:
             fits.append(JointFit(j, "too little torque", n, peak_torque_nm=peak, noise_nm=sigma))
@@ -167,7 +185,7 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
             status = "fitted"
         own_eps = tuple((name, float(coef[c] / k), float(np.sqrt(var[c])) / k)
                         for c, name in enumerate(own, 1 + len(offset_parts)))
-        fits.append(JointFit(j, status, n, s, s_std, peak, sigma, own_eps))
+        fits.append(JointFit(j, status, n, s, s_std, peak, sigma, own_eps + rel_eps))
     return fits
 
 

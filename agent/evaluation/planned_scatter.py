@@ -13,6 +13,7 @@ corrected (τ, measured from the run's own data, 0 on most arms) stays unpredict
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -28,17 +29,29 @@ def corrected_covariance(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Grou
     """(4, 4) S·diag(σ_ε²)·Sᵀ over the clusters of the planned ``sweeps`` whose rows the calibration's per-angle gain
     errors will correct (``calibration_clusters.matches``: within its tolerance of a stored angle), for the fit of
     ``groups`` with row weights ``w`` and (YᵀWY)⁻¹ ``normal_inverse`` at ``theta``; zeros where none will be."""
-    sweeps, groups = list(sweeps), list(groups)
+    groups = list(groups)
+    sweeps = predicted(list(sweeps), groups, theta)
     found = calibration_clusters.matches(sweeps, gain_reference)
     if not found:
         return np.zeros((4, 4))
     names = gain_scatter.clusters(sweeps, groups)
     var = {name: found[(g.sweep, g.joint)][1] ** 2 for g, name in zip(groups, names) if (g.sweep, g.joint) in found}
     labels = sorted(var)
-    shares = gain_scatter.absorbed_shares(sweeps, groups, labels, gain_reference)
+    shares = calibration_clusters.uncorrected(gain_scatter.absorbed_shares(sweeps, groups, labels, gain_reference),
+                                              sweeps, groups, names, gain_reference)
     S = gain_scatter.sensitivities(sweeps, groups, _planned_fit(theta, w, normal_inverse), theta, labels,
                                    absorbed=shares)
     return (S * np.array([var[label] for label in labels])) @ S.T
+
+
+def predicted(sweeps: list[DeltaSweep], groups: Sequence[wls.Group], theta: np.ndarray) -> list[DeltaSweep]:
+    """The planned ``sweeps`` with the planned payload's torque Y·θ as their loaded − empty torque: the sign a run's
+    still rows will have there, which decides whether a never-turning joint's stored error applies
+    (``calibration_clusters.matches``)."""
+    dtau = {d.key.name: np.array(d.dtau, float) for d in sweeps}
+    for g in groups:
+        dtau[g.sweep][:, g.joint] = g.Y[:, :4] @ np.asarray(theta, float)[:4]
+    return [replace(d, dtau=dtau[d.key.name]) for d in sweeps]
 
 
 def _planned_fit(theta: np.ndarray, w: np.ndarray, normal_inverse: np.ndarray) -> wls.FitResult:

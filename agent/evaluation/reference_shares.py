@@ -32,6 +32,7 @@ from payload_agent.solvers.wls import Group
 
 KEY = "reference_shares"  # gains.json's key
 SCALES = "still_cluster_scales"  # its entry of the still clusters' own gain errors (optional)
+SIGNED = "still_cluster_signed_scales"  # ... of a never-turning joint's, per sign of the torque (optional)
 # said in a result's notes when the run's own sweeps stood in (a calibration stored before this was measured)
 STAND_IN_NOTE = ("the calibration's fit taken as the tool run's sweeps would give it (its gains.json predates the "
                  "stored reference_shares; calibrate again to use its own)")
@@ -52,6 +53,9 @@ class ReferenceShares:
     # joint's fitted gain (its own scale, ``gain_scales.own_scales``), which a tool run standing there takes off its
     # rows (``calibration_clusters``); () in files written before it was stored: those rows keep it (today's rule)
     scales: tuple[tuple[int, float, float, float], ...] = ()
+    # (joint, angle rad, torque sign ±1, ε, σ_ε): the same for a joint that never turned in the calibration, relative
+    # to its gain, for the rows where the reference's torque had that sign (``still_joint_scales``); () before session 26
+    signed_scales: tuple[tuple[int, float, int, float, float], ...] = ()
 
     def friction(self, fitted: Sequence[int], joints: Sequence[int]) -> dict[int, np.ndarray]:
         """Per fitted joint j: (len(joints),) ε_jk for each joint k of ``joints`` (0 where k never swept both ways)."""
@@ -67,11 +71,18 @@ class ReferenceShares:
         near = [(abs(a - angle_rad), w) for j, a, w in self.clusters if j == joint and abs(a - angle_rad) <= tol_rad]
         return min(near)[1] if near else None
 
-    def own_scale(self, joint: int, angle_rad: float, tol_rad: float) -> tuple[float, float] | None:
-        """(ε, σ_ε) of the cluster where ``joint`` stood at ``angle_rad`` (within ``tol_rad``); None: none stored."""
+    def own_scale(self, joint: int, angle_rad: float, tol_rad: float, sign: int = 0) -> tuple[float, float] | None:
+        """(ε, σ_ε) of the cluster where ``joint`` stood at ``angle_rad`` (within ``tol_rad``), for a never-turning
+        joint where its torque had ``sign`` (0: unknown, none of those); None: none stored."""
         near = [(abs(a - angle_rad), (e, sd)) for j, a, e, sd in self.scales
                 if j == joint and abs(a - angle_rad) <= tol_rad]
+        near += [(abs(a - angle_rad), (e, sd)) for j, a, sg, e, sd in self.signed_scales
+                 if j == joint and sg == sign != 0 and abs(a - angle_rad) <= tol_rad]
         return min(near)[1] if near else None
+
+    def scaled_joints(self) -> list[int]:
+        """The joints with a stored per-angle gain error."""
+        return sorted({j for j, *_ in self.scales} | {j for j, *_ in self.signed_scales})
 
     def to_json(self) -> dict[str, Any]:
         """gains.json's ``reference_shares`` (joints 1-based; angles in rad, as ``standing_angles_rad``)."""
@@ -81,7 +92,10 @@ class ReferenceShares:
                                    for j, a, w in self.clusters],
                 **({} if not self.scales else
                    {SCALES: [{"joint": j + 1, "angle_rad": a, "gain_error": e, "std": sd}
-                             for j, a, e, sd in self.scales]})}
+                             for j, a, e, sd in self.scales]}),
+                **({} if not self.signed_scales else
+                   {SIGNED: [{"joint": j + 1, "angle_rad": a, "torque_sign": sg, "gain_error": e, "std": sd}
+                             for j, a, sg, e, sd in self.signed_scales]})}
 
     @classmethod
     def from_json(cls, d: Any) -> "ReferenceShares":
@@ -116,7 +130,19 @@ class ReferenceShares:
             if not (1 <= joint <= 6 and all(math.isfinite(v) for v in row) and row[2] >= 0):
                 raise ValueError(f"{KEY}.{SCALES}[{i}]: joint must be 1–6, values finite, std ≥ 0, got {e!r}")
             scales.append((joint - 1, *row))
-        return cls(tuple(friction), tuple(clusters), tuple(scales))
+        signed = []
+        for i, e in enumerate(d.get(SIGNED) or []):
+            try:
+                joint, sign = int(e["joint"]), int(e["torque_sign"])
+                a, err, sd = (float(e[f]) for f in ("angle_rad", "gain_error", "std"))
+            except (KeyError, TypeError, ValueError):
+                raise ValueError(f"{KEY}.{SIGNED}[{i}] needs numbers joint, angle_rad, torque_sign, gain_error, std, "
+                                 f"got {e!r}") from None
+            if not (1 <= joint <= 6 and sign in (-1, 1) and all(math.isfinite(v) for v in (a, err, sd)) and sd >= 0):
+                raise ValueError(f"{KEY}.{SIGNED}[{i}]: joint must be 1–6, torque_sign ±1, values finite, std ≥ 0, "
+                                 f"got {e!r}")
+            signed.append((joint - 1, a, sign, err, sd))
+        return cls(tuple(friction), tuple(clusters), tuple(scales), tuple(signed))
 
 
 def of_reference(reference: Sequence | None) -> ReferenceShares | None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.configuration.config import JointSystematicsConfig
+from payload_agent.evaluation import still_joint_scales
 from payload_agent.evaluation.gain_scales import own_scales
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
@@ -130,22 +131,25 @@ class JointGainZeroFit:
 
 
 def _rows(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta: np.ndarray, joints: Sequence[int],
-          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool, str | None]]:
+          zero_joints: Sequence[int]) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray, bool, str | None, str | None]]:
     """Per (sweep, fitted joint): (joint, predicted Δτ, measured Δτ, ∂pred/∂q_i per zero joint, needs an offset,
-    the still cluster whose own scale it gets or None: ``gain_scales.own_scales``)."""
+    the still cluster whose own scale it gets or None: ``gain_scales.own_scales``, the cluster whose scale relative to
+    the joint's gain it gets or None: ``still_joint_scales``)."""
     sweeps = general.select_sweeps(dict(deltas))
     base = general.build_groups(sweeps, kin, joints)
     apart = own_scales(sweeps, base)
+    relative = still_joint_scales.signed_clusters(sweeps, base, theta)
     shifted = {i: {g.label: g for g in general.build_groups(
         [replace(d, q=d.q + np.eye(6)[i] * STEP_RAD) for d in sweeps], kin, joints)} for i in zero_joints}
     by_name = {d.key.name: d for d in sweeps}
     out = []
-    for g, own_scale in zip(base, apart):
+    for g, own_scale, rel in zip(base, apart, relative):
         d = by_name[g.sweep]
         pred = g.Y @ theta
         D = np.column_stack([((shifted[i][g.label].Y @ theta) - pred) / STEP_RAD if g.label in shifted[i]
                              else np.zeros(len(pred)) for i in zero_joints]) if zero_joints else np.zeros((len(pred), 0))
-        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving, own_scale))
+        out.append((g.joint, pred, g.y, D, d.key.direction != "both" and g.joint == d.moving, own_scale,
+                    None if rel is None else rel[0]))
     return out
 
 
@@ -165,7 +169,12 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     jcol = {j: c for c, j in enumerate(joints)}
     offsets = [i for i, p in enumerate(parts) if p[4]]
     own = list(dict.fromkeys(p[5] for p in parts if p[5] is not None))  # the still clusters' own scales
-    nk, no, nz = len(joints), len(offsets) + len(own), len(zj)
+    # a never-turning joint's clusters (``still_joint_scales``): its first one's gain in the joint's column, each
+    # other's difference to it in a column of its own
+    rel = {j: list(dict.fromkeys(p[6] for p in parts if p[0] == j and p[6] is not None)) for j in joints}
+    rel_names = [name for j in joints for name in rel[j][1:]]
+    rel_col = {name: len(joints) + len(offsets) + len(own) + c for c, name in enumerate(rel_names)}
+    nk, no, nz = len(joints), len(offsets) + len(own) + len(rel_names), len(zj)
     start = np.concatenate(([0], np.cumsum([len(p[1]) for p in parts])))
     y = np.concatenate([p[2] for p in parts])
     owner = np.concatenate([np.full(len(p[1]), p[0]) for p in parts])
@@ -173,7 +182,7 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     k = np.ones(nk)
     for it in range(3):
         X = np.zeros((len(y), nk + no + nz))
-        for i, (j, pred, _, D, _, _) in enumerate(parts):
+        for i, (j, pred, _, D, _, _, _) in enumerate(parts):
             sl = slice(start[i], start[i + 1])
             X[sl, jcol[j]] = pred
             X[sl, nk + no:] = -k[jcol[j]] * D
@@ -182,6 +191,8 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
         for i, p in enumerate(parts):
             if p[5] is not None:
                 X[start[i]:start[i + 1], nk + len(offsets) + own.index(p[5])] = p[1]
+            if p[6] in rel_col:
+                X[start[i]:start[i + 1], rel_col[p[6]]] = p[1]
         Xw = X * w[:, None]
         info = Xw.T @ X
         inv = np.linalg.pinv(info)
@@ -212,6 +223,17 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     data_info = np.linalg.pinv(cov)
     post = np.linalg.pinv(data_info + P)
     mean = post @ (data_info @ coef)
+    # each never-turning joint's gain: its clusters' information-weighted mean (``still_joint_scales``)
+    rel_eps: dict[str, tuple[float, float]] = {}
+    for j in joints:
+        if rel[j]:
+            info = [float(sum(p[1] @ p[1] for p in parts if p[6] == name)) for name in rel[j]]
+            a, R = still_joint_scales.relative_map(len(mean), jcol[j], [rel_col.get(name) for name in rel[j]], info)
+            e, sd = still_joint_scales.relative_errors(mean, post, None, a, R)
+            rel_eps.update({name: (float(e[c]), float(sd[c])) for c, name in enumerate(rel[j])})
+            T = np.eye(len(mean))
+            T[jcol[j]] = a
+            mean, post = T @ mean, T @ post @ T.T
     sd = np.sqrt(np.maximum(np.diag(post), 0.0))
     corr = post / np.outer(sd, sd) if np.all(sd > 0) else np.zeros_like(post)
     data_sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -237,6 +259,7 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     own_eps = {name: (float(mean[col[name]] / k[jcol[joint_of[name]]]),
                       float(np.sqrt(max(post[col[name], col[name]], 0.0)) / abs(k[jcol[joint_of[name]]])))
                for name in own}
+    own_eps.update(rel_eps)
     return JointGainZeroFit(scale, scale_std, ZeroOffsets(zeros, rho, zcorr, tuple(tuple(float(v) for v in row)
                                                                                  for row in coupling)), own_eps)
 

@@ -10,8 +10,8 @@ minus empty difference on that joint is (1 + ε)·Δτ with ε = ±L·s, a *gain
 No white-noise or autocorrelation-robust (HAC) covariance can see it: within a sweep it is
 perfectly smooth and proportional to the signal, so the fit absorbs part of it and the rest looks
 like a tiny, slow residual. A drive-gain calibration fits each still cluster of a joint that also turns a
-scale of its own and stores its ε̂; a tool run standing there has it taken off (``calibration_clusters``),
-and the cluster keeps the calibration's σ_ε² in place of τ² (``corrected_prior``). The still wrist is pooled.
+scale of its own and stores its ε̂, a never-turning joint's relative to its gain (``still_joint_scales``); a tool run
+standing there has it taken off (``calibration_clusters``), and the cluster keeps σ_ε² in place of τ² (``corrected_prior``).
 
 Measured in the benchmark (realistic + ripple, 20 payloads, same noise with and without the ripple): of the
 ripple's CoM error, the gain-like part on still joints is 0.20 mm rms per (sweep, joint) group, the moving
@@ -367,16 +367,16 @@ def term(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, gain_rel_std: Iter
     """
     gs = of_model(model) if model is not None else measure(deltas, kin, gain_rel_std)
     labels = list(gs.labels)
-    sweeps = general.select_sweeps(deltas) if model is None else list(model.sweeps)
-    prior, gs = corrected_prior(gs, sweeps, list(fits[combined][0]), gain_reference)
+    sweeps, groups = general.select_sweeps(deltas) if model is None else list(model.sweeps), list(fits[combined][0])
+    prior, gs = corrected_prior(gs, sweeps, groups, gain_reference)
     if gs.tau <= 0.0 and prior is None:
         return None
     theta = fits[combined][1].theta[:4]
-    shares = absorbed_shares(sweeps, list(fits[combined][0]), labels, gain_reference)
+    shares = calibration_clusters.uncorrected(absorbed_shares(sweeps, groups, labels, gain_reference), sweeps, groups,
+                                              clusters(sweeps, groups), gain_reference)  # corrected: in no gain
     sens = {which: sensitivities(sweeps, groups, res, theta, labels, absorbed=shares)
             for which, (groups, res) in fits.items()}
-    how = ("" if reference_shares.of_reference(gain_reference) is not None
-           else f"; {reference_shares.STAND_IN_NOTE}")
+    how = "" if reference_shares.of_reference(gain_reference) is not None else f"; {reference_shares.STAND_IN_NOTE}"
     text = note(gs) + (f" (less what the drive-gain calibration absorbed{how})" if shares else "") + (
         "" if prior is None else "; clusters the calibration's per-angle errors corrected: its σ, not the scatter")
     return ScatterTerm(gs, labels, shares, sens, text, combined, prior)
