@@ -173,6 +173,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "--procedure and --speed-percent these make the calibration's plan a candidate's of `plan "
                           "--target-std`: `plan` then offers that plan, whose run reuses the calibration's empty run "
                           "and shares its noise (a σ up to a fifth tighter, no empty run of its own)")
+    cal.add_argument("--park", action="store_true",
+                     help="end with one more travel move back to the plan's first pose (`plan --park` shows it; the "
+                          "safety gate checks it with the whole plan before the first move): the arm waits there for "
+                          "the tool change, and a run of the calibration's plan then starts with no approach and "
+                          "reuses its empty run (what `plan --target-std` advises for a fast run)")
     _session_args(cal)
 
     hist = add("history", "list past identifications of this robot", json_ok=True)
@@ -199,6 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="current joint angles in degrees, to check the approach move too")
     plan.add_argument("--connect", action="store_true",
                       help="connect to the controller to read where the robot stands (nothing moves)")
+    plan.add_argument("--park", action="store_true",
+                      help="show and check the plan as `calibrate --park` runs it: ending at its first pose")
     plan.add_argument("--target-std", metavar="G,MM",
                       help="predict the uncertainty (1σ: mass in g, centre of mass in mm) of candidate procedures "
                            "before moving and show the fastest that meets it")

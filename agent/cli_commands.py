@@ -139,7 +139,7 @@ def cmd_calibrate(args, con: Console) -> int:
         con.say(f"Simulated robot: the reference payload {args.known_mass:g} kg at [{args.known_cog}] mm is the "
                 "simulated tool for this calibration (the YAML's simulation.payload is not used)")
 
-    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference,
+    _session(args, con, "calibrate", reference=ref, on_cell=mount_reference, park=args.park,
              adjust=lambda config: with_sweep_and_motion(with_procedure(with_speed(config, args.speed_percent),
                                                                         args.procedure),
                                                          args.sweep_deg, args.travel_speed_percent, args.accel_percent))
@@ -185,7 +185,7 @@ def cmd_watch(args, con: Console) -> int:
 def cmd_plan(args, con: Console) -> int:
     import numpy as np
 
-    from payload_agent.motion.planner import expected_durations, turned_to
+    from payload_agent.motion.planner import expected_durations, parked, turned_to
     from payload_agent.motion.safety import APPROACH_UNKNOWN, SafetyGate
     from payload_agent.output.plan_table import format_plan, plan_json
     from payload_agent.recording.state import RobotState, describe_locations
@@ -216,6 +216,8 @@ def cmd_plan(args, con: Console) -> int:
     verdict = None
     if pre.plan is not None:
         pre.plan = turned_to(config, pre.plan, start)  # as run will: a joint at ±180° reached the short way
+        if args.park:  # as `calibrate --park` runs it
+            pre.plan = parked(config, pre.plan)
         durations = expected_durations(pre.plan, start)
         con.say(format_plan(pre.plan, durations))
         baseline = status_line(RobotState.for_config(config), config, pre.plan)

@@ -77,7 +77,9 @@ class Declared:
     friction_asymmetry_std: float = 0.0
     # standard uncertainty of the friction level's change between the runs, relative (robot.friction_change_percent)
     friction_change_std: float = 0.0
-    tool_cable_fitted: bool = False  # robot.tool_cable_fitted: the cell's integrator knows a cable is on the tool
+    # robot.tool_cable_fitted: True, the cell's integrator knows a cable is on the tool; None, not declared (a benchmark
+    # arm's user is not assumed to know); False, declared that none is (benchmarks.wrist_null's "declared none")
+    tool_cable_fitted: bool | None = None
 
 
 def draw(scenario: str, index: int):
@@ -120,5 +122,6 @@ def draw(scenario: str, index: int):
     change = math.sqrt(DRIFT ** 2 / 3.0 + ((WARMUP_MAX_C * FRICTION_PER_C) ** 2 / 3.0 if on("temperature") else 0.0))
     declared = Declared(STIFFNESS_NM_PER_RAD if on("elasticity") else None, STIFFNESS_SPREAD / math.sqrt(3.0),
                         math.radians(ZERO_OFFSET_STD_DEG) if on("zero_offset") else 0.0,
-                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change, on("cable"))
+                        ASYMMETRY_MAX / math.sqrt(3.0) if on("asymmetry") else 0.0, change,
+                        True if on("cable") else None)  # without the cable: nothing declared, as before session 26
     return tool, reference, declared

@@ -9,8 +9,7 @@ hold the truth.
     .venv/bin/python -m benchmarks.seeded_runs --robot sim-ur5e-modbus --runs 10 [--json OUT]
         [--target-std G,MM [--baseline] [--calibrate [--calibrate-with KG:X,Y,Z] [--calibrate-speed PERCENT]
         [--calibrate-procedure NAME|FILE] [--calibrate-sweep-deg FROM,TO] [--calibrate-travel PERCENT]
-        [--calibrate-accel PERCENT]] [--reuse-baseline]]
-        [--driver-option KEY=VALUE] [--dh-error-mm MM]
+        [--calibrate-accel PERCENT] [--calibrate-park]] [--reuse-baseline]] [--driver-option KEY=VALUE] [--dh-error-mm MM]
 
 ``--target-std``: each run first does what ``plan --target-std G,MM`` does (for the simulation's payload,
 the approach from its start_deg counted) and runs the chosen procedure; the table then adds the
@@ -30,7 +29,8 @@ then the calibration's plan, ``session.stored_candidate``), the inertia part off
 calibration's, the plan's and the run's plans agree. ``--start-where-calibration-ended``: the plan (its approach) and
 the run start where the calibration's plan ended, as after ``calibrate`` with the tool swapped in place (the run that
 reuses the baseline then has its cable's rest there); ``--start-where-calibration-began``: at its first pose (the robot
-parked there for the tool change). ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
+put there by the simulation, a stand-in); ``--calibrate-park``: the calibration runs with ``--park`` (it ends at its
+plan's first pose) and the plan and the run start where its resting-pose record says the arm stands. ``--calibrate-on-chosen`` (with ``--target-std``, instead of ``--calibrate``):
 plan, calibrate on the chosen procedure (its speeds, range and accelerations; the inertia part off: ``calibrate
 --robot`` the written file), predict that procedure again with the calibration and run it with the stored baseline,
 as ``run`` does without ``--fresh-baseline``: the run subtracts the calibration's empty run, and its σ and the
@@ -74,7 +74,7 @@ def parse_reference(text: str | None) -> tuple:
 def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, reference: tuple = DEFAULT_REFERENCE,
                 calibrate_speed: float | None = None, retry_sweeps: int = 0, baseline: bool = False,
                 dh_error_mm: float = 0.0, calibrate_procedure: str | None = None, calibrate_motion: tuple | None = None,
-                inertia: bool = True):
+                inertia: bool = True, calibrate_park: bool = False):
     """The shipped simulated robot's config for one seed, its state in ``storage`` (an empty-flange baseline of the
     YAML's procedure stored, then calibrated, first when asked: on ``calibrate_procedure``, a procedure's name or
     file, as ``calibrate --procedure``, else the YAML's); ``dh_error_mm``: the simulated arm's DH lengths off
@@ -99,17 +99,18 @@ def seed_config(robot: str, seed: int, storage: Path, calibrate: bool = False, r
         from payload_agent.calibrate_args import with_sweep_and_motion
 
         cal = with_procedure(with_speed(config, calibrate_speed), calibrate_procedure)
-        calibrate_on(with_sweep_and_motion(cal, *(calibrate_motion or ())), reference, retry_sweeps)
+        calibrate_on(with_sweep_and_motion(cal, *(calibrate_motion or ())), reference, retry_sweeps, calibrate_park)
     return config
 
 
-def calibrate_on(cal_config, reference: tuple, retry_sweeps: int) -> None:
-    """``payload-agent calibrate`` with ``cal_config``'s procedure and the reference (kg, (x, y, z) mm)."""
+def calibrate_on(cal_config, reference: tuple, retry_sweeps: int, park: bool = False) -> None:
+    """``payload-agent calibrate`` with ``cal_config``'s procedure and the reference (kg, (x, y, z) mm); ``park``: with
+    ``--park``, ending at its plan's first pose."""
     from payload_agent.types import PayloadSetting
 
     kg, cog_mm = reference
     run_identification(cal_config, RunOptions(mode="calibrate", reference=PayloadSetting(
-        kg, tuple(c / 1000.0 for c in cog_mm)), **_quiet(retry_sweeps)), _silent(),
+        kg, tuple(c / 1000.0 for c in cog_mm)), park=park, **_quiet(retry_sweeps)), _silent(),
         SimulatedCellUse(on_cell=lambda cell: cell.change_tool(kg, tuple(cog_mm))))
 
 
@@ -125,14 +126,17 @@ def one_run(robot: str, seed: int, storage: Path, target: str | None = None, cal
             reference: tuple = DEFAULT_REFERENCE, calibrate_speed: float | None = None, retry_sweeps: int = 0,
             baseline: bool = False, dh_error_mm: float = 0.0, calibrate_procedure: str | None = None,
             calibrate_on_chosen: bool = False, calibrate_motion: tuple | None = None, reuse_baseline: bool = False,
-            start_where_calibration_ended: bool = False, start_where_calibration_began: bool = False) -> dict:
+            start_where_calibration_ended: bool = False, start_where_calibration_began: bool = False,
+            calibrate_park: bool = False) -> dict:
     import dataclasses
 
     config = seed_config(robot, seed, storage, calibrate, reference, calibrate_speed, retry_sweeps, baseline,
-                         dh_error_mm, calibrate_procedure, calibrate_motion, inertia=not reuse_baseline)
-    if start_where_calibration_ended or start_where_calibration_began:  # the tool mounted there; nothing moved since
-        config = dataclasses.replace(config, simulation=dataclasses.replace(
-            config.simulation, start_deg=tuple(calibration_end_deg(config, 0 if start_where_calibration_began else -1))))
+                         dh_error_mm, calibrate_procedure, calibrate_motion, inertia=not reuse_baseline,
+                         calibrate_park=calibrate_park)
+    if calibrate_park or start_where_calibration_ended or start_where_calibration_began:  # the tool mounted there
+        start = (resting_deg(config) if calibrate_park  # each session's simulated arm starts at start_deg: there
+                 else calibration_end_deg(config, 0 if start_where_calibration_began else -1))
+        config = dataclasses.replace(config, simulation=dataclasses.replace(config.simulation, start_deg=tuple(start)))
     quiet, ui = _quiet(retry_sweeps), _silent()
     plan: dict = {}
     calibrated_on = None  # the first choice, where the calibration is made on it (``--calibrate-on-chosen``)
@@ -212,6 +216,16 @@ def calibration_end_deg(config, move: int = -1) -> list[float]:
     from payload_agent.recording.state import RobotState
 
     return [float(v) for v in load_manifest(RobotState.for_config(config).baseline_dir)["plan"][move]["target_deg"]]
+
+
+def resting_deg(config) -> list[float]:
+    """Where our last completed motion left the arm (the resting-pose record the calibration wrote), degrees."""
+    from payload_agent.recording import resting_pose
+    from payload_agent.recording.state import RobotState
+
+    rec = resting_pose.load(RobotState.for_config(config).root)
+    assert rec is not None and rec.q_to_rad is None, "the calibration left no record of a completed motion"
+    return [float(np.degrees(v)) for v in rec.q_rad]
 
 
 def wrist_weight(note: str | None) -> float:
@@ -296,6 +310,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--start-where-calibration-began", action="store_true",
                    help="with --calibrate: the plan and the run start at the calibration plan's first pose (the robot "
                         "parked there for the tool change)")
+    p.add_argument("--calibrate-park", action="store_true",
+                   help="with --calibrate: `calibrate --park` (its last run ends at its plan's first pose); the plan and "
+                        "the run then start where that left the arm (the resting-pose record), as on a real arm with "
+                        "the tool changed there")
     p.add_argument("--retry-sweeps", type=int, default=0, metavar="N",
                    help="redo a sweep whose stream had a hole, up to N times (as `run --retry-sweeps`)")
     p.add_argument("--dh-error-mm", type=float, default=0.0, metavar="MM",
@@ -317,7 +335,8 @@ def main(argv: list[str] | None = None) -> int:
                 r = one_run(args.robot, seed, Path(tmp), args.target_std, args.calibrate, reference,
                             args.calibrate_speed, args.retry_sweeps, args.baseline, args.dh_error_mm,
                             args.calibrate_procedure, args.calibrate_on_chosen, motion, args.reuse_baseline,
-                            args.start_where_calibration_ended, args.start_where_calibration_began)
+                            args.start_where_calibration_ended, args.start_where_calibration_began,
+                            args.calibrate_park)
         except PayloadAgentError as exc:  # a run that did not end in a result is reported, not averaged
             failed.append({"seed": seed, "error": str(exc)})
             print(f"seed {seed:3d}: no result (exit {exc.exit_code}): {str(exc)[:160]}", flush=True)

@@ -10,7 +10,9 @@ is evaluated on the same data for comparison.
 
 Printed per quantity (mass, CoM x, y, z): rms(err/σ) and 95 % coverage with σ as reported, without the wrist term,
 and with the free offsets' term instead; the wrist term's share of the largest CoM σ (mean, and the spread of the
-reported CoM σ over the seeds with and without it); and how often the run carries a chance term at all.
+reported CoM σ over the seeds with and without it); and how often the run carries a chance term at all. "undeclared"
+and "declared none" evaluate the wrist term as a robot YAML without ``robot.tool_cable_fitted`` and with it false
+would (session 26), whatever the robot's YAML declares.
 
     .venv/bin/python -m benchmarks.wrist_null --robot sim-ec66 --seeds 60 --procedure j2_triple --speed 7 \\
         --travel 25 --accel 100 --sweep-deg 0:15 --calibrate-with 5:60,0,80 --calibrate-speed 5 [--json OUT]
@@ -34,7 +36,9 @@ Z95 = 1.959964
 QUANTITIES = ("m", "x", "y", "z")
 # "chance w·β̂β̂ᵀ": the spring's term as the run computes it where the test finds a cable (β̂β̂ᵀ + D), but below the
 # test w·β̂β̂ᵀ only, without the share w·D of the effect's own uncertainty
-VARIANTS = ("reported", "without wrist", "free offsets", "chance w·β̂β̂ᵀ")
+# "undeclared" / "declared none": the run's wrist term as the robot YAML leaving ``robot.tool_cable_fitted`` out /
+# declaring it false would make it (the rest of σ as reported)
+VARIANTS = ("reported", "without wrist", "free offsets", "chance w·β̂β̂ᵀ", "undeclared", "declared none")
 
 
 def sigmas(theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -59,12 +63,14 @@ def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     prepared, joints = prepared_run(r["loaded"], r["empty"], options.joints, gains, r["commands"], r["mount_rad"])
     model = general.fit_model(prepared.deltas, options.kin, gains.rel_std)
 
-    def wrist_cov(p) -> tuple[np.ndarray, list[str]]:
-        s = systematics.evaluate(p, options.kin, joints, gains.rel_std, terms=[systematics.wrist_terms], model=model,
+    def wrist_cov(p, decl=joints) -> tuple[np.ndarray, list[str]]:
+        s = systematics.evaluate(p, options.kin, decl, gains.rel_std, terms=[systematics.wrist_terms], model=model,
                                  gain_reference=gains.reference)
         return s.covariance(), [t.note for t in s.terms]
 
     spring, notes = wrist_cov(prepared)
+    undeclared, undeclared_notes = wrist_cov(prepared, dataclasses.replace(joints, tool_cable_fitted=None))
+    none, none_notes = wrist_cov(prepared, dataclasses.replace(joints, tool_cable_fitted=False))
     test = spring_test(model, prepared, gains)
     chance = np.asarray(test.pop("chance_cov", np.zeros((4, 4))))
     free, _ = wrist_cov(dataclasses.replace(prepared, mount_rad=None))
@@ -75,8 +81,11 @@ def one(config, cal_config, run_config, seed: int, reference: tuple) -> dict:
     return {"seed": seed, "error": err.tolist(), "procedure_passed": bool(result.quality["passed"]),
             "std": {"reported": sigmas(theta, cov).tolist(), "without wrist": sigmas(theta, cov - spring).tolist(),
                     "free offsets": sigmas(theta, cov - spring + free).tolist(),
-                    "chance w·β̂β̂ᵀ": sigmas(theta, cov - spring + chance).tolist()},
-            "wrist_notes": notes, "spring": test}
+                    "chance w·β̂β̂ᵀ": sigmas(theta, cov - spring + chance).tolist(),
+                    "undeclared": sigmas(theta, cov - spring + undeclared).tolist(),
+                    "declared none": sigmas(theta, cov - spring + none).tolist()},
+            "wrist_notes": notes, "notes_by_declaration": {"undeclared": undeclared_notes, "declared none": none_notes},
+            "spring": test}
 
 
 def spring_test(model, prepared, gains) -> dict:
@@ -112,6 +121,8 @@ def summary(runs: list[dict]) -> dict:
                   "cog_max_mean_mm": float(c.mean()), "cog_max_spread": float(c.std(ddof=1) / c.mean()),
                   "cog_over_1mm": float(np.mean(c > 1.0)), "mass_mean_g": float(s[:, 0].mean())}
     out["with_term"] = float(np.mean([bool(r["wrist_notes"]) for r in runs]))
+    for v in ("undeclared", "declared none"):
+        out[f"with_term {v}"] = float(np.mean([bool(r["notes_by_declaration"][v]) for r in runs]))
     t = np.array([[r["spring"]["T"], r["spring"]["null_mean"]] for r in runs if r["spring"]])
     if len(t):
         out["T_mean"], out["T_null_mean"] = float(t[:, 0].mean()), float(t[:, 1].mean())
@@ -137,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
               flush=True)
     out = summary(runs)
     print(f"\n{args.robot}, {cand.describe()}, calibrated with {reference[0]:g} kg at {reference[1]} mm: {len(runs)} "
-          f"seeds, a wrist term in {out['with_term']:.2f} of them; mean error "
+          f"seeds, a wrist term in {out['with_term']:.2f} of them (undeclared {out['with_term undeclared']:.2f}, declared "
+          f"none {out['with_term declared none']:.2f}); mean error "
           + " / ".join(f"{m:+.2f}±{e:.2f}" for m, e in zip(out["mean_error"], out["sem_error"])) + " (g, mm)")
     if "T_mean" in out:
         print(f"cable test: mean T {out['T_mean']:.2f} against its null mean {out['T_null_mean']:.2f} (as the run computes "

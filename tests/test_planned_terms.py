@@ -175,6 +175,39 @@ def test_a_declared_cable_is_the_same_term_in_every_draw_as_the_run_reports():
     assert planned_terms.cable_declared(dataclasses.replace(systematics.RIGID, tool_cable_fitted=True)) is True
 
 
+def test_declared_no_cable_the_plans_draws_carry_the_term_only_above_the_tests_quantile():
+    """``robot.tool_cable_fitted: false`` (session 26): the run carries the cable term only where its presence test
+    finds a cable, then whole (``CableSpring.weight``). The plan's draws (``spring_model(absent=True)``) are, draw by
+    draw, the run's σ on that draw's κ̂: the term where T exceeds the quantile, none below it, where undeclared draws
+    carry w·β̂β̂ᵀ; ``design`` reads the declaration (``cable_absent``). Fails on main: no ``absent``."""
+    from payload_agent.evaluation.systematics import cable_spring
+    from payload_agent.solvers.wls import cog_with_covariance
+
+    _, theta, base, AM, C = _spring_case()
+    absent, undeclared = planned_terms.spring_model(AM, C, absent=True), planned_terms.spring_model(AM, C)
+    plan_m, plan_c = planned_terms.reported_sigma_draws(base, absent, theta)
+    critical, null_mean = cable_spring.null_distribution(C)
+    R = np.linalg.cholesky(np.linalg.inv(C)).T
+    u = np.sqrt(planned_terms.SPREAD_RATIO) * planned_terms._normal_draws()[:, :3]  # the plan's draws of R·κ̂
+    T = cable_spring.statistics(R, u)
+    found = T > critical
+    assert np.array_equal(absent.a, found.astype(float)) and 0.02 < found.mean() < 0.08
+    assert np.mean(undeclared.a[~found] > 0) > 0.15  # where undeclared draws carry a chance term, absent ones do not
+    for i in [*np.flatnonzero(found)[:20], *np.flatnonzero(~found & (undeclared.a > 0))[:20]]:
+        kappa = np.linalg.solve(R, u[i])
+        s = cable_spring.CableSpring((3, 4, 5), np.eye(3), cable_spring.project(kappa, C), C,
+                                     cable_spring.statistic(kappa, C), critical, null_mean, absent=True)
+        t = cable_spring.term(s, {"all": AM})
+        cov = base + (np.zeros((4, 4)) if t is None else t.covariance("all"))
+        _, cov_c = cog_with_covariance(theta, cov)
+        assert plan_m[i] == pytest.approx(1000 * np.sqrt(cov[0, 0]), rel=1e-9)
+        assert plan_c[i] == pytest.approx(1000 * np.sqrt(np.max(np.diag(cov_c))), rel=1e-9)
+        assert (t is not None) == found[i]
+    assert planned_terms.cable_absent(dataclasses.replace(systematics.RIGID, tool_cable_fitted=False)) is True
+    assert not planned_terms.cable_absent(None) and not planned_terms.cable_absent(systematics.RIGID)
+    assert not planned_terms.cable_declared(dataclasses.replace(systematics.RIGID, tool_cable_fitted=False))
+
+
 def test_the_plans_spring_covariance_is_the_runs_fit_on_the_same_rows():
     """The plan draws the cable spring's term from C, the κ block of the fit the run makes (``cable_spring.fit_spring``:
     beside θ and one nuisance offset per moving arm joint, session 18). Handed an offline simulated run's rows and row

@@ -47,7 +47,9 @@ STIFFNESS = [1.5e4, 1.5e4, 1.5e4, 3.0e3, 3.0e3, 3.0e3]  # softer than a real EC6
     ("robot.kinematics.zero_offset_uncertainty_deg", [0.02, 0.02], "zero_offset_uncertainty_deg", "6"),
     ("robot.friction_asymmetry_percent", -5, "robot.friction_asymmetry_percent", ">= 0"),
     ("robot.friction_change_percent", True, "robot.friction_change_percent", "number"),
-    ("robot.tool_cable_fitted", "yes", "robot.tool_cable_fitted", "true or false"),
+    ("robot.tool_cable_fitted", "yes", "robot.tool_cable_fitted", "true (a cable or hose runs to the tool), false"),
+    ("robot.tool_cable_fitted", "no", "robot.tool_cable_fitted", "got 'no'"),
+    ("robot.tool_cable_fitted", 0, "robot.tool_cable_fitted", "or no value (not declared"),
     ("robot.kinematics.stifness_nm_per_rad", [3e4] * 6, "robot.kinematics.stifness_nm_per_rad", "stiffness_nm_per_rad"),
 ])
 def test_bad_systematics_keys_are_refused_naming_the_key(sim_ec66_data, path, value, key, fragment):
@@ -62,8 +64,30 @@ def test_systematics_keys_and_their_defaults(sim_ec66_data):
     assert joints.stiffness_nm_per_rad is None  # rigid unless declared
     assert joints.zero_offset_std_rad == pytest.approx((math.radians(0.02),) * 6)
     assert joints.friction_asymmetry_std == pytest.approx(DEFAULT_FRICTION_ASYMMETRY_PERCENT / 100)
-    assert joints.tool_cable_fitted is False  # not declared: the cable spring's presence test decides
-    assert parse_config(tweak(sim_ec66_data, "robot.tool_cable_fitted", True)).robot.joints.tool_cable_fitted
+    assert parse_config(tweak(sim_ec66_data, "robot.tool_cable_fitted", True)).robot.joints.tool_cable_fitted is True
+
+
+def test_the_tool_cable_declaration_has_three_states(sim_ec66_data):
+    """``robot.tool_cable_fitted`` (session 26): true (a cable is fitted), false (declared: none is) and absent or empty
+    (not declared: the presence test decides) are three different declarations. The shipped sim-ec66 and sim-ur5e
+    declare false: their simulated tools have no cable. Fails on main, where false and absent were both False."""
+    import yaml
+
+    from conftest import ROOT
+
+    def state(data):
+        return parse_config(data).robot.joints.tool_cable_fitted
+
+    sim_ec66_data["robot"].pop("tool_cable_fitted", None)
+    assert state(sim_ec66_data) is None
+    assert state(tweak(sim_ec66_data, "robot.tool_cable_fitted", None)) is None
+    assert state(tweak(sim_ec66_data, "robot.tool_cable_fitted", True)) is True
+    none = parse_config(tweak(sim_ec66_data, "robot.tool_cable_fitted", False)).robot.joints
+    assert none.tool_cable_fitted is False and none.tool_cable_absent
+    assert not parse_config(sim_ec66_data).robot.joints.tool_cable_absent
+    for name in ("sim-ec66", "sim-ur5e"):
+        data = yaml.safe_load((ROOT / "configs" / f"{name}.yaml").read_text())
+        assert not data["simulation"].get("effects", {}).get("tool_cable") and state(data) is False
     data = tweak(sim_ec66_data, "robot.kinematics.stiffness_nm_per_rad", [3e4, 3e4, 3e4, 0, 5e3, 5e3])
     data = tweak(data, "robot.kinematics.zero_offset_uncertainty_deg", 0.05)
     data = tweak(data, "robot.kinematics.stiffness_uncertainty_percent", 20)

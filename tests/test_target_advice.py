@@ -83,3 +83,47 @@ def test_no_advice_when_the_calibration_swept_that_procedure_or_does_not_say_or_
     exact = _calibrated_ec66(monkeypatch, tmp_path / "d", "paper_bd", 0.0)
     noise, _, choice = _choice(exact)
     assert kept_out_by_lengths(exact, choice, noise, theta, 2.0, 1.0) == []
+
+
+def test_the_park_advice_names_the_calibrate_command_whose_plan_the_next_plan_offers(monkeypatch, tmp_path):
+    """On a fresh sim-ec66 state the plan chooses a slow row (j2_quarter 3 %, 92 s with the approach); the advice names a faster
+    candidate as `calibrate ... --park` on its own plan, with keys that make exactly that plan (so the next plan offers
+    it as the stored baseline's), with its what-if σ apart from what is predicted now; once that plan is the stored
+    one and chosen, no advice."""
+    import re
+
+    from payload_agent.calibrate_args import with_procedure, with_speed, with_sweep_and_motion
+    from payload_agent.motion.planner import make_plan
+    from payload_agent.session.stored_candidate import grid_for
+    from payload_agent.session.target_advice import park_advice, parked_what_if
+    from test_stored_candidate import _store
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()),
+                          source="configs/sim-ec66.yaml", base_dir=ROOT / "configs")
+    noise, _ = target.noise_for(config)
+    start = [float(v) for v in __import__("numpy").radians(config.simulation.start_deg)]
+    theta = design.nominal_theta(2.0, (0.0, 0.0, 100.0))
+    slow = design.predict(config, design.Candidate(3, 25, 0, 70, 1, 100, "j2_quarter"), noise, theta, start_q=start)
+    assert slow.robot_time_s > 60  # what the plan chooses there (92 s with the approach; P over about 20 %)
+    choice = design.Choice(slow, [slow])
+    text = park_advice(config, choice, noise, theta, 2.0, 1.0)
+    command = re.search(r"--procedure (\S+) --speed-percent (\S+) --sweep-deg (\S+) --travel-speed-percent (\S+) "
+                        r"--accel-percent (\S+) --park", text)
+    assert command, text
+    name, speed, sweep, travel, accel = command.groups()
+    cal = with_sweep_and_motion(with_procedure(with_speed(config, float(speed)), name), sweep, float(travel),
+                                float(accel))
+    advised = next(c for c in design.candidates_for(config) if c.procedure == name and c.speed_percent == float(speed)
+                   and (c.sweep_from_deg, c.sweep_to_deg) == tuple(float(v) for v in sweep.split(","))
+                   and c.travel_percent == float(travel) and c.accel_percent == float(accel) and c.repetitions == 1)
+    seconds = float(re.search(r"(\d+\.\d) s of robot time with no approach", text).group(1))
+    assert seconds < choice.best.robot_time_s and seconds == round(design.robot_time_s(design.plan_for(config, advised)), 1)
+    what_if = parked_what_if(config, advised, noise, theta)
+    assert what_if.meets(2.0, 1.0) and f"{what_if.mass_std_g:.2f} g / {what_if.cog_std_mm:.2f} mm" in text
+    assert what_if.approach_s == 0.0
+    _store(config, cal)  # what `calibrate` with those keys records: the next plan offers exactly that plan
+    stored = [c for c in grid_for(config) if c.stored_baseline]
+    assert len(stored) == 1 and make_plan(design.run_config(config, stored[0])).fingerprint() == make_plan(cal).fingerprint()
+    chosen = design.Choice(design.predict(config, stored[0], noise, theta, start_q=start), [])
+    assert park_advice(config, chosen, noise, theta, 2.0, 1.0) == ""

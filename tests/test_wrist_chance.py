@@ -86,3 +86,58 @@ def test_a_declared_cable_moves_the_result_by_its_fitted_effect_and_keeps_its_no
         assert np.allclose(cov, spread, rtol=1e-6, atol=1e-9 * scale)
         assert np.linalg.matrix_rank(cov, tol=1e-6 * scale) == len(s.joints) > 1
         assert np.allclose(syst.shift(), AM @ s.estimate, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(AM))))
+
+
+# -- a robot YAML that declares no cable or hose to the tool (robot.tool_cable_fitted: false, session 26) ----------
+
+
+def test_declared_none_a_chance_term_leaves_sigma_and_the_estimate_is_unchanged(runs):
+    """Through ``analyse`` on the clean arm's run whose undeclared result carries a partial cable term (seed 3: T between
+    E₀[T] and the test's quantile): declared false, the same data give the same estimate, no cable term and no cable
+    note, and a covariance that is the undeclared one less exactly that term (the CoM σ without it). Fails on main,
+    where false meant "not declared" and both results carry the term."""
+    from dataclasses import replace
+
+    import yaml
+
+    from conftest import ROOT
+    from payload_agent.configuration.config import parse_config
+    from payload_agent.evaluation.analyse import AnalysisOptions, Gains, analyse
+
+    kin, loaded, empty, mount = runs["clean"]
+    config = parse_config(yaml.safe_load((ROOT / "configs" / "sim-ec66.yaml").read_text()), source="sim-ec66.yaml")
+    options = AnalysisOptions.from_config(config)
+    gains = Gains(tuple(config.effort.gains_nm_per_unit), "nominal")
+    out = {}
+    for fitted in (None, False):
+        opts = replace(options, joints=replace(options.joints, tool_cable_fitted=fitted))
+        out[fitted] = analyse(loaded, empty, opts, gains, mount_rad=mount).primary
+    undeclared, none = out[None], out[False]
+    chance = [n for n in undeclared.notes if "tool cable on the wrist" in n]
+    assert chance and "not significant" in chance[0]  # the partial term, w·β̂β̂ᵀ
+    assert not [n for n in none.notes if "tool cable on the wrist" in n]
+    assert none.mass_kg == undeclared.mass_kg and np.array_equal(none.cog_m, undeclared.cog_m)
+    prep, model, s = _spring(kin, loaded, empty, mount)
+    assert not s.present and s.weight > 0.2
+    undeclared_joints = replace(options.joints, tool_cable_fitted=None)
+    term = systematics.evaluate(prep, kin, undeclared_joints, terms=[systematics.wrist_terms], model=model).covariance()
+    with_term, without = (np.asarray(e.covariance, float)[:4, :4] for e in (undeclared, none))
+    assert np.allclose(with_term - without, term, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(term))))
+    assert max(undeclared.cog_std_m) > max(none.cog_std_m)
+
+
+def test_declared_none_a_cable_the_test_finds_is_carried_whole_and_named(runs):
+    """Declared false where the test finds a cable (the data contradict the YAML): σ holds the whole measured effect
+    β̂β̂ᵀ, as undeclared, and the note names the key to change. Fails on main (no such note)."""
+    from dataclasses import replace
+
+    kin, loaded, empty, mount = runs["cable"]
+    prep, model, s = _spring(kin, loaded, empty, mount)
+    none = replace(systematics.RIGID, tool_cable_fitted=False)
+    syst = systematics.evaluate(prep, kin, none, terms=[systematics.wrist_terms], model=model)
+    beta = _lever_effects(model, s) @ s.stiffness_nm_per_rad
+    cov = syst.covariance()
+    assert s.present
+    assert np.allclose(cov, np.outer(beta, beta), rtol=1e-6, atol=1e-9 * float(np.max(np.abs(cov))))
+    (note,) = [t.note for t in syst.terms]
+    assert "robot.tool_cable_fitted: false" in note and "robot.tool_cable_fitted: true" in note

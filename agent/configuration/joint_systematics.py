@@ -41,7 +41,14 @@ class JointSystematicsConfig:
     friction_change_std: float = DEFAULT_FRICTION_CHANGE_PERCENT / 100.0  # of the baseline's friction level
     zero_offset_corr: tuple[tuple[float, ...], ...] | None = None  # 6×6
     zero_gain_coupling: tuple[tuple[float, ...], ...] | None = None  # 6×6
-    tool_cable_fitted: bool = False  # robot.tool_cable_fitted; False: not declared, the cable's presence test decides
+    # robot.tool_cable_fitted: True, a cable or hose runs to the tool (its effect comes off θ̂); False, declared that
+    # none does (no cable term in σ unless the presence test contradicts it); None, not declared (the test decides)
+    tool_cable_fitted: bool | None = None
+
+    @property
+    def tool_cable_absent(self) -> bool:
+        """The YAML says explicitly that no cable or hose runs to the tool (``tool_cable_fitted: false``)."""
+        return self.tool_cable_fitted is False
 
 
 def joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
@@ -63,6 +70,16 @@ def joint_systematics(kin: Node, robot: Node | None) -> JointSystematicsConfig:
     if robot is not None:
         asym_pct = robot.number("friction_asymmetry_percent", DEFAULT_FRICTION_ASYMMETRY_PERCENT, min=0, max=100)
         change_pct = robot.number("friction_change_percent", DEFAULT_FRICTION_CHANGE_PERCENT, min=0, max=100)
-    cable = robot is not None and robot.boolean("tool_cable_fitted", False)
+    cable = None if robot is None else tool_cable(robot)
     return JointSystematicsConfig(stiffness, stiff_pct / 100.0, tuple(math.radians(v) for v in zero_deg),
                                   asym_pct / 100.0, change_pct / 100.0, tool_cable_fitted=cable)
+
+
+def tool_cable(robot: Node) -> bool | None:
+    """``robot.tool_cable_fitted``: true, false (declared: no cable or hose to the tool) or absent (None: not declared,
+    the cable's presence test decides). Three states, so "no" or 0 is refused rather than read as one of them."""
+    value = robot.raw("tool_cable_fitted", None)
+    if value is not None and not isinstance(value, bool):
+        raise robot.error("tool_cable_fitted", f"expected true (a cable or hose runs to the tool), false (none does) "
+                                               f"or no value (not declared: the data decide), got {value!r}")
+    return value

@@ -55,7 +55,8 @@ from payload_agent.evaluation.planned_baseline import SharedBaseline, reusing_ru
 from payload_agent.evaluation.planned_samples import planned_sweeps, too_few_samples  # noqa: F401
 from payload_agent.evaluation.planned_scatter import corrected_covariance
 from payload_agent.evaluation.planned_terms import (DRAWS, FrictionKnowledge, WristModel, friction_covariance,
-                                                    reported_sigma_draws, wrist_model, cable_declared)
+                                                    reported_sigma_draws, wrist_model, cable_declared,
+                                                    cable_absent)
 from payload_agent.motion.planner import Plan, from_resting_pose, make_plan, move_duration_s, robot_time_s, turned_to
 
 
@@ -229,7 +230,8 @@ def terms_and_wrist_model(config: Config, plan: Plan, noise: NoiseModel, theta: 
         swept = {m.sweep.joint - 1 for m in plan.sweeps}
         rel = tuple(r if j in swept else 0.0 for j, r in enumerate(rel))
     wrist = wrist_model(sweeps, groups, w, noise.inflation, theta, rel,
-                        plan.moves[-1].target_rad if mount_rad is None else mount_rad, cable_declared(noise.joints))
+                        plan.moves[-1].target_rad if mount_rad is None else mount_rad, cable_declared(noise.joints),
+                        cable_absent(noise.joints))
     terms["wrist"] = wrist.expected()
     terms["friction"] = np.zeros((4, 4))
     terms["baseline"] = np.zeros((4, 4))

@@ -10,7 +10,9 @@ run are sized from its own data, and ``plan --target-std`` has to predict what t
   run projects κ̂ onto κ ≥ 0, tests its presence and puts β̂β̂ᵀ + D into σ where it finds a cable, w·β̂β̂ᵀ below the
   test (``cable_spring.shares``); where the robot YAML declares a cable (``robot.tool_cable_fitted``) the run takes
   AM·κ̂ off θ̂ and σ holds κ̂'s noise through AM and the drive gains' response of the corrected θ̂ in every run
-  (``cable_spring.term``), and so does the plan (``planned_spring.declared_spring_covariance``). Without a recorded
+  (``cable_spring.term``), and so does the plan (``planned_spring.declared_spring_covariance``); where it declares none
+  (``tool_cable_fitted: false``) the run carries the term only where its test finds a cable, and so do the plan's
+  draws (``spring_model(absent=True)``). Without a recorded
   mount it fits
   free offsets b̂ (one per pose and wrist joint, ``systematics.wrist_terms``), β̂ = A·b̂, D = A·C·Aᵀ, shrunk by
   s² = max(q − r, 0)/q, q = β̂ᵀD⁻¹β̂, r = rank D; with no wrist torque its expectation is D·E[(χ²_r − r)⁺]/r
@@ -149,9 +151,12 @@ def offset_model(D: np.ndarray, ratio: float = SPREAD_RATIO) -> WristModel:
     return WristModel(D, False, a, (z * np.sqrt(ratio * lam)) @ vec.T, np.zeros(DRAWS))
 
 
-def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, declared: bool = False) -> WristModel:
+def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, declared: bool = False,
+                 absent: bool = False) -> WristModel:
     """The cable spring's term of a run whose stiffnesses κ̂ (covariance C) move θ by AM·κ, drawn. ``declared``
-    (``robot.tool_cable_fitted``): the run's σ holds the correction's noise D = AM·C·AMᵀ, the same in every run."""
+    (``robot.tool_cable_fitted: true``): the run's σ holds the correction's noise D = AM·C·AMᵀ, the same in every run.
+    ``absent`` (``robot.tool_cable_fitted: false``): the term only in the draws whose T exceeds the test's quantile
+    (``CableSpring.weight``)."""
     from scipy.optimize import nnls
 
     from payload_agent.evaluation.systematics import cable_spring
@@ -163,7 +168,8 @@ def spring_model(AM: np.ndarray, C: np.ndarray, ratio: float = SPREAD_RATIO, dec
     u = np.sqrt(ratio) * _normal_draws()[:, :len(C)]  # R·κ̂
     T = cable_spring.statistics(R, u)
     critical, null_mean = cable_spring.null_distribution(C)
-    weight = np.where(T > critical, 1.0, np.maximum(T - null_mean, 0.0) / np.maximum(T, 1e-300))
+    below = 0.0 if absent else np.maximum(T - null_mean, 0.0) / np.maximum(T, 1e-300)
+    weight = np.where(T > critical, 1.0, below)
     kappa = np.zeros_like(u)
     for i in np.flatnonzero(weight > 0):  # κ*: the run's projection (``cable_spring.project``) of κ̂ = R⁻¹·u
         kappa[i] = nnls(R, u[i])[0]
@@ -185,10 +191,10 @@ def _normal_draws() -> np.ndarray:
 
 def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np.ndarray, inflation: float,
                 theta: np.ndarray, gain_rel_std: Sequence[float] | None,
-                mount_rad: Sequence[float] | None = None, declared: bool = False) -> WristModel:
+                mount_rad: Sequence[float] | None = None, declared: bool = False, absent: bool = False) -> WristModel:
     """The wrist term of a run of the planned sweeps on an arm without wrist torques: the tool cable's spring
     relaxed at ``mount_rad`` (where the loaded run starts, as the run records it; ``declared``: the robot YAML
-    declares a cable, ``cable_declared``), else the free offsets."""
+    declares a cable, ``cable_declared``; ``absent``: it declares none, ``cable_absent``), else the free offsets."""
     if mount_rad is None:
         return offset_model(wrist_spread(sweeps, groups, w, inflation, theta, gain_rel_std))
     if declared:
@@ -197,12 +203,17 @@ def wrist_model(sweeps: Sequence[DeltaSweep], groups: Sequence[wls.Group], w: np
     spring = spring_covariance(sweeps, groups, w, inflation, theta, gain_rel_std, mount_rad)
     if spring is None:  # no wrist joint with a lever: the run has no wrist term
         return offset_model(np.zeros((4, 4)))
-    return spring_model(*spring)
+    return spring_model(*spring, absent=absent)
 
 
 def cable_declared(joints) -> bool:
     """Whether the robot's declarations (``JointSystematicsConfig`` or None) say a tool cable is fitted."""
-    return bool(getattr(joints, "tool_cable_fitted", False))
+    return getattr(joints, "tool_cable_fitted", None) is True
+
+
+def cable_absent(joints) -> bool:
+    """Whether the robot's declarations (``JointSystematicsConfig`` or None) say no cable or hose runs to the tool."""
+    return getattr(joints, "tool_cable_fitted", None) is False
 
 
 def reported_sigma_draws(base_cov: np.ndarray, model: WristModel, theta: np.ndarray, noise_cov: np.ndarray | None = None,
@@ -344,5 +355,6 @@ def earlier_friction_change(config, limit: int = 5) -> FrictionKnowledge | None:
 
 
 __all__ = ["shrunk_share", "wrist_spread", "WristModel", "offset_model", "spring_model", "wrist_model", "cable_declared",
+           "cable_absent",
            "spring_covariance", "reported_sigma_draws", "FrictionKnowledge", "measurement_variance", "expected_change_square",
            "friction_covariance", "earlier_friction_change"]

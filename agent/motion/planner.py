@@ -285,6 +285,25 @@ def _closing_turns(build, wrists: dict[str, np.ndarray], after: tuple[float, ...
     return best
 
 
+def parked(config: Config, plan: Plan) -> Plan:
+    """``plan`` ending with one more travel move back to its own first target (``calibrate --park``), unless it
+    ends there already: the arm then waits for the tool change at the first pose of this plan, so a run of the same
+    plan after it (one that reuses the calibration's empty run) starts with no approach, and the tool goes on (the
+    rest of a cable's spring) at a pose of its own sweeps. An ordinary move of the plan, checked with the rest of it
+    before the first move (a park the gate would refuse refuses the session), and recorded as our resting pose."""
+    if len(plan.moves) < 2:
+        return plan
+    first, end = plan.moves[0].target_rad, plan.moves[-1].target_rad
+    if _largest_turn(first, end) <= 1e-9:
+        return plan
+    pc, robot = config.procedure, config.robot
+    label = plan.moves[0].label.removeprefix("approach ")
+    park = Move(f"park at {label} (the plan's first pose)", "travel", first,
+                robot.max_joint_speed_rad_s * pc.travel_speed_percent / 100.0,
+                robot.max_joint_accel_rad_s2 * pc.accel_percent / 100.0)
+    return dataclasses.replace(plan, moves=(*plan.moves, park))
+
+
 def first_move_percent(config: Config, from_rest: bool) -> float:
     """The speed cap of a session's first move, % of the joints' top speed: the slow approach, because the arm may
     stand anywhere; travel speed (within ``safety.max_speed_percent``) when it stands at our own resting pose

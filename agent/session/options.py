@@ -35,6 +35,9 @@ class RunOptions:
     # end with a travel move back to where the arm stood when the session started (part of the plan the gate
     # approves whole): a tool change hands the arm back where the cell had it, near the next verify's start
     return_to_start: bool = False
+    # end the last run with a travel move back to the plan's first pose (``motion.planner.parked``; `calibrate
+    # --park`): the arm waits there for the tool change, and a run of the same plan then needs no approach
+    park: bool = False
 
     @property
     def asks(self) -> bool:

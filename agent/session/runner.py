@@ -22,7 +22,7 @@ from payload_agent.configuration.config import Config
 from payload_agent.drivers.base import Driver
 from payload_agent.errors import (CommunicationError, DataError, MotionAbortedError, PayloadAgentError,
                                   QualityGateError, SafetyError)
-from payload_agent.motion.planner import Plan, expected_durations, from_resting_pose, remaining_plan, turned_to
+from payload_agent.motion.planner import Plan, expected_durations, parked, remaining_plan, turned_to
 from payload_agent.motion.safety import SafetyGate
 from payload_agent.analysis.run_deltas import segment_phase
 from payload_agent.evaluation.calibration import RUN_CALIBRATION, effective_calibration
@@ -30,6 +30,7 @@ from payload_agent.recording import resting_pose
 from payload_agent.recording.recorder import RunRecorder
 from payload_agent.recording.state import RobotState
 from payload_agent.session import baseline as baselines
+from payload_agent.session import run_ends
 from payload_agent.output.console import attach_run_log, detach_run_log
 from payload_agent.output.plan_table import format_plan
 from payload_agent.session.finish import RunOutcome, finish, write_run_report
@@ -94,11 +95,13 @@ class Session:
                                              joint_temperatures_c=joint_temperatures(driver))
             chosen = mode.select(config, plan, opts, state, current, probe.info, out)
             if opts.return_to_start:
-                chosen = _returning(config, chosen, probe.q)
+                chosen = run_ends.returning(config, chosen, probe.q)
+            if opts.park:
+                chosen = run_ends.parking(config, chosen, out)
             resting = resting_pose.standing_at(state.root, probe.q)
             gate = SafetyGate(config, resting)  # the gate compares the record with the angles itself
             if resting is not None:
-                chosen = _from_resting_pose(config, chosen)
+                chosen = run_ends.from_rest(config, chosen)
                 out(f"The arm rests at {resting.describe()}: the first move runs at travel speed")
             durations = _show_and_confirm(config, opts, ui, driver, gate, chosen, probe.q)
             changing = len(chosen.todo) > 1 or mode.empties_flange
@@ -116,7 +119,8 @@ class Session:
                     _prepare_tool(phase, mounted, cell, mode, opts, ui, changing)
                 phase_runner.run_phase(phase, phase_plan, resume=mode.resumed)
                 if phase in ("empty", "loaded"):  # checked while the robot and the tool are as recorded
-                    _check_segmentation(config, phase, plan, recorder, phase_runner, opts.retry_sweeps, out)
+                    whole = parked(config, plan) if opts.park and i == len(chosen.todo) - 1 else plan
+                    _check_segmentation(config, phase, whole, recorder, phase_runner, opts.retry_sweeps, out)
             if phase_runner.progress is not None:
                 phase_runner.progress.close()
             driver.stop_stream()
@@ -153,29 +157,6 @@ class Session:
                 error.outcome, error.run_dir = outcome, outcome.run_dir
                 raise error from None
         return outcome
-
-
-def _returning(config: Config, chosen: Selection, start_q) -> Selection:
-    """``chosen`` whose last phase ends with a travel move back to ``start_q``, where the arm stood before the
-    session's first move (``RunOptions.return_to_start``); the gate checks it with the rest of that phase."""
-    from dataclasses import replace
-
-    from payload_agent.motion.planner import Move
-
-    phase, mounted, last = chosen.todo[-1]
-    travel = config.robot.max_joint_speed_rad_s * config.procedure.travel_speed_percent / 100.0
-    accel = next((m.accel_rad_s2 for m in reversed(last.moves) if m.kind == "travel"), last.moves[-1].accel_rad_s2)
-    back = Move("return to where the session started", "travel", tuple(float(v) for v in start_q), travel, accel)
-    return replace(chosen, todo=[*chosen.todo[:-1], (phase, mounted, Plan(last.procedure, (*last.moves, back)))])
-
-
-def _from_resting_pose(config: Config, chosen: Selection) -> Selection:
-    """``chosen`` whose first run leaves our own resting pose at travel speed (``motion.planner.from_resting_pose``);
-    a later run of the session still approaches its start slowly."""
-    from dataclasses import replace
-
-    phase, mounted, first = chosen.todo[0]
-    return replace(chosen, todo=[(phase, mounted, from_resting_pose(config, first)), *chosen.todo[1:]])
 
 
 def _check_controller(config: Config, mode: Mode, ui: OperatorUI, driver: Driver, plan: Plan) -> Probe:
@@ -255,10 +236,13 @@ def _refuse_unreachable_runs(gate: SafetyGate, chosen: Selection, start_q: np.nd
             f"the safety gate refused the session before its first move: {names[phase]} starts where "
             f"{names[before]} ends ([{end}] deg) and its first target is [{begin}] deg:\n"
             + "\n".join(f"  - {p}" for p in verdict.problems)
-            + "\nThe plan does not close its loop (`payload-agent plan` says whether it does). Record the runs in "
-            "two sessions (`payload-agent baseline` with the empty flange; move the arm to within 200° of that first "
-            "target in every joint; then this command, which uses the stored baseline), or change the procedure "
-            "so that it ends within reach of its start.")
+            + ("\nThe move back to the plan's first pose (--park) is refused: `payload-agent plan --park` shows it; "
+               "leave --park out, or choose a plan whose end lies within reach of its first pose."
+               if any("(park at " in p for p in verdict.problems) else
+               "\nThe plan does not close its loop (`payload-agent plan` says whether it does). Record the runs in "
+               "two sessions (`payload-agent baseline` with the empty flange; move the arm to within 200° of that first "
+               "target in every joint; then this command, which uses the stored baseline), or change the procedure "
+               "so that it ends within reach of its start."))
 
 
 def _open_recorder(config: Config, mode: Mode, opts: RunOptions, plan: Plan, probe: Probe, driver: Driver,

@@ -231,15 +231,19 @@ def plan_target(config: Config, args, start_q, con) -> dict:
                "without the approach move (give --from-deg or --connect to count it):"))
     con.say(choice.describe(grams, mm))
     from payload_agent.evaluation.design import nominal_theta
-    from payload_agent.session.target_advice import calibration_advice
+    from payload_agent.session.target_advice import calibration_advice, park_advice
 
     advice = calibration_advice(config, choice, noise[0], nominal_theta(payload.mass_kg, payload.cog_mm),
                                 grams, mm, start_q, from_rest)
     if advice:
         con.say(advice)
+    parking = park_advice(config, choice, noise[0], nominal_theta(payload.mass_kg, payload.cog_mm), grams, mm)
+    if parking:
+        con.say(parking)
     out: dict = {"noise_source": source, "payload": {"mass_kg": payload.mass_kg, "cog_mm": list(payload.cog_mm),
                                                       "source": payload.source},
-                 "approach_counted": start_q is not None, "approach_from_rest": from_rest, "chosen": None, "calibration_advice": advice or None}
+                 "approach_counted": start_q is not None, "approach_from_rest": from_rest, "chosen": None, "calibration_advice": advice or None,
+                 "park_advice": parking or None}
     if choice.best is None:
         return out
     best = choice.best

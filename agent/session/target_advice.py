@@ -86,3 +86,69 @@ def calibration_advice(config: Config, choice: design.Choice, noise: design.Nois
     return "\n".join([f"Faster candidates that miss the target only by their DH-length term (the stored calibration "
                       f"swept {cal.procedure.describe()}; one on a candidate's own procedure absorbs more of the "
                       f"lengths for it, how much is known only after it: plan again then):", *lines])
+
+
+def parked_what_if(config: Config, c, noise: design.NoiseModel, theta) -> design.Prediction:
+    """The candidate ``c`` as its run would be after ``calibrate --park`` on its own plan: the arm at its first pose
+    (our resting pose, no approach), the run reusing the calibration's empty run (the shared-baseline term), and the
+    calibration absorbing its whole DH-length term (one on the procedure the run sweeps absorbs nearly all of it,
+    docs/benchmarks.md session 16). The drive gains' uncertainty stays the one the plan has now: the new calibration's
+    is known only after it. A what-if to screen by, not the prediction the plan makes after that calibration."""
+    from payload_agent.evaluation.planned_baseline import SharedBaseline
+
+    own = dataclasses.replace(c, inertia=None, stored_baseline=True)  # `calibrate --procedure` leaves the part out
+    cfg = design.run_config(config, own)
+    shared = SharedBaseline(design.plan_for(config, own).fingerprint(), cfg.procedure.name, float(c.speed_percent))
+    first = design.plan_for(config, own).moves[0].target_rad
+    return design.predict(config, own, dataclasses.replace(noise, length_std_m=0.0, shared_baseline=shared), theta,
+                          start_q=first, from_rest=True)
+
+
+def park_advice(config: Config, choice: design.Choice, noise: design.NoiseModel, theta: Sequence[float],
+                mass_std_g: float, cog_std_mm: float) -> str:
+    """Lines for ``plan --target-std`` naming the fastest candidate whose procedure alone is faster than the chosen
+    row's robot time (its approach counted; any, when none meets the target) and which, calibrated on with ``--park``,
+    would meet the target in the what-if of ``parked_what_if``: the ``calibrate`` command with its keys and
+    ``--park``; "" when none is found or the chosen row is the stored plan already (the calibration's own). Nothing is
+    promised: plan again after it."""
+    from payload_agent.errors import PayloadAgentError
+    from payload_agent.evaluation.candidates import candidates_for
+    from payload_agent.motion.planner import robot_time_s
+
+    best = choice.best
+    if best is not None and best.candidate.stored_baseline:
+        return ""
+    limit = float("inf") if best is None else best.robot_time_s
+    theta = np.asarray(theta, float)
+    groups: dict = {}  # the candidates alike but for their sweep speed, each with its procedure's robot time
+    for c in candidates_for(config):
+        try:
+            t = robot_time_s(design.plan_for(config, c))
+        except (PayloadAgentError, ValueError):
+            continue
+        if c.repetitions == 1 and t < limit:
+            groups.setdefault(dataclasses.replace(c, speed_percent=0.0), []).append((t, c))
+    # a screen, to keep `plan` quick: a group whose slowest sweep (the most samples) misses is left out whole
+    kept = [tc for members in groups.values() for tc in members
+            if parked_what_if(config, max(members, key=lambda m: m[0])[1], noise, theta).meets(mass_std_g, cog_std_mm)]
+    for t, c in sorted(kept, key=lambda tc: tc[0]):
+        q = parked_what_if(config, c, noise, theta)
+        if not q.meets(mass_std_g, cog_std_mm):
+            continue
+        now = next((p for p in choice.table if p.candidate == c), None)
+        name = c.procedure or config.procedure.name
+        return "\n".join([
+            ("Faster" if best is not None else "Within the target, perhaps,")
+            + f" with a calibration on its own plan that parks the arm at its first pose: {c.describe()}, "
+            f"{t:.1f} s of robot time with no approach"
+            + ("" if now is None or not now.usable else
+               f" (now: {now.robot_time_s:.0f} s with the approach, σ {now.mass_std_g:.2f} g / {now.cog_std_mm:.2f} mm, "
+               f"P over {100 * now.p_over(mass_std_g, cog_std_mm):.0f} %)") + ":",
+            f"  payload-agent calibrate --robot {config.source} --known-mass KG --known-cog X,Y,Z --procedure {name} "
+            f"--speed-percent {c.speed_percent:g} --sweep-deg {c.sweep_from_deg:g},{c.sweep_to_deg:g} "
+            f"--travel-speed-percent {c.travel_percent:g} --accel-percent {c.accel_percent:g} --park",
+            f"  then mount the tool where it parks and plan again: `plan --target-std` offers that plan, whose run starts "
+            f"there and reuses the calibration's empty run. Its σ is known only after the calibration (if it took the "
+            f"whole DH-length term, with the gains' uncertainty as now: {q.mass_std_g:.2f} g / {q.cog_std_mm:.2f} mm, "
+            f"P over {100 * q.p_over(mass_std_g, cog_std_mm):.0f} %)."])
+    return ""

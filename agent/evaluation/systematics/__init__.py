@@ -335,7 +335,7 @@ def wrist_terms(ctx: Context) -> list[Term]:
 def _spring_terms(ctx: Context, labels: list[str], sens: dict[str, np.ndarray]) -> list[Term]:
     try:
         s = cable_spring.fit_spring(ctx.model, labels, ctx.prepared.mount_rad, gain_reference=ctx.gain_reference,
-                                    declared=ctx.decl.tool_cable_fitted)
+                                    declared=ctx.decl.tool_cable_fitted is True, absent=ctx.decl.tool_cable_absent)
     except (DataError, np.linalg.LinAlgError):
         return []
     t = None if s is None else cable_spring.term(s, sens, ctx.model)  # declared: the fitted κ̂'s effect off θ̂

@@ -40,6 +40,13 @@ moves both, so σ holds the corrected estimate's response to each gain in place 
 (``corrected_columns``, session 22). Not in C, measured (session 22, not modelled): the still wrist's
 load-dependent gear ripple, a gain error per (pose, wrist joint) (``gain_scatter``), moves κ̂ by more than C at 1 %
 sweeps on the hard arm.
+
+Where the YAML declares that no cable or hose runs to the tool (``robot.tool_cable_fitted: false``), σ carries no
+cable term below the test: the share w·β̂β̂ᵀ is there because the agent cannot tell a weak cable from noise, and the
+user can (on the clean shipped sim-ec66 that share was in σ in 11 of 40 runs and widened the largest CoM σ by up to
+0.45 mm, to at most 1.29 mm, with the same coverage without it: docs/benchmarks.md, session 26, "no tool cable"). Where the test still finds one (T above its 1 − ``ALPHA`` quantile, 5 % of
+runs on an arm without a cable) the data contradict the declaration: σ holds the whole measured effect, as
+undeclared, and the note names the key (``note``).
 """
 
 from __future__ import annotations
@@ -74,7 +81,8 @@ class CableSpring:
     critical: float  # the 1 − ALPHA quantile of T under κ = 0
     null_mean: float  # E[T] under κ = 0
     estimate: np.ndarray | None = None  # (p,) the unconstrained κ̂
-    declared: bool = False  # ``robot.tool_cable_fitted``: κ̂'s effect comes off θ̂ (``term``)
+    declared: bool = False  # ``robot.tool_cable_fitted: true``: κ̂'s effect comes off θ̂ (``term``)
+    absent: bool = False  # ``robot.tool_cable_fitted: false``: no cable declared, no term unless the test finds one
     # {joint: (p,) σ_j·∂κ̂/∂ε_j}: κ̂'s response to each drive gain's standard uncertainty, the part of ``cov`` the
     # gains make (``cov`` = the noise's + Σ_j of their outer products); the same gain errors move θ̂_plain (``term``)
     gain_directions: dict[int, np.ndarray] | None = None
@@ -88,9 +96,12 @@ class CableSpring:
         """The share of the measured effect β̂β̂ᵀ that goes into σ: all of it where the test finds a cable, else the
         share the data show beyond noise, (T − E₀[T])⁺/T (a cable too weak for the test still moves θ: 2–4 σ of mass
         in the weak-cable ablation's undetected cases). ``shares`` gives D no share. Declared: 1, the whole of κ̂'s
-        effect, taken off θ̂ rather than put in σ (``term``)."""
+        effect, taken off θ̂ rather than put in σ (``term``). Declared absent (no cable or hose to the tool): 0 below
+        the test, where the YAML says what the data cannot tell from noise; 1 above it, where the data contradict it."""
         if self.declared or self.present:
             return 1.0
+        if self.absent:
+            return 0.0
         return max(self.statistic - self.null_mean, 0.0) / self.statistic if self.statistic > 0 else 0.0
 
 
@@ -182,11 +193,12 @@ def moving_arm_joint(group: Group, sweep: DeltaSweep) -> str | None:
 
 def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[float],
                alpha: float = ALPHA, gain_reference: tuple | None = None, declared: bool = False,
-               arm_offsets: offsets.Selector | None = moving_arm_joint) -> CableSpring | None:
+               arm_offsets: offsets.Selector | None = moving_arm_joint, absent: bool = False) -> CableSpring | None:
     """The spring fitted beside θ on ``model``'s rows (with the still joints' nuisance gain columns where a
     torque-gain scatter is found, as ``wrist.measure`` does, and with what ``gain_reference``'s calibration
     absorbed of them on every row of their joints: ``wrist.columns``); None when no wrist joint has a lever.
-    ``declared``: the robot YAML says a cable is fitted, so κ̂'s effect comes off θ̂ (``term``).
+    ``declared``: the robot YAML says a cable is fitted, so κ̂'s effect comes off θ̂ (``term``); ``absent``: it says
+    none is (``robot.tool_cable_fitted: false``), so σ holds the effect only where the test finds one (``weight``).
     ``arm_offsets``: the nuisance offsets of the moving arm joints' rows fitted with it (``moving_arm_joint``; None:
     none, the fit before session 18)."""
     sweeps, groups = list(model.sweeps), list(model.groups)
@@ -212,7 +224,7 @@ def fit_spring(model: FittedModel, labels: Sequence[str], mount_rad: Sequence[fl
     cov = res.cov[4:4 + p, 4:4 + p] + sum((np.outer(d, d) for d in gains.values()), np.zeros((p, p)))
     order = [names.index(lab) for lab in labels]
     return CableSpring(joints, M_all[order], project(kappa, cov), cov, statistic(kappa, cov),
-                       *null_distribution(cov, alpha), kappa, declared, gains)
+                       *null_distribution(cov, alpha), kappa, declared, absent, gains)
 
 
 def effect(spring: CableSpring, sens: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -302,7 +314,8 @@ def term(spring: CableSpring, sens: dict[str, np.ndarray], model: FittedModel | 
     (``Term.shift``) and σ holds the corrected θ̂'s part beyond the plain fit's: κ̂'s noise A·M·C_noise·MᵀAᵀ and
     the drive gains' response replaced by the corrected fit's (``declared_columns``; without ``model``, whose
     plain fits' gain responses that needs: D = A·M·C·MᵀAᵀ). Else a·β̂β̂ᵀ in σ (``shares``); None where that share
-    is 0."""
+    is 0: below the test where the YAML declares no cable (``CableSpring.absent``), whose note names the key where the
+    test contradicts it."""
     p = len(spring.joints)
     if spring.declared:
         if model is not None and model.gain_rel_std is not None and spring.gain_directions:
@@ -329,6 +342,12 @@ def note(spring: CableSpring, mass_shift_kg: float = 0.0) -> str:
                 f"tool was mounted, {test}): its effect removed from the result at the stiffness's posterior mean "
                 f"under a flat prior on κ, not restricted to κ ≥ 0 (the spring fitted beside θ: {fitted} mN·m/rad; "
                 f"the mass {-1000 * mass_shift_kg:+.1f} g by it), that estimate's noise in σ")
+    if spring.present and spring.absent:
+        return (f"a tool cable on the wrist although the robot YAML declares none (robot.tool_cable_fitted: false): "
+                f"the data show a spring relaxed where the tool was mounted, {stiff} mN·m/rad ({test}; on an arm "
+                f"without one this happens in {100 * ALPHA:.0f} % of runs); its effect on the result as measured, in "
+                "σ. If a cable or hose runs to the tool, set robot.tool_cable_fitted: true (its effect is then taken "
+                "off the result); if none does, this run is one of those chance findings")
     if spring.present:
         return (f"a tool cable on the wrist (a spring relaxed where the tool was mounted, {stiff} mN·m/rad; found: "
                 f"{test}): its effect on the result as measured, in σ")
