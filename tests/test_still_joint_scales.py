@@ -13,6 +13,7 @@ angles of joints 2 and 3, which turn elsewhere and whose per-angle errors it mea
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -84,3 +85,27 @@ def test_a_tool_run_gets_the_error_the_calibration_measured_at_its_own_torques_s
     assert {n: other[(n, 3)] for n in wrist} == {n: next(same[(m, 3)] for m in wrist if same[(m, 3)] != same[(n, 3)])
                                                for n in wrist}
     assert not any(j == 3 for (_, j) in calibration_clusters.matches(still, cal.reference))
+
+
+def test_an_off_axis_reference_leaves_the_wrists_scale_measured_and_the_plan_finite(tmp_path):
+    """The product's fast flow on sim-ec66 (seed 1: calibrate on j2_triple 7 %, 0–15°, travel 25 %, accel 100 %,
+    parked, with 5 kg at (60, 0, 80) mm), then plan --target-std 2,1. Joint 6 never turns and stands at −90°, 0° and
+    +90°; at ±90° the reference puts almost no torque on it (shares of 4e-11 and 3e-11 of its information). With such a
+    cluster as the joint's column its scale came out 0.986 ± 162 and no procedure met the target (least mass σ 425 g):
+    a cluster below the gain fit's signal-to-noise gets no column of its own, and the joint's column is its
+    best-determined cluster. Main's pooled gain: 0.9862 ± 0.0062."""
+    from benchmarks.seeded_runs import resting_deg, seed_config
+    from payload_agent.session import target as targets
+
+    config = seed_config("sim-ec66", 1, tmp_path, True, (5.0, (60.0, 0.0, 80.0)), 7.0, 2, False, 0.0, "j2_triple",
+                         ("0,15", 25.0, 100.0), inertia=False, calibrate_park=True)
+    gains = json.loads(next(tmp_path.rglob("gains.json")).read_text())
+    assert 6 in gains["fitted_joints"]
+    assert gains["scale"][5] == pytest.approx(0.986, abs=0.01)
+    assert gains["scale_std"][5] < 0.01, gains["scale_std"]
+    sim = dataclasses.replace(config.simulation, start_deg=tuple(resting_deg(config)))
+    config = dataclasses.replace(config, simulation=sim)
+    payload = targets.ExpectedPayload(sim.payload.mass_kg, tuple(sim.payload.cog_mm), "sim")
+    choice, _ = targets.plan_for_target(config, "2,1", payload, np.radians(sim.start_deg))
+    best = min(p.mass_std_g for p in choice.table if p.usable)
+    assert best < 2.0, best

@@ -12,6 +12,7 @@ import numpy as np
 
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.evaluation import still_joint_scales
+from payload_agent.evaluation.gain_scales import MIN_SIGNAL_TO_NOISE
 from payload_agent.evaluation.reference_shares import ReferenceShares, both_way_joint
 from payload_agent.evaluation.systematics import gain_scatter, three_step_response
 from payload_agent.model.kinematics import Kinematics
@@ -45,7 +46,7 @@ def measure(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: S
     clusters = tuple((j, float(np.mean(angles[c])), w) for c, (j, w) in shares.items())
     joint_of = {name: g.joint for g, name in zip(groups, names) if name is not None}
     signed: dict[str, tuple[int, list[float], int]] = {}
-    for c in still_joint_scales.signed_clusters(sweeps, groups, theta_ref):
+    for c in still_joint_scales.signed_clusters(sweeps, groups, theta_ref, MIN_SIGNAL_TO_NOISE):
         if c is not None:
             signed.setdefault(c[0], (c[1], [], c[3]))[1].append(c[2])
     own = still_joint_scales.kept(dict(own or {}), list(signed))

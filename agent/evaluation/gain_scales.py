@@ -53,7 +53,7 @@ def _groups_by_joint(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics,
     groups = general.build_groups(sweeps, kin)
     by_name = {d.key.name: d for d in sweeps}
     out: dict[int, list[tuple[np.ndarray, np.ndarray, bool, str | None, str | None]]] = {}
-    relative = still_joint_scales.signed_clusters(sweeps, groups, theta)
+    relative = still_joint_scales.signed_clusters(sweeps, groups, theta, MIN_SIGNAL_TO_NOISE)
     for g, own, rel in zip(groups, own_scales(sweeps, groups), relative):
         d = by_name[g.sweep]
         # a moving joint in a one-direction sweep keeps friction the baseline did not remove
@@ -125,8 +125,11 @@ def fit_joint_scales(deltas: dict[SweepKey, DeltaSweep], kin: Kinematics, known_
         n = len(pred)
         offset_parts = [i for i, p in enumerate(parts) if p[2]]
         own = list(dict.fromkeys(p[3] for p in parts if p[3] is not None))  # the still clusters' own scales
-        # a never-turning joint's clusters: the first one's gain in column 0, each other's difference to it
+        # a never-turning joint's clusters: the best-determined one's gain in column 0, each other's difference to it
         rel = list(dict.fromkeys(p[4] for p in parts if p[4] is not None))
+        if rel:
+            rel = still_joint_scales.base_first(rel, [float(sum(p[0] @ p[0] for p in parts if p[4] == name))
+                                                      for name in rel])
         rel_col = {name: 1 + len(offset_parts) + len(own) + c - 1 for c, name in enumerate(rel) if c > 0}
         X = np.zeros((n, 1 + len(offset_parts) + len(own) + max(len(rel) - 1, 0)))
         X[:, 0] = pred

@@ -35,22 +35,40 @@ from payload_agent.solvers.wls import Group
 SIGNS = {1: "+", -1: "-"}
 
 
-def signed_clusters(sweeps: list[DeltaSweep], groups: list[Group], theta_ref: Sequence[float]
-                    ) -> list[tuple[str, int, float, int] | None]:
+def signed_clusters(sweeps: list[DeltaSweep], groups: list[Group], theta_ref: Sequence[float],
+                    min_signal_to_noise: float) -> list[tuple[str, int, float, int] | None]:
     """Per group: (name, joint, angle rad, sign) of its (joint, standing angle, sign of the reference's torque) cluster
     where its joint moves in none of ``sweeps`` and stands in two or more such clusters that carry the reference's
-    torque; None elsewhere (a joint that turns somewhere: ``gain_scales.own_scales``; one cluster: it is the gain)."""
+    torque; None elsewhere (a joint that turns somewhere: ``gain_scales.own_scales``; one cluster: it is the gain).
+
+    A cluster carries the reference's torque where its largest |Δτ_pred| is ``min_signal_to_noise`` times the
+    residual σ of its joint's pooled fit (Δτ_meas = k·Δτ_pred over all its rows): the gain fit's own test of a joint
+    (``gain_scales.MIN_SIGNAL_TO_NOISE``), here per cluster. One below it has no scale to measure and keeps the
+    pooled gain, as its rows did before the relative scales: an off-axis reference (5 kg at 60, 0, 80 mm) puts
+    almost no torque on the wrist standing at ±90° (a 1e-11 share of its information), and that cluster's own
+    column made joint 6's scale 0.986 ± 162 (docs/benchmarks.md, session 26)."""
     theta = np.asarray(theta_ref, float)
     by_name = {d.key.name: d for d in sweeps}
     moves = {g.joint for g in groups if by_name[g.sweep].moving == g.joint}
+    preds = [g.Y[:, :len(theta)] @ theta for g in groups]
+    sigma: dict[int, float] = {}
+    for j in {g.joint for g in groups} - moves:
+        p = np.concatenate([pr for g, pr in zip(groups, preds) if g.joint == j])
+        y = np.concatenate([g.y for g in groups if g.joint == j])
+        k = float(p @ y) / max(float(p @ p), 1e-300)
+        sigma[j] = float(np.sqrt(np.sum((y - k * p) ** 2) / max(len(y) - 1, 1)))
     out: list[tuple[str, int, float, int] | None] = []
-    for g, name in zip(groups, gain_scatter.clusters(sweeps, groups)):
-        pred = g.Y[:, :len(theta)] @ theta
+    for g, name, pred in zip(groups, gain_scatter.clusters(sweeps, groups), preds):
         if name is None or g.joint in moves or np.max(np.abs(pred)) <= gain_scatter.MIN_CLUSTER_PEAK_NM:
             out.append(None)
             continue
         sign = 1 if float(np.mean(pred)) > 0 else -1
         out.append((name + SIGNS[sign], g.joint, float(np.median(by_name[g.sweep].q[:, g.joint])), sign))
+    peak: dict[str, float] = {}
+    for c, pred in zip(out, preds):
+        if c is not None:
+            peak[c[0]] = max(peak.get(c[0], 0.0), float(np.max(np.abs(pred))))
+    out = [c if c is not None and peak[c[0]] >= min_signal_to_noise * sigma[c[1]] else None for c in out]
     per_joint: dict[int, set[str]] = {}
     for c in out:
         if c is not None:
@@ -58,11 +76,21 @@ def signed_clusters(sweeps: list[DeltaSweep], groups: list[Group], theta_ref: Se
     return [c if c is not None and len(per_joint[c[1]]) > 1 else None for c in out]
 
 
+def base_first(names: Sequence[str], info: Sequence[float]) -> list[str]:
+    """``names`` with the best-determined cluster (largest ``info``, its Σ pred²) first: the one whose gain a fit
+    takes as its joint's column, the others' differences to it in columns of their own (``relative_map``). A cluster
+    with little information as the joint's column leaves the gain's direction of the covariance all but undetermined
+    (joint 6 at −90° above: a share of 4e-11), which the fits' pseudo-inverses do not survive."""
+    best = int(np.argmax(info))
+    return [names[best], *names[:best], *names[best + 1:]]
+
+
 def relative_map(n_coef: int, k_col: int, cluster_cols: Sequence[int | None], info: Sequence[float]
                  ) -> tuple[np.ndarray, np.ndarray]:
     """(a, R): the joint's gain k̄ = a·coef and each cluster's k_c − k̄ = R_c·coef, from a fit whose column ``k_col``
-    is the gain of the first cluster (no column of its own: ``cluster_cols[c]`` None) and whose column
-    ``cluster_cols[c]`` is cluster c's k_c − k_first; ``info``: each cluster's Σ pred² (its weight in k̄)."""
+    is the gain of the first cluster (no column of its own: ``cluster_cols[c]`` None; the best-determined one,
+    ``base_first``) and whose column ``cluster_cols[c]`` is cluster c's k_c − k_first; ``info``: each cluster's
+    Σ pred² (its weight in k̄)."""
     w = np.asarray(info, float) / max(float(np.sum(info)), 1e-300)
     a = np.zeros(n_coef)
     a[k_col] = 1.0
@@ -107,4 +135,4 @@ def kept(own: dict[str, tuple[float, float]], relative: Sequence[str]) -> dict[s
     return {n: v for n, v in own.items() if n not in relative or v[1] < tau}
 
 
-__all__ = ["SIGNS", "signed_clusters", "relative_map", "relative_errors", "kept"]
+__all__ = ["SIGNS", "signed_clusters", "base_first", "relative_map", "relative_errors", "kept"]

@@ -33,7 +33,7 @@ import numpy as np
 from payload_agent.analysis.delta import DeltaSweep
 from payload_agent.configuration.config import JointSystematicsConfig
 from payload_agent.evaluation import still_joint_scales
-from payload_agent.evaluation.gain_scales import own_scales
+from payload_agent.evaluation.gain_scales import MIN_SIGNAL_TO_NOISE, own_scales
 from payload_agent.model.kinematics import Kinematics
 from payload_agent.recording.rundata import SweepData
 from payload_agent.solvers import general, wls
@@ -138,7 +138,7 @@ def _rows(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta: np.ndar
     sweeps = general.select_sweeps(dict(deltas))
     base = general.build_groups(sweeps, kin, joints)
     apart = own_scales(sweeps, base)
-    relative = still_joint_scales.signed_clusters(sweeps, base, theta)
+    relative = still_joint_scales.signed_clusters(sweeps, base, theta, MIN_SIGNAL_TO_NOISE)
     shifted = {i: {g.label: g for g in general.build_groups(
         [replace(d, q=d.q + np.eye(6)[i] * STEP_RAD) for d in sweeps], kin, joints)} for i in zero_joints}
     by_name = {d.key.name: d for d in sweeps}
@@ -169,9 +169,12 @@ def fit(deltas: Mapping[SweepKey, DeltaSweep], kin: Kinematics, theta_ref: Seque
     jcol = {j: c for c, j in enumerate(joints)}
     offsets = [i for i, p in enumerate(parts) if p[4]]
     own = list(dict.fromkeys(p[5] for p in parts if p[5] is not None))  # the still clusters' own scales
-    # a never-turning joint's clusters (``still_joint_scales``): its first one's gain in the joint's column, each
-    # other's difference to it in a column of its own
+    # a never-turning joint's clusters (``still_joint_scales``): its best-determined one's gain in the joint's column,
+    # each other's difference to it in a column of its own
     rel = {j: list(dict.fromkeys(p[6] for p in parts if p[0] == j and p[6] is not None)) for j in joints}
+    rel = {j: still_joint_scales.base_first(names, [float(sum(p[1] @ p[1] for p in parts if p[6] == name))
+                                                    for name in names]) if names else names
+           for j, names in rel.items()}
     rel_names = [name for j in joints for name in rel[j][1:]]
     rel_col = {name: len(joints) + len(offsets) + len(own) + c for c, name in enumerate(rel_names)}
     nk, no, nz = len(joints), len(offsets) + len(own) + len(rel_names), len(zj)
