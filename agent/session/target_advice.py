@@ -98,8 +98,9 @@ def parked_what_if(config: Config, c, noise: design.NoiseModel, theta) -> design
 
     own = dataclasses.replace(c, inertia=None, stored_baseline=True)  # `calibrate --procedure` leaves the part out
     cfg = design.run_config(config, own)
-    shared = SharedBaseline(design.plan_for(config, own).fingerprint(), cfg.procedure.name, float(c.speed_percent))
-    first = design.plan_for(config, own).moves[0].target_rad
+    plan = design.plan_for(config, own)
+    shared = SharedBaseline(plan.fingerprint(), cfg.procedure.name, float(c.speed_percent))
+    first = plan.moves[0].target_rad
     return design.predict(config, own, dataclasses.replace(noise, length_std_m=0.0, shared_baseline=shared), theta,
                           start_q=first, from_rest=True)
 
@@ -129,10 +130,17 @@ def park_advice(config: Config, choice: design.Choice, noise: design.NoiseModel,
         if c.repetitions == 1 and t < limit:
             groups.setdefault(dataclasses.replace(c, speed_percent=0.0), []).append((t, c))
     # a screen, to keep `plan` quick: a group whose slowest sweep (the most samples) misses is left out whole
+    what_if: dict = {}  # candidate -> its ``parked_what_if``, each predicted once
+
+    def predicted(c):
+        if c not in what_if:
+            what_if[c] = parked_what_if(config, c, noise, theta)
+        return what_if[c]
+
     kept = [tc for members in groups.values() for tc in members
-            if parked_what_if(config, max(members, key=lambda m: m[0])[1], noise, theta).meets(mass_std_g, cog_std_mm)]
+            if predicted(max(members, key=lambda m: m[0])[1]).meets(mass_std_g, cog_std_mm)]
     for t, c in sorted(kept, key=lambda tc: tc[0]):
-        q = parked_what_if(config, c, noise, theta)
+        q = predicted(c)
         if not q.meets(mass_std_g, cog_std_mm):
             continue
         now = next((p for p in choice.table if p.candidate == c), None)
